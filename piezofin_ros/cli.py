@@ -1,0 +1,202 @@
+"""``piezofin``: the command-line front end of the physics core (no ROS needed).
+
+    piezofin sweep --fin M8528-P1 --vpp 400 600 800 --freq 1:11:0.1 [--json] [--plot F.png]
+
+Errors in the arguments or in a fin file end the command with a one-line message and
+exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+import numpy as np
+
+from .fin import Fin, FinConfigError, load_fin, preset_names
+from .steady import SteadyState, harmonic_balance
+
+EXIT_USAGE = 2
+
+
+class UsageError(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+def parse_frequencies(spec: Sequence[str]) -> np.ndarray:
+    """``start:stop:step`` (stop included, like the paper's 1-11 Hz) and/or plain values, Hz."""
+    values: list[float] = []
+    for item in spec:
+        parts = item.split(":")
+        try:
+            nums = [float(p) for p in parts]
+        except ValueError:
+            raise UsageError(f"--freq: cannot read {item!r}; use values or start:stop:step") from None
+        if len(nums) == 1:
+            values.append(nums[0])
+        elif len(nums) == 3:
+            start, stop, step = nums
+            if not step > 0 or stop < start:
+                raise UsageError(f"--freq {item!r}: need start <= stop and step > 0")
+            n = int(np.floor((stop - start) / step + 1e-9)) + 1
+            if n > 1_000_000:
+                raise UsageError(f"--freq {item!r}: {n} points is too many (max 1e6)")
+            values.extend(np.round(start + step * np.arange(n), 12))
+        else:
+            raise UsageError(f"--freq: cannot read {item!r}; use values or start:stop:step")
+    freqs = np.asarray(values, dtype=float)
+    if freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):
+        raise UsageError("--freq: frequencies must be finite and > 0 Hz")
+    return freqs
+
+
+def _load(fin_arg: str, c_d: float | None) -> Fin:
+    try:
+        fin = load_fin(fin_arg)
+        return fin if c_d is None else fin.replace(c_d=c_d)
+    except (FinConfigError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+
+
+def sweep_result(fin: Fin, state: SteadyState, U: float, harmonics: int) -> dict[str, object]:
+    """The ``--json`` object: the fin, every model parameter (SI, paper symbols), the points."""
+    out: dict[str, object] = {"fin": fin.name}
+    out.update({k: v for k, v in fin.model_parameters().items() if k != "name"})
+    out["U"] = U
+    out["harmonics"] = harmonics
+    out["points"] = state.records()
+    return out
+
+
+def format_table(fin: Fin, state: SteadyState) -> str:
+    head = (
+        f"# {fin.name}: psi={fin.psi:.3f} c_m={fin.c_m:.3f} c_d={fin.c_d:g} mu={fin.mu:.3f} "
+        f"linear underwater resonance {fin.f_water_linear:.2f} Hz\n"
+        f"{'f_Hz':>7} {'Vpp':>6} {'v_tip_rms_m/s':>14} {'I_rms_mA':>9} {'P_mW':>9} "
+        f"{'T_mN':>9} {'T/P_mN/W':>9}"
+    )
+    rows = [
+        f"{r['frequency_hz']:7.2f} {r['voltage_pp']:6.0f} {r['tip_velocity_rms']:14.5f} "
+        f"{1e3 * r['current_rms']:9.4f} {1e3 * r['power_w']:9.4f} {1e3 * r['thrust_n']:9.4f} "
+        f"{1e3 * r['thrust_per_watt']:9.1f}"
+        for r in state.records()
+    ]
+    return "\n".join([head, *rows])
+
+
+def plot_sweep(fin: Fin, state: SteadyState, path: str) -> None:
+    """Thrust, power and thrust per watt against frequency, one curve per voltage."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4), constrained_layout=True)
+    panels = [
+        (state.thrust_n * 1e3, "mean thrust (mN)"),
+        (state.power_w * 1e3, "mean electrical power (mW)"),
+        (state.thrust_per_watt * 1e3, "thrust per watt (mN/W)"),
+    ]
+    f = state.frequency_hz[:, 0]
+    for ax, (values, label) in zip(axes, panels):
+        for j, vpp in enumerate(state.voltage_pp[0]):
+            ax.plot(f, values[:, j], label=f"{vpp:g} Vpp")
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[2].set_yscale("log")
+    axes[0].legend()
+    fig.suptitle(
+        f"{fin.name}: steady state, harmonic balance (psi = {fin.psi:.2f}, c_m = {fin.c_m:.3f}, "
+        f"c_d = {fin.c_d:g} assumed)"
+    )
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _add_sweep_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fin", default="M8528-P1",
+                   help="preset name or path to a fin YAML (default: M8528-P1)")
+    p.add_argument("--vpp", type=float, nargs="+", default=[400.0, 600.0, 800.0],
+                   help="peak-to-peak voltages, V (default: 400 600 800)")
+    p.add_argument("--freq", nargs="+", default=["1:11:0.1"],
+                   help="frequencies, Hz: values and/or start:stop:step (default: 1:11:0.1)")
+    p.add_argument("--U", type=float, default=0.0, help="swimming speed for Eq. (19), m/s (default 0)")
+    p.add_argument("--c-d", type=float, default=None, help="override the fin's drag coefficient c_d")
+    p.add_argument("--harmonics", type=int, default=1,
+                   help="odd harmonics kept in the balance: 1 = the paper's single term (default)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--plot", metavar="FILE.png", help="draw thrust, power and thrust/W vs frequency")
+
+
+def run_sweep(args: argparse.Namespace) -> int:
+    fin = _load(args.fin, args.c_d)
+    freqs = parse_frequencies(args.freq)
+    vpp = np.asarray(args.vpp, dtype=float)
+    if np.any(~np.isfinite(vpp)) or np.any(vpp < 0):
+        raise UsageError("--vpp: voltages must be finite and >= 0 V")
+    if not 1 <= args.harmonics <= 10:
+        raise UsageError("--harmonics: expected 1..10")
+    if not np.isfinite(args.U):
+        raise UsageError("--U: expected a finite speed in m/s")
+    state = harmonic_balance(fin, freqs[:, None], vpp[None, :], U=args.U, harmonics=args.harmonics)
+    if args.json:
+        json.dump(sweep_result(fin, state, args.U, args.harmonics), sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(format_table(fin, state))
+    if args.plot:
+        try:
+            plot_sweep(fin, state, args.plot)
+        except OSError as exc:
+            raise UsageError(f"--plot {args.plot}: cannot write ({exc.strerror})") from None
+        print(f"wrote {args.plot}", file=sys.stderr)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="piezofin", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sweep = sub.add_parser("sweep", help="steady-state table/plot over frequency and voltage")
+    _add_sweep_args(sweep)
+    sweep.set_defaults(func=run_sweep)
+    fins = sub.add_parser("fins", help="list the preset fins and their derived parameters")
+    fins.set_defaults(func=run_fins)
+    return parser
+
+
+def run_fins(args: argparse.Namespace) -> int:
+    for name in preset_names():
+        fin = load_fin(name)
+        print(f"{name}: psi={fin.psi:.3f} c_m={fin.c_m:.3f} mu={fin.mu:.2f} gamma={fin.gamma:.4g} "
+              f"m_v={fin.m_v:.4g} kg/m f_sc={fin.f_sc} Hz -> linear underwater {fin.f_water_linear:.2f} Hz")
+    return 0
+
+
+def _run(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except UsageError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except BrokenPipeError:  # e.g. `piezofin sweep | head`
+        return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return _run(build_parser(), argv)
+
+
+def sweep_main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezofin_ros sweep ...``: the ``sweep`` sub-command on its own."""
+    parser = argparse.ArgumentParser(prog="sweep", description="steady-state sweep of a fin")
+    _add_sweep_args(parser)
+    parser.set_defaults(func=run_sweep)
+    return _run(parser, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

