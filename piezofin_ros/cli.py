@@ -100,7 +100,7 @@ def plot_sweep(fin: Fin, state: SteadyState, path: str) -> None:
         (state.thrust_per_watt * 1e3, "thrust per watt (mN/W)"),
     ]
     f = state.frequency_hz[:, 0]
-    for ax, (values, label) in zip(axes, panels):
+    for ax, (values, label) in zip(axes, panels, strict=False):
         for j, vpp in enumerate(state.voltage_pp[0]):
             ax.plot(f, values[:, j], label=f"{vpp:g} Vpp")
         ax.set_xlabel("frequency (Hz)")
@@ -117,16 +117,28 @@ def plot_sweep(fin: Fin, state: SteadyState, path: str) -> None:
 
 
 def _add_sweep_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fin", default="M8528-P1",
-                   help="preset name or path to a fin YAML (default: M8528-P1)")
-    p.add_argument("--vpp", type=float, nargs="+", default=[400.0, 600.0, 800.0],
-                   help="peak-to-peak voltages, V (default: 400 600 800)")
-    p.add_argument("--freq", nargs="+", default=["1:11:0.1"],
-                   help="frequencies, Hz: values and/or start:stop:step (default: 1:11:0.1)")
+    p.add_argument("--fin", default="M8528-P1", help="preset name or path to a fin YAML (default: M8528-P1)")
+    p.add_argument(
+        "--vpp",
+        type=float,
+        nargs="+",
+        default=[400.0, 600.0, 800.0],
+        help="peak-to-peak voltages, V (default: 400 600 800)",
+    )
+    p.add_argument(
+        "--freq",
+        nargs="+",
+        default=["1:11:0.1"],
+        help="frequencies, Hz: values and/or start:stop:step (default: 1:11:0.1)",
+    )
     p.add_argument("--U", type=float, default=0.0, help="swimming speed for Eq. (19), m/s (default 0)")
     p.add_argument("--c-d", type=float, default=None, help="override the fin's drag coefficient c_d")
-    p.add_argument("--harmonics", type=int, default=1,
-                   help="odd harmonics kept in the balance: 1 = the paper's single term (default)")
+    p.add_argument(
+        "--harmonics",
+        type=int,
+        default=1,
+        help="odd harmonics kept in the balance: 1 = the paper's single term (default)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--plot", metavar="FILE.png", help="draw thrust, power and thrust/W vs frequency")
 
@@ -170,8 +182,10 @@ def build_parser() -> argparse.ArgumentParser:
 def run_fins(args: argparse.Namespace) -> int:
     for name in preset_names():
         fin = load_fin(name)
-        print(f"{name}: psi={fin.psi:.3f} c_m={fin.c_m:.3f} mu={fin.mu:.2f} gamma={fin.gamma:.4g} "
-              f"m_v={fin.m_v:.4g} kg/m f_sc={fin.f_sc} Hz -> linear underwater {fin.f_water_linear:.2f} Hz")
+        print(
+            f"{name}: psi={fin.psi:.3f} c_m={fin.c_m:.3f} mu={fin.mu:.2f} gamma={fin.gamma:.4g} "
+            f"m_v={fin.m_v:.4g} kg/m f_sc={fin.f_sc} Hz -> linear underwater {fin.f_water_linear:.2f} Hz"
+        )
     return 0
 
 

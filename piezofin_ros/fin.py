@@ -153,7 +153,7 @@ class Fin:
 
     @property
     def phi_tip_slope(self) -> float:
-        """``phi'(L) = 1.3796 phi(L)/L``, 1/(m sqrt(kg))."""
+        """``phi'(L) = 1.3765 phi(L)/L``, 1/(m sqrt(kg))."""
         return self.phi_tip * modeshape.TIP_SLOPE_RATIO / self.L
 
     @property
@@ -292,7 +292,7 @@ SafeLoader.add_implicit_resolver(
 
 def safe_load_yaml(text: str) -> Any:
     """Parse YAML without executing anything (safe loader, YAML 1.2 floats)."""
-    return yaml.load(text, Loader=SafeLoader)  # noqa: S506 - SafeLoader subclass
+    return yaml.load(text, Loader=SafeLoader)
 
 
 def config_dir() -> Path:

@@ -71,7 +71,8 @@ def integral_phi_hat(power: float, n: int = GAUSS_POINTS, absolute: bool = True)
 
 #: phi_hat(1): |phi(L)| sqrt(m_s L) = 2 for the mass-normalised first mode.
 TIP_VALUE = float(phi_hat(1.0))
-#: phi_hat'(1) / phi_hat(1): the tip slope ratio L phi'(L)/phi(L) = 1.3796.
+#: phi_hat'(1) / phi_hat(1): the tip slope ratio L phi'(L)/phi(L) = 1.3765 (Eq. 5; the
+#: project's reading notes print 1.3796, which Eq. 5 does not give).
 TIP_SLOPE_RATIO = float(phi_hat(1.0, 1) / phi_hat(1.0))
 #: int_0^1 |phi_hat|^3 dxi with the paper's 61 Gauss points (gamma's shape factor).
 DRAG_SHAPE_FACTOR = integral_phi_hat(3.0)

@@ -45,6 +45,7 @@ thrust per watt ``T/P`` and the thrust coefficient of Eq. (22).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -53,7 +54,7 @@ from scipy import optimize
 from .fin import Fin
 from .modeshape import phi_hat
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
 
 #: First-harmonic factor of the quadratic drag: |sin| sin -> 8/(3 pi) sin.
 DRAG_HARMONIC = 8.0 / (3.0 * np.pi)
@@ -200,9 +201,7 @@ def solve_amplitude(
 
     All arguments broadcast; ``c0, k >= 0``.  Points with ``force == 0`` give ``A = 0``.
     """
-    a, c0, k, force = np.broadcast_arrays(
-        *(np.asarray(x, dtype=float) for x in (a, c0, k, force))
-    )
+    a, c0, k, force = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (a, c0, k, force)))
     force = np.abs(force)
     lin = np.hypot(a, c0)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -294,19 +293,20 @@ def harmonic_balance_fsolve(fin: Fin, frequency_hz: ArrayLike, voltage_pp: Array
     kept as the baseline of the speed benchmark and as an independent check in the tests.
     """
     f, vpp = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
-    out = np.zeros((2,) + f.shape)
+    out = np.zeros((2, *f.shape))
     wn2 = fin.omega_n**2
     for idx in np.ndindex(f.shape):
-        w = 2 * np.pi * f[idx]
-        V = 0.5 * vpp[idx]
+        w = float(2 * np.pi * f[idx])
+        V = float(0.5 * vpp[idx])
         F = fin.theta * V
-        # Start from the drag-free linear solution, in units of its amplitude.
+        # Unknowns in units of an a-priori amplitude (the smaller of the drag-free and the
+        # drag-only bounds), started from the drag-free solution's phase.
         z = complex(wn2 - (1 + fin.mu) * w**2, 2 * fin.zeta * fin.omega_n * w)
-        scale = F / abs(z) if F > 0 else 1.0
-        k = DRAG_HARMONIC * fin.gamma * w
+        k = float(DRAG_HARMONIC * fin.gamma * w)
+        bound_drag = np.sqrt(F / (k * w)) if k > 0 else np.inf
+        scale = float(min(F / abs(z), bound_drag)) if F > 0 else 1.0
 
-        def eqs(x: FloatArray, w: float = w, V: float = V, F: float = F, scale: float = scale,
-                k: float = k) -> list[float]:
+        def eqs(x: FloatArray, w: float = w, F: float = F, scale: float = scale, k: float = k) -> list[float]:
             h0, h1 = x * scale
             damp = 2 * fin.zeta * fin.omega_n + k * np.hypot(h0, h1)
             r15 = -(1 + fin.mu) * w**2 * h0 + damp * w * h1 + wn2 * h0 - F
@@ -318,11 +318,13 @@ def harmonic_balance_fsolve(fin: Fin, frequency_hz: ArrayLike, voltage_pp: Array
         if ier != 1 and np.max(np.abs(eqs(x))) > 1e-10:
             raise RuntimeError(f"fsolve did not converge at {f[idx]} Hz, {vpp[idx]} Vpp")
         h0, h1 = x * scale  # Eqs. (17)-(18) are explicit in the currents once H0, H1 are known.
-        out[(slice(None),) + idx] = (h0, h1)
+        out[(slice(None), *idx)] = (h0, h1)
     return SteadyState(fin, f, vpp, out[0][..., None], out[1][..., None], np.zeros(f.shape))
 
 
-def refine_harmonics(state: SteadyState, harmonics: int, samples: int = 128, max_iter: int = 30) -> SteadyState:
+def refine_harmonics(
+    state: SteadyState, harmonics: int, samples: int = 128, max_iter: int = 30
+) -> SteadyState:
     """Multi-harmonic balance of Eq. (9) (odd harmonics ``1 .. 2n-1``), started from ``state``.
 
     Alternating frequency-time scheme: the drag ``gamma |eta'| eta'`` is evaluated on
@@ -372,9 +374,10 @@ def refine_harmonics(state: SteadyState, harmonics: int, samples: int = 128, max
         scale = np.maximum(np.abs(x).max(axis=1), 1e-300)
         if np.all(np.abs(step).max(axis=1) <= 1e-13 * scale):
             break
-    a = x[:, :m].reshape(shape + (m,))
-    b = x[:, m:].reshape(shape + (m,))
-    return SteadyState(fin, state.frequency_hz, state.voltage_pp, a, b, state.U, tuple(int(k) for k in orders))
+    a = x[:, :m].reshape((*shape, m))
+    b = x[:, m:].reshape((*shape, m))
+    orders_t = tuple(int(k) for k in orders)
+    return SteadyState(fin, state.frequency_hz, state.voltage_pp, a, b, state.U, orders_t)
 
 
 def frf_in_air(fin: Fin, frequency_hz: ArrayLike, x: float | None = None) -> NDArray[np.complex128]:

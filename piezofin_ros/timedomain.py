@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,14 +36,13 @@ from numpy.typing import NDArray
 from .fin import Fin
 from .waveforms import Waveform
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
 
 try:  # numba is optional: same code, compiled or not.
     from numba import njit
 except ImportError:  # pragma: no cover - exercised only where numba is missing
-    def njit(*args, **kwargs):  # type: ignore[no-untyped-def]
-        if args and callable(args[0]):
-            return args[0]
+
+    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
         return lambda f: f
 
 
@@ -141,7 +141,12 @@ class Trajectory:
         return 0.5 * fin.m_v * (self.tip_velocity**2 - self.U**2 * slope**2)
 
     def window(self, t_start: float, t_end: float) -> WindowStats:
-        """Statistics over ``t_start <= t < t_end`` (choose whole drive periods for steady state)."""
+        """Statistics over ``t_start <= t < t_end``.
+
+        Choose a whole number of drive periods: otherwise the reactive power
+        ``C_eq v dv/dt`` (often far larger than the real power) does not average out of
+        ``mean(v i)``.
+        """
         sel = (self.t >= t_start) & (self.t < t_end)
         if not np.any(sel):
             raise ValueError(f"window [{t_start}, {t_end}) holds no sample")
@@ -183,7 +188,7 @@ def simulate_batch(
         raise ValueError(f"duration must be finite and > 0 s, got {duration}")
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"rate must be finite and > 0 Hz, got {rate_hz}")
-    n_out = int(round(duration * rate_hz)) + 1
+    n_out = round(duration * rate_hz) + 1
     dt = 1.0 / rate_hz
     drive_hz = max((getattr(w, "frequency_hz", 0.0) for w in waveforms), default=0.0)
     h_max = default_step(fin, drive_hz) if max_step is None else max_step
@@ -197,13 +202,23 @@ def simulate_batch(
     eta = np.empty((n, n_out))
     deta = np.empty((n, n_out))
     _rk4_batch(
-        v_nodes, h, substeps, 1.0 / (1.0 + fin.mu), 2.0 * fin.zeta * fin.omega_n,
-        fin.gamma, fin.omega_n**2, fin.theta, state0, eta, deta,
+        v_nodes,
+        h,
+        substeps,
+        1.0 / (1.0 + fin.mu),
+        2.0 * fin.zeta * fin.omega_n,
+        fin.gamma,
+        fin.omega_n**2,
+        fin.theta,
+        state0,
+        eta,
+        deta,
     )
     t = t_nodes[:: 2 * substeps]
     return [
-        Trajectory(fin, t, v_nodes[j, :: 2 * substeps].copy(), np.asarray(w.derivative(t), float),
-                   eta[j], deta[j], U)
+        Trajectory(
+            fin, t, v_nodes[j, :: 2 * substeps].copy(), np.asarray(w.derivative(t), float), eta[j], deta[j], U
+        )
         for j, w in enumerate(waveforms)
     ]
 

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
 
 
 @runtime_checkable
