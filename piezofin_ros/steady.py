@@ -44,6 +44,7 @@ thrust per watt ``T/P`` and the thrust coefficient of Eq. (22).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,6 +52,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
+from ._compile import NUMBA, njit
 from .fin import Fin
 from .modeshape import phi_hat
 
@@ -226,8 +228,52 @@ def solve_amplitude(
     return amp
 
 
+@njit(cache=True)
+def _single_term_kernel(
+    omega: FloatArray,
+    force: FloatArray,
+    wn: float,
+    mass: float,
+    zeta: float,
+    gamma: float,
+    h0: FloatArray,
+    h1: FloatArray,
+) -> None:  # pragma: no cover - compiled; same algorithm as solve_amplitude, point by point
+    for p in range(omega.size):
+        w = omega[p]
+        F = abs(force[p])
+        if F == 0.0:
+            h0[p] = 0.0
+            h1[p] = 0.0
+            continue
+        a = wn * wn - mass * w * w
+        c0 = 2.0 * zeta * wn * w
+        k = DRAG_HARMONIC * gamma * w * w
+        lin = math.sqrt(a * a + c0 * c0)
+        amp = F / lin if lin > 0.0 else math.inf
+        if k > 0.0:
+            amp = min(amp, math.sqrt(F / k))
+        aa = a * a
+        for _ in range(60):
+            d = c0 + k * amp
+            s = aa + d * d
+            step = (amp * amp * s - F * F) / (2.0 * amp * (s + amp * d * k))
+            amp -= step
+            if abs(step) <= 1e-15 * amp:
+                break
+        d = c0 + k * amp
+        s = aa + d * d
+        h0[p] = force[p] * a / s
+        h1[p] = force[p] * d / s
+
+
 def harmonic_balance(
-    fin: Fin, frequency_hz: ArrayLike, voltage_pp: ArrayLike, U: ArrayLike = 0.0, harmonics: int = 1
+    fin: Fin,
+    frequency_hz: ArrayLike,
+    voltage_pp: ArrayLike,
+    U: ArrayLike = 0.0,
+    harmonics: int = 1,
+    compiled: bool = True,
 ) -> SteadyState:
     """Steady state at every (frequency, peak-to-peak voltage) point.
 
@@ -238,6 +284,8 @@ def harmonic_balance(
     about 1 % (see the README); three harmonics bring it to ~1e-4.
     ``frequency_hz`` and ``voltage_pp`` broadcast (e.g. a column of frequencies against a
     row of voltages gives the whole map).  ``U`` is the swimming speed used in Eq. (19).
+    ``compiled=False`` uses the numpy implementation (:func:`solve_amplitude`) instead of the
+    numba loop; both run the same Newton iteration and agree to round-off.
     """
     if harmonics < 1:
         raise ValueError(f"harmonics must be >= 1, got {harmonics}")
@@ -250,14 +298,29 @@ def harmonic_balance(
     f, vpp = np.broadcast_arrays(f, vpp)
     omega = 2.0 * np.pi * f
     amp_v = 0.5 * vpp
-    a, c0, k = _coefficients(fin, omega)
     force = fin.theta * amp_v
-    amp = solve_amplitude(a, c0, k, force)
-    d = c0 + k * amp
-    s = a * a + d * d
-    with np.errstate(invalid="ignore", divide="ignore"):
-        h0 = np.where(force > 0, force * a / s, 0.0)
-        h1 = np.where(force > 0, force * d / s, 0.0)
+    if compiled and NUMBA:
+        h0, h1 = np.empty(f.shape), np.empty(f.shape)
+        if fin.zeta == 0 and fin.gamma == 0:
+            raise ValueError("undamped fin: zeta = c_d = 0 has no steady state at resonance")
+        _single_term_kernel(
+            np.ravel(omega),
+            np.ravel(force),
+            fin.omega_n,
+            1.0 + fin.mu,
+            fin.zeta,
+            fin.gamma,
+            h0.reshape(-1),
+            h1.reshape(-1),
+        )
+    else:
+        a, c0, k = _coefficients(fin, omega)
+        amp = solve_amplitude(a, c0, k, force)
+        d = c0 + k * amp
+        s = a * a + d * d
+        with np.errstate(invalid="ignore", divide="ignore"):
+            h0 = np.where(force > 0, force * a / s, 0.0)
+            h1 = np.where(force > 0, force * d / s, 0.0)
     u = np.broadcast_to(np.asarray(U, dtype=float), f.shape)
     state = SteadyState(fin, f, vpp, h0[..., None], h1[..., None], u)
     if harmonics == 1:

@@ -33,20 +33,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._compile import njit
 from .fin import Fin
 from .waveforms import Waveform
 
 FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
 
-try:  # numba is optional: same code, compiled or not.
-    from numba import njit
-except ImportError:  # pragma: no cover - exercised only where numba is missing
 
-    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
-        return lambda f: f
-
-
-@njit(cache=True, fastmath=False)
+@njit(cache=True)
 def _rk4_batch(
     v_nodes: FloatArray,  # (n_trials, 2 * n_steps + 1): v at every half step
     h: float,

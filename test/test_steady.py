@@ -116,3 +116,10 @@ def test_multi_harmonic_reduces_to_single_term_without_drag(paper_fin: Fin) -> N
     three = harmonic_balance(fin, BAND, VOLTAGES, harmonics=3)
     assert_allclose(three.H0, one.H0, rtol=1e-10, atol=1e-18)
     assert_allclose(three.b[..., 1:], 0.0, atol=1e-18)
+
+
+def test_compiled_and_numpy_paths_agree(paper_fin: Fin) -> None:
+    fast = harmonic_balance(paper_fin, BAND, VOLTAGES)
+    slow = harmonic_balance(paper_fin, BAND, VOLTAGES, compiled=False)
+    assert_allclose(fast.a, slow.a, rtol=1e-13, atol=1e-13 * np.max(np.abs(slow.a)))
+    assert_allclose(fast.b, slow.b, rtol=1e-13, atol=1e-13 * np.max(np.abs(slow.b)))

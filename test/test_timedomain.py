@@ -123,3 +123,31 @@ def test_all_presets_run_the_paper_protocol() -> None:
         assert np.isfinite(on.thrust_n)
         assert on.thrust_n > 0
         assert on.power_w > 0
+
+
+def test_runs_without_numba_with_the_same_result(tmp_path) -> None:
+    # PIEZOFIN_NO_NUMBA=1: the same loops run as plain Python (a lab without numba).
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, sys\n"
+        "from piezofin_ros import _compile\n"
+        "from piezofin_ros.fin import load_fin\n"
+        "from piezofin_ros.steady import harmonic_balance\n"
+        "from piezofin_ros.timedomain import simulate\n"
+        "from piezofin_ros.waveforms import protocol\n"
+        "fin = load_fin('M8528-P1')\n"
+        "tr = simulate(fin, protocol(7.0, 800.0, 0.1, 0.5), 0.7)\n"
+        "s = harmonic_balance(fin, [5.0, 9.0], 800.0)\n"
+        "np.save(sys.argv[1], np.concatenate([tr.eta_dot, s.H0, s.H1, [_compile.NUMBA]]))\n"
+    )
+    out = {}
+    for flag in ("", "1"):
+        path = tmp_path / f"r{flag}.npy"
+        env = {**os.environ, "PIEZOFIN_NO_NUMBA": flag}
+        subprocess.run([sys.executable, "-c", code, str(path)], check=True, env=env, timeout=120)
+        out[flag] = np.load(path)
+    assert out[""][-1] == 1.0 and out["1"][-1] == 0.0
+    assert_allclose(out["1"][:-1], out[""][:-1], rtol=1e-12, atol=1e-20)
