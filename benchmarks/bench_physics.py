@@ -78,15 +78,31 @@ def bench_time_domain() -> dict[str, float]:
 
     # The burst switches on and off: cap the step so an adaptive solver cannot jump over it.
     max_step = 0.25 / f
-    ref = solve_ivp(rhs, (0.0, duration), [0.0, 0.0], method="DOP853", t_eval=t_eval,
-                    rtol=1e-12, atol=1e-16, max_step=max_step)
+    ref = solve_ivp(
+        rhs,
+        (0.0, duration),
+        [0.0, 0.0],
+        method="DOP853",
+        t_eval=t_eval,
+        rtol=1e-12,
+        atol=1e-16,
+        max_step=max_step,
+    )
     scale = np.max(np.abs(ref.y[1]))
     err_ours = float(np.max(np.abs(ours.eta_dot - ref.y[1])) / scale)
 
     chosen = None
     for rtol in (1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11):
-        sol = solve_ivp(rhs, (0.0, duration), [0.0, 0.0], method="RK45", t_eval=t_eval,
-                        rtol=rtol, atol=rtol * 1e-4 * scale, max_step=max_step)
+        sol = solve_ivp(
+            rhs,
+            (0.0, duration),
+            [0.0, 0.0],
+            method="RK45",
+            t_eval=t_eval,
+            rtol=rtol,
+            atol=rtol * 1e-4 * scale,
+            max_step=max_step,
+        )
         err = float(np.max(np.abs(sol.y[1] - ref.y[1])) / scale)
         if err <= err_ours:
             chosen = (rtol, err)
@@ -94,8 +110,19 @@ def bench_time_domain() -> dict[str, float]:
     if chosen is None:
         raise RuntimeError("solve_ivp did not reach the engine's accuracy")
     rtol, err_ivp = chosen
-    t_ivp = best_of(lambda: solve_ivp(rhs, (0.0, duration), [0.0, 0.0], method="RK45", t_eval=t_eval,
-                                      rtol=rtol, atol=rtol * 1e-4 * scale, max_step=max_step), 1)
+    t_ivp = best_of(
+        lambda: solve_ivp(
+            rhs,
+            (0.0, duration),
+            [0.0, 0.0],
+            method="RK45",
+            t_eval=t_eval,
+            rtol=rtol,
+            atol=rtol * 1e-4 * scale,
+            max_step=max_step,
+        ),
+        1,
+    )
     waves = [protocol(fr, v) for fr in np.linspace(1, 11, 11) for v in (400.0, 600.0, 800.0)]
     t_batch = best_of(lambda: simulate_batch(fin, waves, duration, rate), 2)
     return {
@@ -121,17 +148,25 @@ def main() -> None:
     rng = np.random.default_rng(0)
     print("harmonic balance ...", flush=True)
     hb = bench_harmonic_balance(args.points, args.fsolve_points, rng)
-    print(f"  {hb['hb_points']:,} points: {hb['hb_points_per_s'] / 1e6:.2f} M points/s; "
-          f"fsolve {hb['fsolve_points_per_s']:.0f} points/s; ratio {hb['hb_over_fsolve']:,.0f}x; "
-          f"max relative difference {hb['max_rel_difference']:.1e}")
+    print(
+        f"  {hb['hb_points']:,} points: {hb['hb_points_per_s'] / 1e6:.2f} M points/s; "
+        f"fsolve {hb['fsolve_points_per_s']:.0f} points/s; ratio {hb['hb_over_fsolve']:,.0f}x; "
+        f"max relative difference {hb['max_rel_difference']:.1e}"
+    )
     print("time domain ...", flush=True)
     td = bench_time_domain()
-    print(f"  one {td['trial_s']:.0f} s trial at 2 kHz: {td['engine_wall_s'] * 1e3:.1f} ms = "
-          f"{td['engine_x_real_time']:,.0f}x real time (max rel. error {td['engine_max_rel_error']:.1e})")
-    print(f"  solve_ivp RK45 at rtol {td['solve_ivp_rtol']:g} (error {td['solve_ivp_max_rel_error']:.1e}): "
-          f"{td['solve_ivp_wall_s']:.2f} s -> engine {td['engine_over_solve_ivp']:,.0f}x faster")
-    print(f"  batch of 33 protocol trials: {td['batch_33_trials_wall_s']:.3f} s = "
-          f"{td['batch_x_real_time']:,.0f}x real time")
+    print(
+        f"  one {td['trial_s']:.0f} s trial at 2 kHz: {td['engine_wall_s'] * 1e3:.1f} ms = "
+        f"{td['engine_x_real_time']:,.0f}x real time (max rel. error {td['engine_max_rel_error']:.1e})"
+    )
+    print(
+        f"  solve_ivp RK45 at rtol {td['solve_ivp_rtol']:g} (error {td['solve_ivp_max_rel_error']:.1e}): "
+        f"{td['solve_ivp_wall_s']:.2f} s -> engine {td['engine_over_solve_ivp']:,.0f}x faster"
+    )
+    print(
+        f"  batch of 33 protocol trials: {td['batch_33_trials_wall_s']:.3f} s = "
+        f"{td['batch_x_real_time']:,.0f}x real time"
+    )
     if args.json:
         with open(args.json, "w") as fh:
             json.dump({"harmonic_balance": hb, "time_domain": td}, fh, indent=1)
