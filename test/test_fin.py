@@ -96,3 +96,13 @@ def test_unknown_preset_and_unreadable_file(tmp_path: Path) -> None:
         load_fin(tmp_path)
     with pytest.raises(FinConfigError, match="expected a mapping"):
         load_fin(_write(tmp_path, "- 1\n- 2\n"))
+
+
+def test_optional_fields_take_the_documented_defaults(tmp_path: Path) -> None:
+    text = "\n".join(line for line in _preset_text().splitlines() if not line.startswith(("c_d:", "rho_w:")))
+    fin = load_fin(_write(tmp_path, text))
+    assert fin.c_d == 8.0  # assumed: Graham (1980) flat plate at KC ~ 1, see fin.py
+    assert fin.rho_w == 1000.0
+    assert fin.c_m_override is None
+    # The assumption matters: drag scales gamma linearly.
+    assert fin.replace(c_d=4.0).gamma == pytest.approx(fin.gamma / 2)
