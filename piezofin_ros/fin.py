@@ -31,7 +31,6 @@ import os
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
-from functools import cached_property
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -69,7 +68,6 @@ FIELDS: dict[str, FieldSpec] = {
     "rho_w": FieldSpec("kg/m^3", 0.0, 2000.0, "density of the surrounding fluid", True),
     "c_m": FieldSpec("-", 0.0, 5.0, "inertia coefficient override (default: Eq. 21)", True),
 }
-OPTIONAL_DEFAULTS: dict[str, float | None] = {"c_d": 8.0, "rho_w": 1000.0, "c_m": None}
 
 
 @dataclass(frozen=True)
@@ -101,6 +99,7 @@ class Fin:
             if value is None and key == "c_m":
                 continue
             _check_number(key, value, FIELDS[key], where=f"fin '{self.name}'")
+            object.__setattr__(self, attr, float(value))  # ints from YAML become floats
         if self.L_active > self.L:
             raise FinConfigError(
                 f"fin '{self.name}': field 'L_active' = {self.L_active} m exceeds the overall "
@@ -130,7 +129,7 @@ class Fin:
         """Added-mass ratio ``(pi/4) rho_w b^2 c_m / m_s`` (Eq. 9)."""
         return hydro.added_mass_ratio(self.rho_w, self.b, self.c_m, self.m_s)
 
-    @cached_property
+    @property
     def gamma(self) -> float:
         """Modal drag ``(1/2) rho_w b c_d int_0^L phi^2|phi| dx`` (Eq. 9; 61 Gauss points)."""
         shape = self.L * (self.m_s * self.L) ** -1.5 * modeshape.DRAG_SHAPE_FACTOR
@@ -228,25 +227,22 @@ class Fin:
             )
         kwargs: dict[str, Any] = {"name": data.get("name", Path(source).stem)}
         for key, spec in FIELDS.items():
-            if key in data:
-                value = data[key]
-                if value is None and key in OPTIONAL_DEFAULTS:
-                    value = OPTIONAL_DEFAULTS[key]
-                elif value is not None:
-                    _check_number(key, value, spec, where=source)
-                    value = float(value)
-            elif key in OPTIONAL_DEFAULTS:
-                value = OPTIONAL_DEFAULTS[key]
-            else:
+            attr = "c_m_override" if key == "c_m" else key
+            if data.get(key) is not None:
+                kwargs[attr] = data[key]  # type and range are checked by the constructor
+            elif attr not in _OPTIONAL:  # optional fields missing or null take their defaults
                 raise FinConfigError(
                     f"{source}: missing field '{key}' ({spec.description}, {spec.unit}, "
                     f"expected in {_range_text(spec)})"
                 )
-            kwargs["c_m_override" if key == "c_m" else key] = value
         try:
             return cls(**kwargs)
         except FinConfigError as exc:
             raise FinConfigError(f"{source}: {exc}") from None
+
+
+#: Inputs with a default in :class:`Fin` (``c_d``, ``rho_w``, ``c_m``): a fin file may omit them.
+_OPTIONAL = frozenset(f.name for f in dataclasses.fields(Fin) if f.default is not dataclasses.MISSING)
 
 
 def _range_text(spec: FieldSpec) -> str:
