@@ -1,0 +1,326 @@
+"""The simulated test rig: a safe drive, the fin (Eqs. 9-10), the instruments and the load cell.
+
+This is what ``fin_sim`` streams, block by block, and what offline tools can run without
+ROS.  It reproduces the paper's set-up (Sec. 3):
+
+* **Drive** (:class:`Drive`): a phase-continuous sine whose amplitude follows the command at
+  a bounded slew rate, so the voltage never steps; a burst started from rest begins at a zero
+  crossing.  Commands are checked by :func:`check_command` (rejected or clamped, with the
+  reason); a watchdog ramps the drive to zero when commands stop.
+* **Fin**: the time-domain engine's RK4 step (:mod:`piezofin_ros.timedomain`), advanced
+  incrementally with its state carried across blocks.
+* **Instruments**: white Gaussian noise on the amplifier's voltage and current monitors, the
+  laser Doppler vibrometer and the optical displacement sensor (:class:`RigConfig`).
+* **Thrust transducer**: the fin hangs on an aluminium cantilever (254 x 25.4 x 6.35 mm,
+  E = 69 GPa, so ``k = 3 E I / l^3`` = 6.85 kN/m).  Its tip deflection follows the
+  instantaneous Lighthill thrust through a second-order low-pass (the cantilever's own mode,
+  ``loadcell_fn_hz``), plus a slow linear drift, which the paper's pre/post baseline cancels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import signal
+
+from .fin import Fin
+from .timedomain import _rk4_batch, default_step
+
+FloatArray = NDArray[Any]
+
+#: Hard cap on the peak-to-peak drive voltage that no configuration can exceed.  Smart Material's
+#: MFC datasheet rates the P1 (d33) types for -500 V .. +1500 V; a symmetric bipolar sine is
+#: therefore limited to +-500 V, i.e. 1000 Vpp.  The paper drives at most 800 Vpp.
+HARD_VOLTAGE_PP_MAX = 1000.0
+
+
+@dataclass(frozen=True)
+class DriveLimits:
+    """Limits every command is checked against (SI units)."""
+
+    frequency_min_hz: float = 0.5
+    frequency_max_hz: float = 40.0
+    voltage_pp_max: float = 800.0  # V, configurable up to HARD_VOLTAGE_PP_MAX
+    slew_vpp_per_s: float = 4000.0  # V/s of peak-to-peak amplitude (0 -> 800 Vpp in 0.2 s)
+    command_timeout_s: float = 1.0  # watchdog: ramp to zero after this long without a command
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{f.name} must be a finite number > 0, got {value!r}")
+        if self.frequency_min_hz >= self.frequency_max_hz:
+            raise ValueError(
+                f"frequency_min_hz ({self.frequency_min_hz}) must be below frequency_max_hz "
+                f"({self.frequency_max_hz})"
+            )
+        if self.voltage_pp_max > HARD_VOLTAGE_PP_MAX:
+            raise ValueError(
+                f"voltage_pp_max {self.voltage_pp_max} V exceeds the hard cap of {HARD_VOLTAGE_PP_MAX} V "
+                "(MFC P1 rating -500..+1500 V, symmetric drive)"
+            )
+
+
+@dataclass(frozen=True)
+class DriveCommand:
+    """A checked actuation command: sine at ``frequency_hz`` and ``voltage_pp`` (V), or off."""
+
+    frequency_hz: float
+    voltage_pp: float
+    on: bool
+
+
+OFF = DriveCommand(0.0, 0.0, False)
+
+
+def check_command(
+    frequency_hz: float, voltage_pp: float, on: float, limits: DriveLimits
+) -> tuple[DriveCommand | None, str | None]:
+    """Check a raw command; returns ``(command or None if rejected, reason or None)``.
+
+    Off is always accepted (it is the safe state), whatever the other fields hold.  An on
+    command with a non-finite field, a frequency outside the band or a negative voltage is
+    rejected; a voltage above the limit is clamped to it.  Either way the reason is returned
+    for the log.
+    """
+    if not math.isfinite(on) or on not in (0.0, 1.0):
+        return None, f"rejected: 'on' must be 0 or 1, got {on!r}"
+    if on == 0.0:
+        return OFF, None
+    if not (math.isfinite(frequency_hz) and math.isfinite(voltage_pp)):
+        return None, f"rejected: non-finite frequency {frequency_hz!r} Hz or voltage {voltage_pp!r} V"
+    if not limits.frequency_min_hz <= frequency_hz <= limits.frequency_max_hz:
+        return None, (
+            f"rejected: frequency {frequency_hz:g} Hz outside "
+            f"[{limits.frequency_min_hz:g}, {limits.frequency_max_hz:g}] Hz"
+        )
+    if voltage_pp < 0:
+        return None, f"rejected: negative peak-to-peak voltage {voltage_pp:g} V"
+    if voltage_pp > limits.voltage_pp_max:
+        return DriveCommand(frequency_hz, limits.voltage_pp_max, True), (
+            f"clamped: {voltage_pp:g} Vpp above the limit, driving {limits.voltage_pp_max:g} Vpp"
+        )
+    return DriveCommand(frequency_hz, voltage_pp, True), None
+
+
+@dataclass
+class Drive:
+    """Phase-continuous, slew-limited sine ``v = a(t) sin(phase(t))``, advanced in time.
+
+    ``a`` is the amplitude (V, half the peak-to-peak voltage).  It moves toward the target at
+    ``limits.slew_vpp_per_s / 2``; the frequency changes at once but the phase stays continuous,
+    so ``v`` is continuous and ``dv/dt`` exact (needed for the capacitive current).
+    """
+
+    limits: DriveLimits = field(default_factory=DriveLimits)
+    t: float = 0.0  # s, time up to which the drive has been rendered
+    amplitude: float = 0.0  # V
+    target: float = 0.0  # V
+    frequency_hz: float = 0.0
+    phase: float = 0.0  # rad at time t
+    last_command_t: float = -math.inf
+
+    def apply(self, command: DriveCommand, t: float) -> None:
+        """Take a checked command at time ``t`` (``>= self.t``; applied from ``self.t`` on)."""
+        self.last_command_t = t
+        if not command.on:
+            self.target = 0.0
+            return
+        if self.amplitude == 0.0:
+            self.phase = 0.0  # start from rest at a zero crossing
+        self.frequency_hz = command.frequency_hz
+        self.target = 0.5 * min(command.voltage_pp, self.limits.voltage_pp_max, HARD_VOLTAGE_PP_MAX)
+
+    def watchdog(self, t: float) -> str | None:
+        """Ramp to zero if no command came for ``command_timeout_s``; returns the reason once."""
+        if self.target > 0.0 and t - self.last_command_t > self.limits.command_timeout_s:
+            self.target = 0.0
+            return (
+                f"watchdog: no command for {t - self.last_command_t:.3g} s "
+                f"(> {self.limits.command_timeout_s:g} s), ramping the drive to zero"
+            )
+        return None
+
+    def render(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``v(t)`` and ``dv/dt(t)`` at times ``t`` (>= ``self.t``), then advance to ``t[-1]``."""
+        t = np.asarray(t, dtype=float)
+        slew = 0.5 * self.limits.slew_vpp_per_s
+        gap = self.target - self.amplitude
+        tau = t - self.t
+        ramp_time = abs(gap) / slew
+        amp = self.amplitude + math.copysign(slew, gap) * np.minimum(tau, ramp_time)
+        amp_rate = np.where(tau < ramp_time, math.copysign(slew, gap), 0.0)
+        w = 2.0 * math.pi * self.frequency_hz
+        ph = self.phase + w * tau
+        s, c = np.sin(ph), np.cos(ph)
+        v = amp * s
+        dv = amp_rate * s + amp * w * c
+        self.t = float(t[-1])
+        self.amplitude = float(amp[-1]) if abs(float(amp[-1]) - self.target) > 1e-12 else self.target
+        self.phase = float(math.fmod(ph[-1], 2.0 * math.pi))
+        return v, dv
+
+    @property
+    def voltage_pp(self) -> float:
+        """Present peak-to-peak amplitude, V."""
+        return 2.0 * self.amplitude
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """The instruments and the thrust transducer.  Noise values are white, RMS per sample.
+
+    Defaults (stated, not measured: the paper gives no noise figures): voltage monitor 0.2 V,
+    current monitor 1 uA, vibrometer 1 mm/s, optical displacement sensor 0.1 um, drift 2 nm/s.
+    """
+
+    sample_rate_hz: float = 1000.0
+    voltage_noise_v: float = 0.2
+    current_noise_a: float = 1e-6
+    vibrometer_noise_m_s: float = 1e-3
+    displacement_noise_m: float = 1e-7
+    loadcell_length_m: float = 0.254
+    loadcell_width_m: float = 0.0254
+    loadcell_thickness_m: float = 0.00635
+    loadcell_modulus_pa: float = 69e9
+    loadcell_fn_hz: float = 60.0
+    loadcell_zeta: float = 0.05
+    loadcell_drift_m_per_s: float = 2e-9
+    swim_speed_m_s: float = 0.0  # U of Eq. (19); 0 on the tethered rig
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value)):
+                raise ValueError(f"rig.{f.name} must be a finite number, got {value!r}")
+            if f.name == "loadcell_drift_m_per_s":
+                continue  # either sign
+            may_be_zero = "noise" in f.name or f.name == "swim_speed_m_s"
+            if value < 0 or (value == 0 and not may_be_zero):
+                raise ValueError(f"rig.{f.name} must be {'>= 0' if may_be_zero else '> 0'}, got {value!r}")
+
+    @property
+    def loadcell_stiffness(self) -> float:
+        """Tip stiffness of the transducer cantilever, ``3 E I / l^3`` with ``I = b h^3 / 12``, N/m."""
+        inertia = self.loadcell_width_m * self.loadcell_thickness_m**3 / 12.0
+        return 3.0 * self.loadcell_modulus_pa * inertia / self.loadcell_length_m**3
+
+    def replace(self, **changes: Any) -> RigConfig:
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class RigBlock:
+    """One block of rig output on the uniform grid ``t`` (s).  Measured channels carry noise."""
+
+    t: FloatArray
+    voltage: FloatArray  # V
+    current: FloatArray  # A
+    tip_velocity: FloatArray  # m/s
+    displacement: FloatArray  # m, load-cell deflection
+    thrust_true: FloatArray  # N, instantaneous Lighthill thrust (noise free, for tests)
+    events: tuple[str, ...] = ()
+
+
+class SimulatedRig:
+    """Streams the rig's measurements block by block; deterministic for a given ``seed``.
+
+    >>> rig = SimulatedRig(load_fin("M8528-P1"))
+    >>> rig.command(5.5, 800, 1)
+    >>> block = rig.step(100)            # the next 100 samples (0.1 s at 1 kHz)
+    """
+
+    def __init__(
+        self,
+        fin: Fin,
+        config: RigConfig | None = None,
+        limits: DriveLimits | None = None,
+        *,
+        seed: int = 0,
+        t0: float = 0.0,
+    ) -> None:
+        self.fin = fin
+        self.config = config or RigConfig()
+        self.drive = Drive(limits or DriveLimits(), t=t0)
+        self._rng = np.random.default_rng(seed)
+        self._state = np.zeros((1, 2))
+        self._t0 = t0
+        self._k = 0  # samples emitted so far
+        fs = self.config.sample_rate_hz
+        wc = 2 * math.pi * self.config.loadcell_fn_hz
+        num, den = [wc**2], [1.0, 2 * self.config.loadcell_zeta * wc, wc**2]
+        bz, az, _ = signal.cont2discrete((num, den), 1.0 / fs, method="bilinear")
+        self._lc_b, self._lc_a = np.ravel(bz), np.ravel(az)
+        self._lc_zi = np.zeros(2)
+        self._events: list[str] = []
+
+    @property
+    def t(self) -> float:
+        """Time of the last emitted sample (s)."""
+        return self._t0 + self._k / self.config.sample_rate_hz
+
+    def command(self, frequency_hz: float, voltage_pp: float, on: float) -> tuple[bool, str | None]:
+        """Check and apply a raw command now; returns ``(accepted, reason)``."""
+        cmd, reason = check_command(frequency_hz, voltage_pp, on, self.drive.limits)
+        if cmd is not None:
+            self.drive.apply(cmd, self.t)
+        return cmd is not None, reason
+
+    def stop(self) -> None:
+        """Ramp to zero (lifecycle deactivate, shutdown)."""
+        self.drive.apply(OFF, self.t)
+
+    def step(self, n: int) -> RigBlock:
+        """Advance by ``n`` samples and return them."""
+        cfg, fin = self.config, self.fin
+        events = []
+        reason = self.drive.watchdog(self.t)
+        if reason:
+            events.append(reason)
+        dt = 1.0 / cfg.sample_rate_hz
+        substeps = max(1, math.ceil(dt / default_step(fin, self.drive.frequency_hz)))
+        h = dt / substeps
+        k0 = self._k
+        nodes = self._t0 + (k0 + np.arange(2 * substeps * n + 1) / (2 * substeps)) * dt
+        v_nodes, dv_nodes = self.drive.render(nodes)
+        eta = np.empty((1, n + 1))
+        deta = np.empty((1, n + 1))
+        _rk4_batch(
+            v_nodes[None, :],
+            h,
+            substeps,
+            1.0 / (1.0 + fin.mu),
+            2.0 * fin.zeta * fin.omega_n,
+            fin.gamma,
+            fin.omega_n**2,
+            fin.theta,
+            self._state,
+            eta,
+            deta,
+        )
+        self._state = np.array([[eta[0, -1], deta[0, -1]]])
+        self._k += n
+        t = self._t0 + (k0 + np.arange(1, n + 1)) * dt
+        v = v_nodes[2 * substeps :: 2 * substeps]
+        dv = dv_nodes[2 * substeps :: 2 * substeps]
+        eta_s, deta_s = eta[0, 1:], deta[0, 1:]
+        tip = fin.phi_tip * deta_s
+        current = fin.C_eq * dv + fin.theta * deta_s
+        U = cfg.swim_speed_m_s
+        thrust = 0.5 * fin.m_v * (tip**2 - U**2 * (fin.phi_tip_slope * eta_s) ** 2)
+        force_filtered, self._lc_zi = signal.lfilter(self._lc_b, self._lc_a, thrust, zi=self._lc_zi)
+        x = force_filtered / cfg.loadcell_stiffness + cfg.loadcell_drift_m_per_s * (t - self._t0)
+        rng = self._rng
+        return RigBlock(
+            t=t,
+            voltage=v + cfg.voltage_noise_v * rng.standard_normal(n),
+            current=current + cfg.current_noise_a * rng.standard_normal(n),
+            tip_velocity=tip + cfg.vibrometer_noise_m_s * rng.standard_normal(n),
+            displacement=x + cfg.displacement_noise_m * rng.standard_normal(n),
+            thrust_true=thrust,
+            events=tuple(events),
+        )
