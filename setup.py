@@ -29,6 +29,12 @@ setup(
         "console_scripts": [
             "piezofin = piezofin_ros.cli:main",
             "sweep = piezofin_ros.cli:sweep_main",
+            "fin_sim = piezofin_ros.nodes.fin_sim:main",
+            "thrust_estimator = piezofin_ros.nodes.thrust_estimator:main",
+            "controller = piezofin_ros.nodes.controller:main",
+            "recorder = piezofin_ros.nodes.recorder:main",
+            "player = piezofin_ros.nodes.player:main",
+            "bringup = piezofin_ros.nodes.bringup:main",
         ],
     },
 )

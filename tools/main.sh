@@ -1,6 +1,10 @@
 #!/usr/bin/env bash
-# The main job: steady-state sweep of the default fin (M8528-P1) at 400/600/800 Vpp, 1-11 Hz,
-# with a plot in out/.  Extra arguments go to `piezofin sweep`.
+# The main job: the whole suite in one process on the default fin (M8528-P1) with simulated
+# hardware, 40x faster than real time.  The controller runs 22 protocol trials (11 frequencies
+# x 2 voltages, 30 s each: 11 minutes of fin time); everything is recorded to a new bag under
+# bags/; the run ends with a summary table, out/bringup.png and out/bringup.json.
+# Extra arguments go to `bringup` (e.g. --namespaces left right, --realtime-factor 20).
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
-mkdir -p "$ROOT/out"
-piezofin sweep --fin M8528-P1 --vpp 400 600 800 --freq 1:11:0.1 --plot "$ROOT/out/sweep_M8528-P1.png" "$@"
+cd "$ROOT"
+mkdir -p out bags
+bringup --plot out/bringup.png --json out/bringup.json "$@"

@@ -1,0 +1,189 @@
+"""Shared adapter code: block messages, QoS, declared parameters, ``main()`` wrappers."""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import fields
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from ..blocks import Block, from_layout, to_layout
+
+#: High-rate sample blocks and estimates: reliable (nothing dropped), 200 blocks of history.
+QOS_DATA = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=200,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: Commands and status: reliable, short history.
+QOS_COMMAND = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: /clock as rosbag2 and the ROS time source expect it.
+QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+#: Topic names (relative: a node's namespace puts them under one fin).
+TOPIC_DRIVE = "drive"
+TOPIC_TIP = "tip_velocity"
+TOPIC_LOADCELL = "loadcell"
+TOPIC_CMD = "cmd"
+TOPIC_ESTIMATE = "estimate"
+TOPIC_SPEED = "swim_speed"
+TOPIC_STATUS = "controller/status"
+
+
+def block_msg(block: Block) -> Float64MultiArray:
+    """A :class:`Block` as a ``Float64MultiArray`` (see :mod:`piezofin_ros.blocks`)."""
+    dims, data = to_layout(block)
+    msg = Float64MultiArray()
+    msg.layout.dim = [
+        MultiArrayDimension(label=label, size=size, stride=stride) for label, size, stride in dims
+    ]
+    msg.data = data.tolist()
+    return msg
+
+
+def msg_block(msg: Float64MultiArray, expect: Sequence[str] | None = None) -> Block:
+    """Decode a ``Float64MultiArray``; raises ``BlockFormatError`` with the reason."""
+    dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
+    return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
+
+
+# --------------------------------------------------------------------------------- parameters
+def float_param(
+    node: Node, name: str, default: float, lo: float, hi: float, description: str, *, read_only: bool = False
+) -> float:
+    """Declare a double parameter with a range; return its value."""
+    desc = ParameterDescriptor(
+        description=description,
+        floating_point_range=[FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)],
+        read_only=read_only,
+    )
+    return float(node.declare_parameter(name, float(default), desc).value)
+
+
+def int_param(node: Node, name: str, default: int, lo: int, hi: int, description: str) -> int:
+    desc = ParameterDescriptor(
+        description=description, integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)]
+    )
+    return int(node.declare_parameter(name, int(default), desc).value)
+
+
+def str_param(node: Node, name: str, default: str, description: str, *, read_only: bool = False) -> str:
+    desc = ParameterDescriptor(description=description, read_only=read_only)
+    return str(node.declare_parameter(name, default, desc).value)
+
+
+def bool_param(node: Node, name: str, default: bool, description: str) -> bool:
+    return bool(node.declare_parameter(name, default, ParameterDescriptor(description=description)).value)
+
+
+def array_param(node: Node, name: str, default: list[Any], kind: Parameter.Type, description: str) -> list[Any]:
+    """Declare a typed array parameter (an empty default stays typed); return its value as a list."""
+    desc = ParameterDescriptor(description=description)
+    value = node.declare_parameter(name, default if default else kind, desc).value
+    if value is None:
+        return []
+    if kind == Parameter.Type.DOUBLE_ARRAY:
+        return [float(x) for x in value]
+    return list(value)
+
+
+def dataclass_params(
+    node: Node, prefix: str, instance: Any, ranges: dict[str, tuple[float, float]], docs: str
+) -> Any:
+    """Declare ``prefix.<field>`` for every float field of a frozen dataclass; return the configured copy.
+
+    The dataclass's own validation runs on the result, so an inconsistent combination fails
+    with the dataclass's message (which names the field).
+    """
+    values = {}
+    for f in fields(instance):
+        lo, hi = ranges.get(f.name, (-math.inf, math.inf))
+        default = getattr(instance, f.name)
+        if isinstance(default, bool) or not isinstance(default, (int, float)):
+            continue
+        if isinstance(default, int) and not isinstance(default, bool) and f.type in ("int", int):
+            values[f.name] = int_param(
+                node, f"{prefix}.{f.name}", default, int(lo), int(min(hi, 2**31 - 1)), docs
+            )
+        else:
+            values[f.name] = float_param(node, f"{prefix}.{f.name}", default, lo, hi, docs)
+    return type(instance)(**{**{f.name: getattr(instance, f.name) for f in fields(instance)}, **values})
+
+
+def reject_runtime_changes(
+    node: Node, mutable: set[str], check: Callable[[Parameter], str | None] | None = None
+) -> None:
+    """Refuse runtime changes except of ``mutable`` parameters, which ``check`` may veto (reason string)."""
+
+    def callback(params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            if p.name not in mutable and p.name != "use_sim_time":
+                return SetParametersResult(
+                    successful=False, reason=f"{p.name} is fixed at start; restart the node to change it"
+                )
+            if check is not None:
+                reason = check(p)
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(callback)
+
+
+# --------------------------------------------------------------------------------------- main
+class StartupError(RuntimeError):
+    """A node cannot start (bad configuration); the text is shown without a traceback."""
+
+
+def run_node(
+    factory: Callable[[rclpy.context.Context], Node],
+    args: list[str] | None = None,
+    until: Callable[[Node], bool] | None = None,
+) -> int:
+    """``ros2 run`` entry point body: init, build, spin with the EventsExecutor, clean up.
+
+    Spins until shutdown, or until ``until(node)`` is true.  Configuration errors exit with
+    status 2 and one readable line; Ctrl-C and SIGTERM exit 0.
+    """
+    from rclpy.experimental import EventsExecutor
+
+    context = rclpy.Context()
+    rclpy.init(args=args if args is not None else sys.argv, context=context)
+    node = None
+    executor = None
+    try:
+        node = factory(context)
+        executor = EventsExecutor(context=context)
+        executor.add_node(node)
+        if until is None:
+            executor.spin()
+        else:
+            while context.ok() and not until(node):
+                executor.spin_once(timeout_sec=0.1)
+    except (StartupError, ValueError, ParameterException) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
+        if context.ok():
+            rclpy.shutdown(context=context)
+    return 0

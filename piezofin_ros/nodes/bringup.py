@@ -1,0 +1,199 @@
+"""``bringup``: the whole suite in one process and one executor, for one fin or several.
+
+For each fin (namespace): ``fin_sim`` (configured and activated here), ``thrust_estimator`` and
+``controller``; one ``recorder`` for all of them and ``/clock``.  Parameters come from a ROS 2
+parameter file (default: the package's ``config/bringup.yaml``) and the command line.  The run
+ends when every controller has finished its trials (or on Ctrl-C / SIGTERM); then the drives
+ramp to zero, the bag is closed and a summary table (and with ``--plot`` a figure) is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
+
+from ..fin import FinConfigError, config_dir
+from ..params import load_parameter_file, node_parameters
+from ..report import plot_trials, trial_table
+from ._common import StartupError
+from .controller import Controller
+from .fin_sim import FinSim
+from .recorder import Recorder, default_bag_path
+from .thrust_estimator import ThrustEstimator
+
+
+def _overrides(params: dict[str, Any]) -> list[Parameter]:
+    return [Parameter(name, value=value) for name, value in params.items()]
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="bringup", description=__doc__.splitlines()[0])
+    p.add_argument("--config", help="ROS 2 parameter file (default: config/bringup.yaml of the package)")
+    p.add_argument("--namespaces", nargs="+", default=["fin"], help="one namespace per fin (default: fin)")
+    p.add_argument("--fins", nargs="+", help="fin preset or YAML per namespace (default: the config's fin)")
+    p.add_argument("--bag", help="output .mcap (default: bags/piezofin_<time>.mcap)")
+    p.add_argument("--realtime-factor", type=float, default=40.0, help="simulated s per wall s (default 40)")
+    p.add_argument("--frequencies", type=float, nargs="+", help="trial frequencies, Hz (override the config)")
+    p.add_argument("--voltages", type=float, nargs="+", help="trial voltages, Vpp (override the config)")
+    p.add_argument("--mode", choices=("protocol", "continuous"), help="trial mode (override the config)")
+    p.add_argument("--plot", help="write a figure of the results to this PNG")
+    p.add_argument("--json", help="write the controllers' final status to this JSON file")
+    p.add_argument("--timeout", type=float, default=3600.0, help="stop after this many wall seconds")
+    args = p.parse_args(argv)
+    if args.fins and len(args.fins) != len(args.namespaces):
+        p.error(f"--fins gives {len(args.fins)} fins for {len(args.namespaces)} namespaces")
+    if not (math.isfinite(args.realtime_factor) and 0.01 <= args.realtime_factor <= 1000):
+        p.error("--realtime-factor must be within [0.01, 1000]")
+    return args
+
+
+class Suite:
+    """The nodes of one bring-up, built in one context (usable from tests)."""
+
+    def __init__(self, context: rclpy.context.Context, args: argparse.Namespace) -> None:
+        config = Path(args.config) if args.config else config_dir() / "bringup.yaml"
+        doc = load_parameter_file(config)
+        self.bag_path = Path(args.bag) if args.bag else default_bag_path()
+        self.fin_sims: list[FinSim] = []
+        self.estimators: list[ThrustEstimator] = []
+        self.controllers: list[Controller] = []
+        t0 = time.time()  # one time origin for every fin (the start of the run)
+        self.fins = []
+        for k, ns in enumerate(args.namespaces):
+
+            def params(name: str, extra: dict[str, Any], ns: str = ns, k: int = k) -> list[Parameter]:
+                merged = {**node_parameters(doc, name, ns), **extra}
+                if args.fins:
+                    merged["fin"] = args.fins[k]
+                return _overrides(merged)
+
+            sim_extra = {"realtime_factor": args.realtime_factor, "publish_clock": k == 0, "start_time_s": t0}
+            sim_extra["autostart"] = False
+            sim = FinSim(context=context, namespace=ns, parameter_overrides=params("fin_sim", sim_extra))
+            sim_time = {"use_sim_time": True}
+            est = ThrustEstimator(
+                context=context, namespace=ns, parameter_overrides=params("thrust_estimator", sim_time)
+            )
+            ctl_extra: dict[str, Any] = dict(sim_time)
+            if args.frequencies:
+                ctl_extra["frequencies"] = [float(f) for f in args.frequencies]
+            if args.voltages:
+                ctl_extra["voltages"] = [float(v) for v in args.voltages]
+            if args.mode:
+                ctl_extra["mode"] = args.mode
+            ctl = Controller(
+                context=context, namespace=ns, parameter_overrides=params("controller", ctl_extra)
+            )
+            self.fin_sims.append(sim)
+            self.estimators.append(est)
+            self.controllers.append(ctl)
+            self.fins.append(est.fin)
+        rec_params = {
+            **node_parameters(doc, "recorder", ""),
+            "path": str(self.bag_path),
+            "namespaces": list(args.namespaces),
+            "use_sim_time": True,
+        }
+        self.recorder = Recorder(context=context, parameter_overrides=_overrides(rec_params))
+        for sim in self.fin_sims:
+            if sim.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise StartupError(f"{sim.get_fully_qualified_name()} failed to configure (see the log)")
+        for sim in self.fin_sims:
+            sim.trigger_activate()
+
+    @property
+    def nodes(self) -> list[Any]:
+        return [*self.fin_sims, *self.estimators, *self.controllers, self.recorder]
+
+    @property
+    def finished(self) -> bool:
+        return all(c.finished for c in self.controllers)
+
+    def close(self) -> None:
+        """Ramp the drives down, flush the estimators, close the bag (in that order)."""
+        for sim in self.fin_sims:
+            if sim.active:
+                sim.trigger_deactivate()
+        for est in self.estimators:
+            est.close()
+        self.recorder.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rclpy.experimental import EventsExecutor
+
+    args = parse_args(argv if argv is not None else sys.argv[1:])
+    context = rclpy.Context()
+    rclpy.init(args=["bringup"], context=context)
+    signal.signal(signal.SIGTERM, lambda *_: rclpy.shutdown(context=context))
+    suite = None
+    executor = EventsExecutor(context=context)
+    wall0 = time.monotonic()
+    try:
+        suite = Suite(context, args)
+        for node in suite.nodes:
+            executor.add_node(node)
+        print(f"bringup: {', '.join(args.namespaces)} -> {suite.bag_path}", file=sys.stderr, flush=True)
+        last = -1.0
+        while context.ok() and not suite.finished:
+            executor.spin_once(timeout_sec=0.1)
+            elapsed = time.monotonic() - wall0
+            if elapsed - last >= 5.0:
+                last = elapsed
+                done = sum(c.runner.index for c in suite.controllers)
+                total = sum(len(c.runner.plan.points) for c in suite.controllers)
+                print(f"  {elapsed:5.1f} s: trial {done}/{total}", file=sys.stderr, flush=True)
+            if elapsed > args.timeout:
+                print(f"bringup: stopping after {args.timeout:g} s (--timeout)", file=sys.stderr)
+                break
+    except (StartupError, FinConfigError, ValueError, ParameterException) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        print("bringup: interrupted, closing the bag", file=sys.stderr)
+    finally:
+        statuses: dict[str, dict[str, Any]] = {}
+        if suite is not None:
+            suite.close()
+            statuses = {c.get_namespace(): c.status() for c in suite.controllers}
+        wall = time.monotonic() - wall0
+        executor.shutdown()
+        if suite is not None:
+            for n in suite.nodes:
+                n.destroy_node()
+        if context.ok():
+            rclpy.shutdown(context=context)
+    assert suite is not None
+    sim_s = max((s.rig.t - s.rig._t0) for s in suite.fin_sims if s.rig is not None)
+    for (ns, st), fin in zip(statuses.items(), suite.fins, strict=True):
+        print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))
+        print(trial_table(st["results"], st["chosen"]))  # type: ignore[arg-type]
+        if args.plot:
+            out = Path(args.plot)
+            if len(statuses) > 1:
+                out = out.with_name(f"{out.stem}_{ns.strip('/').replace('/', '_')}{out.suffix}")
+            plot_trials(out, fin, st["results"], st["chosen"], f"{fin.name} ({ns}): trials")  # type: ignore[arg-type]
+            print(f"plot: {out}")
+    counts = suite.recorder.counts
+    size_mb = suite.bag_path.stat().st_size / 1e6
+    print(f"\nbag: {suite.bag_path} ({sum(counts.values())} messages, {size_mb:.1f} MB)")
+    print(f"simulated {sim_s:.0f} s in {wall:.1f} s of wall time (x{sim_s / wall:.1f})")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"bag": str(suite.bag_path), "fins": statuses}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,201 @@
+"""``controller``: runs trials through ``cmd``, reads ``estimate``, reports on ``controller/status``.
+
+Commands are repeated every ``1/heartbeat_hz`` seconds (``fin_sim``'s watchdog ramps the
+drive down when they stop) and never exceed this node's own limits.  When a trial's estimate
+does not come (the estimator or the rig is gone), the trial is marked missing and logged; after
+``max_missing`` in a row the run stops and the drive is commanded off.  At the end the chosen
+point (most thrust per watt among trials with at least ``min_thrust_n``) is either held or the
+drive is switched off (``after``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray, String
+
+from ..blocks import Block, BlockFormatError
+from ..estimation import Estimate
+from ..rig import HARD_VOLTAGE_PP_MAX
+from ..trials import SOURCES, Mode, TrialPlan, TrialRunner, choose
+from ._common import (
+    QOS_COMMAND,
+    QOS_DATA,
+    TOPIC_CMD,
+    TOPIC_ESTIMATE,
+    TOPIC_STATUS,
+    StartupError,
+    array_param,
+    block_msg,
+    float_param,
+    int_param,
+    msg_block,
+    reject_runtime_changes,
+    run_node,
+    str_param,
+)
+
+
+class Controller(Node):
+    def __init__(self, *, context: Context | None = None, node_name: str = "controller", **kwargs: object):
+        super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
+        freqs = array_param(self, "frequencies", [5.5], Parameter.Type.DOUBLE_ARRAY, "trial frequencies, Hz")
+        volts = array_param(self, "voltages", [800.0], Parameter.Type.DOUBLE_ARRAY, "trial voltages, Vpp")
+        mode = str_param(self, "mode", "protocol", "protocol (10 s off, on_s on, 10 s off) or continuous")
+        off_s = float_param(
+            self, "off_s", 10.0, 0.5, 600.0, "protocol: time without voltage before and after, s"
+        )
+        on_s = float_param(self, "on_s", 10.0, 1.0, 600.0, "protocol: time of sine drive, s")
+        self.voltage_limit = float_param(
+            self, "voltage_pp_max", 800.0, 0.0, HARD_VOLTAGE_PP_MAX, "never command more than this, Vpp"
+        )
+        self.frequency_max = float_param(
+            self, "frequency_max_hz", 40.0, 0.01, 1000.0, "highest frequency, Hz"
+        )
+        heartbeat = float_param(self, "heartbeat_hz", 10.0, 1.0, 1000.0, "command repetition rate, Hz")
+        self.min_thrust = float_param(
+            self, "min_thrust_n", 1e-3, 0.0, 10.0, "least thrust of the chosen point, N"
+        )
+        self.source = str_param(
+            self, "source", "vibrometer", f"estimate that ranks points: {', '.join(SOURCES)}"
+        )
+        self.after = str_param(
+            self, "after", "stop", "after the trials: stop (0 V) or hold (drive the chosen point)"
+        )
+        self.max_missing = int_param(
+            self, "max_missing", 2, 1, 1000, "missing estimates in a row that stop the run"
+        )
+        reject_runtime_changes(self, mutable=set())
+        if mode not in {m.value for m in Mode}:
+            raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous")
+        if self.source not in SOURCES:
+            raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
+        if self.after not in ("stop", "hold"):
+            raise StartupError(f"parameter after: {self.after!r} is not one of stop, hold")
+        bad = [f for f in freqs if not (math.isfinite(f) and 0 < f <= self.frequency_max)]
+        bad += [v for v in volts if not (math.isfinite(v) and 0 <= v <= self.voltage_limit)]
+        if bad:
+            raise StartupError(
+                f"parameters frequencies/voltages: {bad} outside (0, {self.frequency_max:g}] Hz / "
+                f"[0, {self.voltage_limit:g}] Vpp"
+            )
+        try:
+            plan = TrialPlan.grid(freqs, volts, mode=Mode(mode), off_s=off_s, on_s=on_s)
+        except ValueError as exc:
+            raise StartupError(f"trial plan: {exc}") from None
+        self.runner = TrialRunner(plan)
+        self._reported_missing: set[int] = set()
+        self.chosen = None
+        self.finished = False
+        self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
+        self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
+        self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
+        self._timer = self.create_timer(1.0 / heartbeat, self._tick)
+        n = len(plan.points)
+        self.get_logger().info(
+            f"{n} {mode} trials"
+            + (f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else "")
+        )
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _send(self, f: float, v: float, on: float) -> None:
+        v = min(max(v, 0.0), self.voltage_limit)  # belt and braces: the plan was checked at start
+        self._cmd_pub.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on})))
+
+    def _tick(self) -> None:
+        t = self._now()
+        if t == 0.0:
+            return  # use_sim_time and no /clock yet
+        if not self.runner.done:
+            before = self.runner.index
+            self._send(*self.runner.command(t))
+            if self.runner.index != before:
+                self._publish_status()
+            missing = [r for r in self.runner.missing(t) if r.index not in self._reported_missing]
+            for r in missing:
+                self._reported_missing.add(r.index)
+                self.get_logger().warning(
+                    f"no estimate for trial {r.index} ({r.frequency_hz:g} Hz, {r.voltage_pp:g} Vpp): "
+                    "is thrust_estimator running?"
+                )
+            if self._missing_in_a_row() >= self.max_missing:
+                self.runner.aborted = f"{self.max_missing} trials in a row without an estimate"
+                self.get_logger().error(f"stopping the run and the drive: {self.runner.aborted}")
+        if self.runner.done and not self.finished and self._all_settled(t):
+            self._finish()
+        if self.finished:
+            c = self.chosen
+            if self.after == "hold" and c is not None and self.runner.aborted is None:
+                self._send(c.frequency_hz, c.voltage_pp, 1.0)
+            else:
+                self._send(0.0, 0.0, 0.0)
+
+    def _missing_in_a_row(self) -> int:
+        n = 0
+        for r in reversed(self.runner.results):
+            if r.index in self._reported_missing and r.estimate is None:
+                n += 1
+            elif r.estimate is not None:
+                break
+        return n
+
+    def _all_settled(self, t: float) -> bool:
+        return all(r.estimate is not None or r.index in self._reported_missing for r in self.runner.results)
+
+    def _finish(self) -> None:
+        self.finished = True
+        self.chosen = choose(self.runner.results, self.source, self.min_thrust)
+        if self.chosen is not None:
+            e = self.chosen.estimate
+            assert e is not None
+            tkey, pkey = SOURCES[self.source]
+            self.get_logger().info(
+                f"chosen: {self.chosen.frequency_hz:g} Hz, {self.chosen.voltage_pp:g} Vpp: "
+                f"{getattr(e, tkey) * 1e3:.3f} mN, {e.power_w * 1e3:.3f} mW, "
+                f"{getattr(e, pkey) * 1e3:.1f} mN/W"
+            )
+        self._publish_status()
+
+    def _on_estimate(self, msg: Float64MultiArray) -> None:
+        try:
+            e = Estimate.from_dict(msg_block(msg, expect=Estimate.field_names()).as_dict())
+        except (BlockFormatError, KeyError) as exc:
+            self.get_logger().warning(f"ignored an estimate: {exc}", throttle_duration_sec=5.0)
+            return
+        if self.runner.add_estimate(e):
+            self._publish_status()
+
+    def status(self) -> dict[str, object]:
+        r = self.runner
+        state = "aborted" if r.aborted else ("done" if self.finished else "running")
+        return {
+            "state": state,
+            "reason": r.aborted,
+            "trial": min(r.index, len(r.plan.points)),
+            "n_trials": len(r.plan.points),
+            "source": self.source,
+            "results": [x.record() for x in r.results],
+            "chosen": self.chosen.record() if self.chosen is not None else None,
+        }
+
+    def _publish_status(self) -> None:
+        self._status_pub.publish(String(data=json.dumps(self.status(), allow_nan=True)))
+
+    def close(self) -> None:
+        if self.context.ok():
+            self._send(0.0, 0.0, 0.0)  # leave the drive off
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda ctx: Controller(context=ctx), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,238 @@
+"""``fin_sim``: the simulated hardware, a lifecycle node over :class:`~piezofin_ros.rig.SimulatedRig`.
+
+The drive is at zero volts unless the node is active.  On deactivate (and on shutdown) the
+drive ramps to zero and the ramp is published, so the last samples show a safe drive.  Each
+timer tick advances the simulation by one block (``block_s``); the timer period is
+``block_s / realtime_factor``, so the simulation runs at ``realtime_factor`` times real time.
+With ``publish_clock`` the node publishes ``/clock`` (the time of its last sample) and the rest
+of the graph follows with ``use_sim_time``.  Sample times are ``t0 + k / sample_rate_hz`` with
+``t0`` the node clock at configure: never the wall clock inside a callback.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from rclpy.context import Context
+from rclpy.lifecycle import Node as LifecycleNode
+from rclpy.lifecycle import State, TransitionCallbackReturn
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64MultiArray
+
+from ..blocks import COMMAND_FIELDS, Block, BlockFormatError
+from ..fin import Fin, FinConfigError, load_fin
+from ..rig import HARD_VOLTAGE_PP_MAX, DriveLimits, RigConfig, SimulatedRig
+from ._common import (
+    QOS_CLOCK,
+    QOS_COMMAND,
+    QOS_DATA,
+    TOPIC_CMD,
+    TOPIC_DRIVE,
+    TOPIC_LOADCELL,
+    TOPIC_TIP,
+    StartupError,
+    block_msg,
+    bool_param,
+    dataclass_params,
+    float_param,
+    int_param,
+    msg_block,
+    reject_runtime_changes,
+    run_node,
+    str_param,
+)
+
+RIG_RANGES = {
+    "sample_rate_hz": (100.0, 20000.0),
+    "voltage_noise_v": (0.0, 100.0),
+    "current_noise_a": (0.0, 1e-2),
+    "vibrometer_noise_m_s": (0.0, 1.0),
+    "displacement_noise_m": (0.0, 1e-3),
+    "loadcell_length_m": (1e-3, 10.0),
+    "loadcell_width_m": (1e-4, 1.0),
+    "loadcell_thickness_m": (1e-5, 0.1),
+    "loadcell_modulus_pa": (1e6, 1e12),
+    "loadcell_fn_hz": (1.0, 5000.0),
+    "loadcell_zeta": (1e-4, 2.0),
+    "loadcell_drift_m_per_s": (-1e-6, 1e-6),
+    "swim_speed_m_s": (0.0, 10.0),
+}
+LIMIT_RANGES = {
+    "frequency_min_hz": (0.01, 1000.0),
+    "frequency_max_hz": (0.01, 1000.0),
+    "voltage_pp_max": (0.0, HARD_VOLTAGE_PP_MAX),
+    "slew_vpp_per_s": (1.0, 1e6),
+    "command_timeout_s": (0.01, 60.0),
+}
+
+
+class FinSim(LifecycleNode):
+    """Simulated MFC fin on its rig: publishes ``drive``, ``tip_velocity``, ``loadcell`` blocks."""
+
+    def __init__(
+        self, *, context: Context | None = None, node_name: str = "fin_sim", **kwargs: object
+    ) -> None:
+        super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
+        self._fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path")
+        self._seed = int_param(self, "seed", 0, 0, 2**31 - 1, "noise seed")
+        self._block_s = float_param(
+            self, "block_s", 0.05, 0.005, 1.0, "simulated time per published block, s"
+        )
+        self._factor = float_param(self, "realtime_factor", 1.0, 0.01, 1000.0, "simulated s per wall s")
+        self._publish_clock = bool_param(self, "publish_clock", False, "publish /clock (sample times)")
+        self._start_time = float_param(
+            self,
+            "start_time_s",
+            0.0,
+            0.0,
+            1e10,
+            "time of the first sample, s (0: the node clock at configure)",
+        )
+        self.autostart = bool_param(self, "autostart", True, "configure and activate at start (ros2 run)")
+        self._rig_config = dataclass_params(self, "rig", RigConfig(), RIG_RANGES, "rig model (SI units)")
+        self._limits = dataclass_params(
+            self, "limits", DriveLimits(), LIMIT_RANGES, "drive limits (SI units)"
+        )
+        reject_runtime_changes(self, mutable=set())
+        self._rig: SimulatedRig | None = None
+        self._fin: Fin | None = None
+        self._timer = None
+        self._pubs: dict[str, object] = {}
+        self.published = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}
+        self.command_log: list[str] = []
+        self.create_subscription(Float64MultiArray, TOPIC_CMD, self._on_command, QOS_COMMAND)
+
+    # ------------------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: State) -> TransitionCallbackReturn:
+        try:
+            self._fin = load_fin(self._fin_name)
+        except FinConfigError as exc:
+            self.get_logger().error(f"cannot configure: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        t0 = self._start_time or self.get_clock().now().nanoseconds * 1e-9
+        self._rig = SimulatedRig(self._fin, self._rig_config, self._limits, seed=self._seed, t0=t0)
+        self._n_block = max(1, round(self._block_s * self._rig_config.sample_rate_hz))
+        self._pubs = {
+            name: self.create_lifecycle_publisher(Float64MultiArray, name, QOS_DATA)
+            for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL)
+        }
+        self._clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self._publish_clock else None
+        self.get_logger().info(
+            f"configured {self._fin.name}: {self._rig_config.sample_rate_hz:g} Hz samples in blocks of "
+            f"{self._n_block}, x{self._factor:g} real time, limit {self._limits.voltage_pp_max:g} Vpp"
+        )
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: State) -> TransitionCallbackReturn:
+        period = self._n_block / self._rig_config.sample_rate_hz / self._factor
+        self._timer = self.create_timer(period, self._tick)
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
+        self._ramp_down("deactivated")
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        for pub in self._pubs.values():
+            self.destroy_lifecycle_publisher(pub)  # type: ignore[arg-type]
+        self._pubs = {}
+        self._rig = None
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        if self._timer is not None:
+            self._ramp_down("shutting down")
+        return TransitionCallbackReturn.SUCCESS
+
+    # ------------------------------------------------------------------------------- behaviour
+    @property
+    def rig(self) -> SimulatedRig | None:
+        return self._rig
+
+    @property
+    def active(self) -> bool:
+        return self._timer is not None
+
+    def _on_command(self, msg: Float64MultiArray) -> None:
+        if self._rig is None or self._timer is None:
+            self._log_command("ignored: fin_sim is not active (the drive stays at 0 V)")
+            return
+        try:
+            cmd = msg_block(msg, expect=COMMAND_FIELDS)
+        except BlockFormatError as exc:
+            self._log_command(f"rejected: malformed command ({exc})")
+            return
+        if cmd.n != 1:
+            self._log_command(f"rejected: a command holds one sample, got {cmd.n}")
+            return
+        f, v, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
+        _, reason = self._rig.command(f, v, on)
+        if reason:
+            self._log_command(reason)
+
+    def _log_command(self, reason: str) -> None:
+        self.command_log.append(reason)
+        if len(self.command_log) > 1000:
+            del self.command_log[:500]
+        self.get_logger().warning(reason, throttle_duration_sec=1.0)
+
+    def _tick(self) -> None:
+        self._publish(self._n_block)
+
+    def _publish(self, n: int) -> None:
+        rig = self._rig
+        if rig is None:
+            return
+        b = rig.step(n)
+        for event in b.events:
+            self.get_logger().warning(event)
+        self._pubs[TOPIC_DRIVE].publish(  # type: ignore[attr-defined]
+            block_msg(Block.from_columns(t_s=b.t, voltage_V=b.voltage, current_A=b.current))
+        )
+        self._pubs[TOPIC_TIP].publish(  # type: ignore[attr-defined]
+            block_msg(Block.from_columns(t_s=b.t, tip_velocity_m_s=b.tip_velocity))
+        )
+        self._pubs[TOPIC_LOADCELL].publish(  # type: ignore[attr-defined]
+            block_msg(Block.from_columns(t_s=b.t, displacement_m=b.displacement))
+        )
+        for key in self.published:
+            self.published[key] += n
+        if self._clock_pub is not None:
+            self._clock_pub.publish(Clock(clock=Time(nanoseconds=round(float(b.t[-1]) * 1e9)).to_msg()))
+
+    def _ramp_down(self, why: str) -> None:
+        rig = self._rig
+        if rig is None:
+            return
+        rig.stop()
+        ramp_s = rig.drive.voltage_pp / rig.drive.limits.slew_vpp_per_s
+        n = math.ceil((ramp_s + 0.05) * self._rig_config.sample_rate_hz)
+        if rig.drive.voltage_pp > 0:
+            self.get_logger().info(f"{why}: ramping the drive from {rig.drive.voltage_pp:.0f} Vpp to 0 V")
+        while n > 0:
+            step = min(n, self._n_block)
+            self._publish(step)
+            n -= step
+
+
+def main(args: list[str] | None = None) -> int:
+    def build(context: Context) -> FinSim:
+        node = FinSim(context=context)
+        if not node.autostart:
+            return node
+        if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            raise StartupError("fin_sim failed to configure (see the log line above)")
+        if node.autostart:
+            node.trigger_activate()
+        return node
+
+    return run_node(build, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,127 @@
+"""``player``: replay an MCAP bag with its original timing, a rate factor, topic selection, ``/clock``.
+
+Messages are published as the serialised bytes stored in the bag (no decode).  Pacing uses a
+steady clock: bag time ``t_bag0 + rate * (steady - steady0)``.  With ``publish_clock`` the node
+publishes that bag time on ``/clock`` (the bag's own ``/clock`` is not replayed), so nodes
+with ``use_sim_time`` follow the recording.  An unreadable file gives one error line naming it;
+a file damaged part-way is played up to the damage, which is then reported.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterator
+from typing import Any
+
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
+
+from ..bagio import BagError, BagMessage, read_messages
+from ._common import (
+    QOS_CLOCK,
+    StartupError,
+    array_param,
+    bool_param,
+    float_param,
+    reject_runtime_changes,
+    run_node,
+    str_param,
+)
+from .recorder import message_class, qos_for
+
+
+class Player(Node):
+    def __init__(self, *, context: Context | None = None, node_name: str = "player", **kwargs: object):
+        super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
+        self.bag_path = str_param(self, "bag", "", "the .mcap file to play")
+        self.rate = float_param(self, "rate", 1.0, 0.01, 1000.0, "playback speed factor")
+        topics = array_param(self, "topics", [], Parameter.Type.STRING_ARRAY, "topics to play (default: all)")
+        self.publish_clock = bool_param(self, "publish_clock", True, "publish /clock from the bag's time")
+        reject_runtime_changes(self, mutable=set())
+        if not self.bag_path:
+            raise StartupError("parameter bag: give the .mcap file to play (-p bag:=run.mcap)")
+        self._selected = set(topics) if topics else None
+        try:
+            first = next(read_messages(self.bag_path, self._selected), None)
+        except BagError as exc:
+            raise StartupError(str(exc)) from None
+        if first is None:
+            raise StartupError(f"{self.bag_path}: no message to play" + (f" on {topics}" if topics else ""))
+        self._messages: Iterator[BagMessage] = read_messages(self.bag_path, self._selected)
+        self._next: BagMessage | None = None
+        self._pubs: dict[str, Any] = {}
+        self._skipped: set[str] = set()
+        self._clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self.publish_clock else None
+        self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
+        self._t_bag0 = first.log_time_ns
+        self._t_wall0: int | None = None
+        self.published: dict[str, int] = {}
+        self.done = False
+        self.error: str | None = None
+        self._timer = self.create_timer(0.002, self._tick, clock=self._steady)
+        self.get_logger().info(f"playing {self.bag_path} at x{self.rate:g}")
+
+    def _publisher(self, m: BagMessage) -> Any:
+        pub = self._pubs.get(m.topic)
+        if pub is None and m.topic not in self._skipped:
+            try:
+                pub = self.create_publisher(
+                    message_class(m.type_name), m.topic, qos_for(m.topic, m.type_name)
+                )
+                self._pubs[m.topic] = pub
+            except (ImportError, AttributeError, ValueError) as exc:
+                self._skipped.add(m.topic)
+                self.get_logger().warning(f"not playing {m.topic}: type {m.type_name} unavailable ({exc})")
+        return pub
+
+    def _tick(self) -> None:
+        if self.done:
+            return
+        now = self._steady.now().nanoseconds
+        if self._t_wall0 is None:
+            self._t_wall0 = now
+        target = self._t_bag0 + round((now - self._t_wall0) * self.rate)
+        try:
+            while True:
+                if self._next is None:
+                    self._next = next(self._messages, None)
+                    if self._next is None:
+                        self._finish()
+                        return
+                m = self._next
+                if m.log_time_ns > target:
+                    break
+                self._next = None
+                if m.topic == "/clock" and self.publish_clock:
+                    continue
+                pub = self._publisher(m)
+                if pub is not None:
+                    pub.publish(m.data)
+                    self.published[m.topic] = self.published.get(m.topic, 0) + 1
+        except BagError as exc:
+            self.error = str(exc)
+            self.get_logger().error(f"stopped: {exc}")
+            self._finish()
+            return
+        if self._clock_pub is not None:
+            self._clock_pub.publish(Clock(clock=Time(nanoseconds=target).to_msg()))
+
+    def _finish(self) -> None:
+        self.done = True
+        total = sum(self.published.values())
+        self.get_logger().info(
+            f"played {total} messages on {len(self.published)} topics from {self.bag_path}"
+        )
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda ctx: Player(context=ctx), args, until=lambda node: getattr(node, "done", False))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,193 @@
+"""``recorder``: the suite's topics (or a chosen set) to an MCAP file rosbag2 can play.
+
+Subscriptions are *raw* (rclpy hands over the CDR bytes), so nothing is deserialised or
+serialised again: each message goes straight into :class:`~piezofin_ros.bagio.BagWriter` with
+the node clock's time (the simulated time under ``use_sim_time``).  Chunks are flushed every
+``flush_s`` of log time; SIGINT or SIGTERM closes the file with its summary and indexes.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ..bagio import BagWriter, normalise_type
+from ._common import (
+    QOS_CLOCK,
+    QOS_COMMAND,
+    QOS_DATA,
+    TOPIC_CMD,
+    TOPIC_DRIVE,
+    TOPIC_ESTIMATE,
+    TOPIC_LOADCELL,
+    TOPIC_SPEED,
+    TOPIC_STATUS,
+    TOPIC_TIP,
+    StartupError,
+    array_param,
+    bool_param,
+    float_param,
+    int_param,
+    reject_runtime_changes,
+    run_node,
+    str_param,
+)
+
+F64A = "std_msgs/msg/Float64MultiArray"
+#: The suite's topics per fin (relative names) with their types.
+SUITE_TOPICS = {
+    TOPIC_DRIVE: F64A,
+    TOPIC_TIP: F64A,
+    TOPIC_LOADCELL: F64A,
+    TOPIC_CMD: F64A,
+    TOPIC_ESTIMATE: F64A,
+    TOPIC_SPEED: "std_msgs/msg/Float64",
+    TOPIC_STATUS: "std_msgs/msg/String",
+}
+GLOBAL_TOPICS = {"/clock": "rosgraph_msgs/msg/Clock"}
+
+
+def message_class(type_name: str) -> Any:
+    """The rclpy message class of ``pkg/msg/Type`` (ImportError/AttributeError if not installed)."""
+    pkg, _, name = normalise_type(type_name).split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+def qos_for(topic: str, type_name: str) -> Any:
+    if topic == "/clock":
+        return QOS_CLOCK
+    return QOS_DATA if type_name == F64A else QOS_COMMAND
+
+
+def default_bag_path(directory: str = "bags") -> Path:
+    """``bags/piezofin_YYYYmmdd-HHMMSS.mcap`` (local time at start; a new name every second)."""
+    return Path(directory) / time.strftime("piezofin_%Y%m%d-%H%M%S.mcap")
+
+
+class Recorder(Node):
+    def __init__(self, *, context: Context | None = None, node_name: str = "recorder", **kwargs: object):
+        super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
+        path = str_param(
+            self, "path", "", "output .mcap file (default bags/piezofin_<time>.mcap); never overwritten"
+        )
+        topics = array_param(
+            self,
+            "topics",
+            [],
+            Parameter.Type.STRING_ARRAY,
+            "topics to record (default: the suite's), name or name:type",
+        )
+        namespaces = array_param(
+            self,
+            "namespaces",
+            [],
+            Parameter.Type.STRING_ARRAY,
+            "fins to record (default: this node's namespace)",
+        )
+        compression = str_param(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
+        chunk_kib = int_param(self, "chunk_kib", 1024, 16, 65536, "chunk size, KiB")
+        flush_s = float_param(self, "flush_s", 1.0, 0.05, 600.0, "longest log time between chunk flushes, s")
+        self.discover = bool_param(self, "discover", False, "also record any other topic that appears")
+        reject_runtime_changes(self, mutable=set())
+        self.path = Path(path) if path else default_bag_path()
+        try:
+            self.bag = BagWriter(
+                self.path,
+                compression=compression,
+                chunk_size=chunk_kib * 1024,
+                flush_s=flush_s,
+                metadata={"fin_namespaces": ",".join(namespaces)},
+            )
+        except FileExistsError:
+            raise StartupError(
+                f"parameter path: {self.path} exists; the recorder never overwrites a bag"
+            ) from None
+        except (ValueError, OSError) as exc:
+            raise StartupError(f"cannot open the bag {self.path}: {exc}") from None
+        self._subs: dict[str, Any] = {}
+        self._untyped: set[str] = set()
+        wanted = self._wanted(topics, namespaces)
+        for topic, type_name in wanted.items():
+            self.add_topic(topic, type_name)
+        self.create_timer(0.5, self._discover)
+        self.get_logger().info(f"recording {len(self._subs)} topics to {self.path}")
+
+    def _wanted(self, topics: list[str], namespaces: list[str]) -> dict[str, str]:
+        if topics:
+            out = {}
+            for entry in topics:
+                name, _, type_name = entry.partition(":")
+                out[self.resolve_topic_name(name)] = type_name or ""
+            return out
+        prefixes = [ns.rstrip("/") if ns.startswith("/") else "/" + ns.strip("/") for ns in namespaces]
+        if not prefixes:
+            prefixes = [self.get_namespace().rstrip("/")]
+        out = {f"{p}/{t}": ty for p in prefixes for t, ty in SUITE_TOPICS.items()}
+        out.update(GLOBAL_TOPICS)
+        return out
+
+    def add_topic(self, topic: str, type_name: str = "") -> bool:
+        """Subscribe to ``topic`` (type looked up in the graph when not given); False if unknown yet."""
+        if topic in self._subs:
+            return True
+        if not type_name:
+            types = dict(self.get_topic_names_and_types()).get(topic)
+            if not types:
+                if topic not in self._untyped:
+                    self.get_logger().info(f"{topic}: type not known yet, waiting for a publisher")
+                self._untyped.add(topic)
+                return False
+            type_name = types[0]
+        try:
+            cls = message_class(type_name)
+            self.bag.add_topic(topic, type_name)
+        except (ImportError, AttributeError, ValueError) as exc:
+            self.get_logger().error(f"cannot record {topic}: {exc}")
+            return False
+        self._untyped.discard(topic)
+        self._subs[topic] = self.create_subscription(
+            cls,
+            topic,
+            lambda data, _t=topic: self._write(_t, data),
+            qos_for(topic, normalise_type(type_name)),
+            raw=True,
+        )
+        return True
+
+    def _discover(self) -> None:
+        for topic in list(self._untyped):
+            self.add_topic(topic)
+        if not self.discover:
+            return
+        for topic, types in self.get_topic_names_and_types():
+            if topic not in self._subs and types and not topic.endswith(("/transition_event", "/rosout")):
+                self.add_topic(topic, types[0])
+
+    def _write(self, topic: str, data: bytes) -> None:
+        if not self.bag.closed:
+            self.bag.write(topic, self.get_clock().now().nanoseconds, data)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return dict(self.bag.counts)
+
+    def close(self) -> None:
+        if not self.bag.closed:
+            self.bag.close()
+            total = sum(self.bag.counts.values())
+            self.get_logger().info(f"closed {self.path}: {total} messages on {len(self.bag.counts)} topics")
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda ctx: Recorder(context=ctx), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

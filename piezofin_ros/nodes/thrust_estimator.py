@@ -1,0 +1,129 @@
+"""``thrust_estimator``: :class:`~piezofin_ros.estimation.StreamEstimator` on the live topics.
+
+Subscribes ``drive`` (required), ``tip_velocity`` and ``loadcell`` (optional: a fish has
+neither) and ``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` block per
+window.  All timing comes from the samples' own time stamps, so a replayed bag gives the
+estimates recorded live.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from rclpy.context import Context
+from rclpy.node import Node
+from std_msgs.msg import Float64, Float64MultiArray
+
+from ..blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, Block, BlockFormatError, check_samples
+from ..estimation import Estimate, EstimatorConfig, StreamEstimator
+from ..fin import FinConfigError, load_fin
+from ..rig import RigConfig
+from ._common import (
+    QOS_COMMAND,
+    QOS_DATA,
+    TOPIC_DRIVE,
+    TOPIC_ESTIMATE,
+    TOPIC_LOADCELL,
+    TOPIC_SPEED,
+    TOPIC_TIP,
+    StartupError,
+    block_msg,
+    dataclass_params,
+    msg_block,
+    reject_runtime_changes,
+    run_node,
+    str_param,
+)
+
+ESTIMATOR_RANGES = {
+    "on_threshold_v": (0.01, 1000.0),
+    "off_hold_s": (0.01, 60.0),
+    "settle_s": (0.0, 600.0),
+    "window_s": (0.1, 3600.0),
+    "max_window_s": (0.1, 3600.0),
+    "min_periods": (1, 10000),
+    "tolerance": (1e-4, 0.5),
+    "baseline_s": (0.1, 600.0),
+    "post_delay_s": (0.0, 600.0),
+    "channel_timeout_s": (0.01, 600.0),
+    "harmonics": (1, 10),
+    "loadcell_stiffness_n_per_m": (1e-3, 1e9),
+}
+
+
+class ThrustEstimator(Node):
+    """Turns sample blocks into thrust, power and thrust-per-watt estimates."""
+
+    def __init__(
+        self, *, context: Context | None = None, node_name: str = "thrust_estimator", **kwargs: object
+    ):
+        super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
+        fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path")
+        default = EstimatorConfig(loadcell_stiffness_n_per_m=RigConfig().loadcell_stiffness)
+        try:
+            self.fin = load_fin(fin_name)
+            config = dataclass_params(self, "estimator", default, ESTIMATOR_RANGES, "estimator window (s, V)")
+        except (FinConfigError, ValueError) as exc:
+            raise StartupError(str(exc)) from None
+        reject_runtime_changes(self, mutable=set())
+        self.core = StreamEstimator(self.fin, config)
+        self.estimates: list[Estimate] = []
+        self.rejected = 0
+        self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
+        self.create_subscription(Float64MultiArray, TOPIC_DRIVE, self._on_drive, QOS_DATA)
+        self.create_subscription(Float64MultiArray, TOPIC_TIP, self._on_tip, QOS_DATA)
+        self.create_subscription(Float64MultiArray, TOPIC_LOADCELL, self._on_loadcell, QOS_DATA)
+        self.create_subscription(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
+        self._last_t = float("nan")
+
+    def _decode(self, msg: Float64MultiArray, channels: tuple[str, ...], topic: str) -> Block | None:
+        try:
+            return check_samples(msg_block(msg, expect=channels), channels)
+        except BlockFormatError as exc:
+            self.rejected += 1
+            self.get_logger().warning(f"dropped a {topic} block: {exc}", throttle_duration_sec=5.0)
+            return None
+
+    def _on_drive(self, msg: Float64MultiArray) -> None:
+        b = self._decode(msg, DRIVE_CHANNELS, TOPIC_DRIVE)
+        if b is not None:
+            self._last_t = float(b["t_s"][-1])
+            self._emit(self.core.add_drive(b["t_s"], b["voltage_V"], b["current_A"]))
+
+    def _on_tip(self, msg: Float64MultiArray) -> None:
+        b = self._decode(msg, TIP_CHANNELS, TOPIC_TIP)
+        if b is not None:
+            self._emit(self.core.add_tip(b["t_s"], b["tip_velocity_m_s"]))
+
+    def _on_loadcell(self, msg: Float64MultiArray) -> None:
+        b = self._decode(msg, LOADCELL_CHANNELS, TOPIC_LOADCELL)
+        if b is not None:
+            self._emit(self.core.add_loadcell(b["t_s"], b["displacement_m"]))
+
+    def _on_speed(self, msg: Float64) -> None:
+        # The speed applies from the latest drive sample on (the fish stack's message has no stamp).
+        t = self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
+        self.core.add_speed(t, float(msg.data))
+
+    def _emit(self, estimates: list[Estimate]) -> None:
+        for e in estimates:
+            self.estimates.append(e)
+            self._pub.publish(block_msg(Block.from_record(e.as_dict())))
+            if e.final:
+                self.get_logger().info(
+                    f"trial {e.frequency_hz:.3f} Hz {e.voltage_pp:.0f} Vpp: thrust {e.thrust_n * 1e3:.3f} mN "
+                    f"(self {e.thrust_self_n * 1e3:.3f}, load cell {e.thrust_loadcell_n * 1e3:.3f}), "
+                    f"power {e.power_w * 1e3:.3f} mW, {e.thrust_per_watt * 1e3:.1f} mN/W"
+                )
+
+    def close(self) -> None:
+        """Flush the last open window (end of a replay or of the run)."""
+        self._emit(self.core.flush())
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda ctx: ThrustEstimator(context=ctx), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
