@@ -19,10 +19,10 @@ velocity:
 * RMS tip velocity ``u = sqrt(sum |U_k|^2 / 2)``;
 * Lighthill's mean thrust, Eqs. (19)-(20): ``T = (1/2) m_v [u^2 - U^2 (phi'(L)/phi(L))^2 w_rms^2]``,
   ``w_rms^2 = sum |U_k|^2 / (2 (k w)^2)``, with ``m_v = (pi/4) rho_w b^2 c_m(psi)`` (Eq. 21);
-* mean electrical power ``P = mean(v i)`` over the window, less the change of the energy stored
-  in the capacitance, ``C_eq (v_end^2 - v_start^2) / (2 T_window)``: over exact whole periods
-  that term is zero, and removing it stops the reactive power (often 10x the real power) leaking
-  in when the window misses a period boundary by a fraction of a sample;
+* mean electrical power ``P = mean(v i)`` over a period, by Parseval from the same harmonics:
+  ``P = sum_k Re(V_k conj(I_k)) / 2``.  A plain ``mean(v i)`` over samples leaks the reactive
+  power ``C_eq v dv/dt`` (often 10x the real power) whenever the window misses a period
+  boundary, even by a fraction of a sample; the projection does not;
 * thrust per watt ``T / P`` and the thrust coefficient of Eq. (22),
   ``c_tau = T / ((1/2) rho_w w^2 |w(L)|^2 b L)`` with ``|w(L)| = |U_1| / w``;
 * **self-sensed** tip velocity and thrust, from the drive alone: by Eq. (10) the motional
@@ -169,8 +169,7 @@ def analyse_window(
     w = 2.0 * math.pi * frequency_hz
     orders = np.arange(1, 2 * harmonics, 2, dtype=float)
     V, I_ = _harmonic_fit(t, t[0], w, orders, np.column_stack([v, i])).T
-    span = t[-1] - t[0] + (t[-1] - t[0]) / (t.size - 1)  # window length: samples x sample period
-    power = float(np.mean(v * i) - fin.C_eq * (v[-1] ** 2 - v[0] ** 2) / (2.0 * span))
+    power = float(0.5 * np.sum(np.real(V * np.conj(I_))))  # Parseval: mean(v i) over a period
     slope_ratio = fin.phi_tip_slope / fin.phi_tip
     U2 = swim_speed_m_s**2
 

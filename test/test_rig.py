@@ -1,0 +1,111 @@
+"""The simulated rig: command checks, the drive's safety, streaming = batch physics, load cell."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from piezofin_ros.fin import Fin
+from piezofin_ros.rig import (
+    HARD_VOLTAGE_PP_MAX,
+    DriveLimits,
+    RigConfig,
+    SimulatedRig,
+    check_command,
+)
+from piezofin_ros.timedomain import simulate
+from piezofin_ros.waveforms import SineBurst
+
+QUIET = RigConfig(voltage_noise_v=0, current_noise_a=0, vibrometer_noise_m_s=0, displacement_noise_m=0)
+
+
+@pytest.mark.parametrize(
+    ("cmd", "accepted", "why"),
+    [
+        ((5.0, 800.0, 1.0), (5.0, 800.0, True), None),
+        ((5.0, 900.0, 1.0), (5.0, 800.0, True), "clamped"),
+        ((math.nan, 400.0, 1.0), None, "non-finite"),
+        ((5.0, math.inf, 1.0), None, "non-finite"),
+        ((-1.0, 400.0, 1.0), None, "outside"),
+        ((1e6, 400.0, 1.0), None, "outside"),
+        ((5.0, -10.0, 1.0), None, "negative"),
+        ((5.0, 400.0, 0.5), None, "'on' must be 0 or 1"),
+        ((math.nan, math.nan, 0.0), (0.0, 0.0, False), None),  # off is always safe
+    ],
+)
+def test_check_command(cmd: tuple, accepted: tuple | None, why: str | None) -> None:
+    out, reason = check_command(*cmd, DriveLimits())
+    if accepted is None:
+        assert out is None
+    else:
+        assert out is not None
+        assert (out.frequency_hz, out.voltage_pp, out.on) == accepted
+    assert (reason is None) == (why is None)
+    if why:
+        assert why in reason
+
+
+def test_limits_cannot_exceed_the_hard_cap() -> None:
+    with pytest.raises(ValueError, match="hard cap"):
+        DriveLimits(voltage_pp_max=HARD_VOLTAGE_PP_MAX + 1)
+
+
+def test_streaming_rig_equals_the_batch_engine(m8528: Fin) -> None:
+    """With a step drive (infinite slew) and no noise, block-by-block = one simulate() call."""
+    rig = SimulatedRig(m8528, QUIET, DriveLimits(slew_vpp_per_s=1e9, command_timeout_s=100.0))
+    rig.command(7.0, 600.0, 1)
+    blocks = [rig.step(37) for _ in range(60)]  # odd block size: state carried across blocks
+    tip = np.concatenate([b.tip_velocity for b in blocks])
+    ref = simulate(m8528, SineBurst(7.0, 600.0), duration=60 * 37 / 1000.0, rate_hz=1000.0)
+    # The rig's first RK4 step already sees the full amplitude ramped within 1 ns.
+    np.testing.assert_allclose(tip, ref.tip_velocity[1:], rtol=0, atol=1e-6 * np.abs(ref.tip_velocity).max())
+    cur = np.concatenate([b.current for b in blocks])
+    np.testing.assert_allclose(cur, ref.current[1:], rtol=0, atol=1e-6 * np.abs(ref.current).max())
+
+
+def test_drive_is_continuous_and_slew_limited(m8528: Fin) -> None:
+    limits = DriveLimits(slew_vpp_per_s=2000.0)
+    rig = SimulatedRig(m8528, QUIET, limits)
+    rig.command(9.0, 800.0, 1)
+    v = np.concatenate([rig.step(50).voltage for _ in range(20)])
+    assert np.max(np.abs(v)) <= 400.0 + 1e-9
+    # The amplitude grows at most at 1000 V/s (half the peak-to-peak slew).
+    t = np.arange(1, v.size + 1) / 1000.0
+    assert np.all(np.abs(v) <= 1000.0 * t + 1e-9)
+    # No step: consecutive samples differ by at most the sine's slope x dt.
+    assert np.max(np.abs(np.diff(v))) <= 400.0 * 2 * np.pi * 9.0 / 1000.0 * 1.01
+
+
+def test_watchdog_ramps_down_when_commands_stop(m8528: Fin) -> None:
+    rig = SimulatedRig(m8528, QUIET, DriveLimits(command_timeout_s=0.5))
+    rig.command(9.0, 800.0, 1)
+    blocks = [rig.step(50) for _ in range(30)]  # 1.5 s, no further command
+    events = [e for b in blocks for e in b.events]
+    assert len(events) == 1
+    assert "watchdog" in events[0]
+    t = np.concatenate([b.t for b in blocks])
+    v = np.concatenate([b.voltage for b in blocks])
+    # timeout 0.5 s (+ one block) + ramp 800 V / 4000 V/s = 0.2 s: zero from 0.8 s on.
+    assert np.all(v[t > 0.8] == 0.0)
+    assert rig.drive.voltage_pp == 0.0
+
+
+def test_load_cell_reads_mean_thrust_over_its_stiffness(m8528: Fin) -> None:
+    cfg = QUIET.replace(loadcell_drift_m_per_s=0.0)
+    rig = SimulatedRig(m8528, cfg, DriveLimits(command_timeout_s=100.0))
+    rig.command(9.0, 800.0, 1)
+    blocks = [rig.step(100) for _ in range(80)]
+    last = blocks[-30:]  # 3 s = 27 whole periods at 9 Hz
+    x = np.concatenate([b.displacement for b in last])
+    thrust = np.concatenate([b.thrust_true for b in last])
+    assert cfg.loadcell_stiffness == pytest.approx(6846.09, rel=1e-5)  # 3 E I / l^3 of the paper's beam
+    assert np.mean(x) * cfg.loadcell_stiffness == pytest.approx(np.mean(thrust), rel=2e-3)
+
+
+def test_rig_config_rejects_bad_values() -> None:
+    with pytest.raises(ValueError, match="rig.sample_rate_hz"):
+        RigConfig(sample_rate_hz=0.0)
+    with pytest.raises(ValueError, match="rig.current_noise_a"):
+        RigConfig(current_noise_a=math.nan)
