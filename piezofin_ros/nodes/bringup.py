@@ -110,6 +110,12 @@ class Suite:
         for sim in self.fin_sims:
             if sim.trigger_configure() != TransitionCallbackReturn.SUCCESS:
                 raise StartupError(f"{sim.get_fully_qualified_name()} failed to configure (see the log)")
+
+    def activate(self, executor: Any, timeout_s: float = 5.0) -> None:
+        """Activate the drives once estimator and recorder are matched (no first block lost)."""
+        deadline = time.monotonic() + timeout_s
+        while any(s.matched() < 2 for s in self.fin_sims) and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
         for sim in self.fin_sims:
             sim.trigger_activate()
 
@@ -145,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         suite = Suite(context, args)
         for node in suite.nodes:
             executor.add_node(node)
+        suite.activate(executor)
         print(f"bringup: {', '.join(args.namespaces)} -> {suite.bag_path}", file=sys.stderr, flush=True)
         last = -1.0
         while context.ok() and not suite.finished:

@@ -154,6 +154,10 @@ class FinSim(LifecycleNode):
     def rig(self) -> SimulatedRig | None:
         return self._rig
 
+    def matched(self) -> int:
+        """Fewest subscribers on any data topic (wait for the graph to match before activating)."""
+        return min((p.get_subscription_count() for p in self._pubs.values()), default=0)  # type: ignore[attr-defined]
+
     @property
     def active(self) -> bool:
         return self._timer is not None
@@ -182,6 +186,8 @@ class FinSim(LifecycleNode):
         self.get_logger().warning(reason, throttle_duration_sec=1.0)
 
     def _tick(self) -> None:
+        if self._timer is None:
+            return  # a tick queued before deactivation: the drive is stopped
         self._publish(self._n_block)
 
     def _publish(self, n: int) -> None:
@@ -191,6 +197,8 @@ class FinSim(LifecycleNode):
         b = rig.step(n)
         for event in b.events:
             self.get_logger().warning(event)
+        if self._clock_pub is not None:
+            self._clock_pub.publish(Clock(clock=Time(nanoseconds=round(float(b.t[-1]) * 1e9)).to_msg()))
         self._pubs[TOPIC_DRIVE].publish(  # type: ignore[attr-defined]
             block_msg(Block.from_columns(t_s=b.t, voltage_V=b.voltage, current_A=b.current))
         )
@@ -202,8 +210,6 @@ class FinSim(LifecycleNode):
         )
         for key in self.published:
             self.published[key] += n
-        if self._clock_pub is not None:
-            self._clock_pub.publish(Clock(clock=Time(nanoseconds=round(float(b.t[-1]) * 1e9)).to_msg()))
 
     def _ramp_down(self, why: str) -> None:
         rig = self._rig
@@ -218,6 +224,14 @@ class FinSim(LifecycleNode):
             step = min(n, self._n_block)
             self._publish(step)
             n -= step
+
+
+    def close(self) -> None:
+        """Ramp the drive down (if still active) and report what was published."""
+        if self._timer is not None and self.context.ok():
+            self._ramp_down("stopping")
+        counts = ", ".join(f"{k} {v}" for k, v in self.published.items())
+        self.get_logger().info(f"published samples: {counts}")
 
 
 def main(args: list[str] | None = None) -> int:

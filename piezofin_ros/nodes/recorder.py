@@ -113,6 +113,7 @@ class Recorder(Node):
             raise StartupError(f"cannot open the bag {self.path}: {exc}") from None
         self._subs: dict[str, Any] = {}
         self._untyped: set[str] = set()
+        self._early: list[tuple[str, bytes]] = []
         wanted = self._wanted(topics, namespaces)
         for topic, type_name in wanted.items():
             self.add_topic(topic, type_name)
@@ -171,8 +172,17 @@ class Recorder(Node):
                 self.add_topic(topic, types[0])
 
     def _write(self, topic: str, data: bytes) -> None:
-        if not self.bag.closed:
-            self.bag.write(topic, self.get_clock().now().nanoseconds, data)
+        if self.bag.closed:
+            return
+        now = self.get_clock().now().nanoseconds
+        if now == 0:  # use_sim_time and no /clock yet: keep the message until time starts
+            self._early.append((topic, data))
+            return
+        if self._early:
+            for early_topic, early_data in self._early:
+                self.bag.write(early_topic, now, early_data)
+            self._early.clear()
+        self.bag.write(topic, now, data)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -180,6 +190,8 @@ class Recorder(Node):
 
     def close(self) -> None:
         if not self.bag.closed:
+            for topic, data in self._early:  # the clock never started: keep them at time 0
+                self.bag.write(topic, 0, data)
             self.bag.close()
             total = sum(self.bag.counts.values())
             self.get_logger().info(f"closed {self.path}: {total} messages on {len(self.bag.counts)} topics")

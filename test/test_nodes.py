@@ -1,0 +1,250 @@
+"""The nodes on real rclpy and Fast DDS, in one process: a live run, its bag, its replay."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from rosbags.highlevel import AnyReader
+from std_msgs.msg import Float64MultiArray
+
+from piezofin_ros.bagio import block_of, read_messages
+from piezofin_ros.blocks import Block
+from piezofin_ros.estimation import Estimate
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg
+from piezofin_ros.nodes.controller import Controller
+from piezofin_ros.nodes.fin_sim import FinSim
+from piezofin_ros.nodes.player import Player
+from piezofin_ros.nodes.recorder import Recorder
+from piezofin_ros.nodes.thrust_estimator import ThrustEstimator
+from piezofin_ros.steady import harmonic_balance
+
+from .rosutil import graph
+
+pytestmark = pytest.mark.ros
+
+T0 = 1000.0  # simulated start time, far from the wall clock: a wall-clock stamp would show
+SIM_TIME = [Parameter("use_sim_time", value=True)]
+
+
+def params(**kw: Any) -> list[Parameter]:
+    return [Parameter(k.replace("__", "."), value=v) for k, v in kw.items()]
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Two protocol trials (9 and 6 Hz at 800 Vpp), 50x real time, recorded."""
+    bag = tmp_path_factory.mktemp("live") / "live.mcap"
+    with graph() as g:
+        ctx = g.context
+        sim = g.add(
+            FinSim(
+                context=ctx,
+                namespace="fin",
+                parameter_overrides=params(
+                    realtime_factor=50.0, publish_clock=True, start_time_s=T0, autostart=False
+                ),
+            )
+        )
+        est = g.add(
+            ThrustEstimator(
+                context=ctx, namespace="fin", parameter_overrides=SIM_TIME + params(estimator__baseline_s=4.0)
+            )
+        )
+        ctl = g.add(
+            Controller(
+                context=ctx,
+                namespace="fin",
+                parameter_overrides=SIM_TIME
+                + params(frequencies=[9.0, 6.0], voltages=[800.0], off_s=6.0, on_s=8.0, min_thrust_n=0.0),
+            )
+        )
+        rec = g.add(
+            Recorder(context=ctx, parameter_overrides=SIM_TIME + params(path=str(bag), namespaces=["fin"]))
+        )
+        assert sim.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        g.spin_until(lambda: sim.matched() >= 2, timeout=10.0, what="estimator and recorder matched")
+        sim.trigger_activate()
+        g.spin_until(lambda: ctl.finished, timeout=60.0, what="two trials")
+        sim.trigger_deactivate()
+        est.close()
+        g.spin_for(0.3)  # let the recorder take the last messages
+        rec.close()
+        return {
+            "bag": bag,
+            "fin": est.fin,
+            "estimates": list(est.estimates),
+            "status": ctl.status(),
+            "published": dict(sim.published),
+            "recorded": rec.counts,
+            "rig": sim.rig,
+        }
+
+
+def test_live_estimates_match_the_steady_state(live: dict[str, Any]) -> None:
+    finals = [e for e in live["estimates"] if e.final]
+    assert [round(e.frequency_hz, 3) for e in finals] == [9.0, 6.0]
+    for e in finals:
+        hb = harmonic_balance(live["fin"], e.frequency_hz, e.voltage_pp, harmonics=3)
+        assert e.voltage_pp == pytest.approx(800.0, rel=2e-3)
+        assert e.thrust_n == pytest.approx(float(hb.thrust_n), rel=5e-3)
+        assert e.thrust_self_n == pytest.approx(e.thrust_n, rel=5e-3)
+        cfg = live["rig"].config
+        n_on = (e.t_end - e.t_start) * cfg.sample_rate_hz
+        sigma = cfg.loadcell_stiffness * cfg.displacement_noise_m * math.sqrt(1 / n_on + 1 / (2 * 4000))
+        assert e.loadcell_baselines == 2
+        assert abs(e.thrust_loadcell_n - e.thrust_n) <= 5 * sigma + 3e-3 * e.thrust_n
+
+
+def test_times_come_from_the_samples_not_the_wall_clock(live: dict[str, Any]) -> None:
+    for e in live["estimates"]:
+        assert T0 < e.t_start < e.t_end < T0 + 60.0
+    times = [m.log_time_ns * 1e-9 for m in read_messages(live["bag"])]
+    assert T0 <= min(times) and max(times) < T0 + 60.0  # the recorder logs in simulated time
+
+
+def test_controller_reports_both_trials(live: dict[str, Any]) -> None:
+    st = live["status"]
+    assert st["state"] == "done"
+    assert [r["frequency_hz"] for r in st["results"]] == [9.0, 6.0]
+    assert st["chosen"]["frequency_hz"] == 6.0  # more thrust per watt below resonance
+
+
+def test_rosbags_reads_every_recorded_message(live: dict[str, Any]) -> None:
+    with AnyReader([live["bag"]]) as reader:
+        counts: dict[str, int] = {}
+        samples = 0
+        for conn, _, raw in reader.messages():
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+            if conn.topic == "/fin/drive":
+                msg = reader.deserialize(raw, conn.msgtype)
+                samples += msg.layout.dim[1].size
+    assert counts == {k: v for k, v in live["recorded"].items() if v}
+    assert samples == live["published"]["drive"]  # not one sample lost between fin_sim and the bag
+    assert counts["/fin/estimate"] == len(live["estimates"])
+    assert counts["/clock"] > 0
+
+
+def test_replay_reproduces_the_live_estimates(live: dict[str, Any]) -> None:
+    recorded = [
+        Estimate.from_dict(block_of(m.type_name, m.data).as_dict())
+        for m in read_messages(live["bag"], ["/fin/estimate"])
+    ]
+    assert recorded == live["estimates"]
+    with graph() as g:
+        player = g.add(
+            Player(
+                context=g.context,
+                parameter_overrides=params(
+                    bag=str(live["bag"]),
+                    rate=20.0,
+                    topics=["/fin/drive", "/fin/tip_velocity", "/fin/loadcell"],
+                ),
+            )
+        )
+        est = g.add(
+            ThrustEstimator(
+                context=g.context,
+                namespace="fin",
+                parameter_overrides=SIM_TIME + params(estimator__baseline_s=4.0),
+            )
+        )
+        g.spin_until(lambda: player.done, timeout=30.0, what="replay")
+        g.spin_for(0.3)
+        est.close()
+        replayed = list(est.estimates)
+    assert len(replayed) == len(recorded)
+    for a, b in zip(replayed, recorded, strict=True):
+        np.testing.assert_allclose(
+            np.array(list(a.as_dict().values())),
+            np.array(list(b.as_dict().values())),
+            rtol=1e-12,
+            equal_nan=True,
+        )
+
+
+def test_nodes_build_twice_in_one_process() -> None:
+    for _ in range(2):
+        with graph() as g:
+            for ns in ("left", "right"):
+                g.add(FinSim(context=g.context, namespace=ns, parameter_overrides=params(autostart=False)))
+                g.add(ThrustEstimator(context=g.context, namespace=ns))
+                g.add(Controller(context=g.context, namespace=ns))
+            g.spin_for(0.1)
+            assert {n.get_fully_qualified_name() for n in g.nodes} >= {"/left/fin_sim", "/right/controller"}
+
+
+def test_parameters_have_ranges_and_reasons() -> None:
+    with graph() as g:
+        sim = g.add(FinSim(context=g.context, parameter_overrides=params(autostart=False)))
+        desc = sim.describe_parameter("rig.sample_rate_hz")
+        assert desc.floating_point_range[0].from_value == 100.0
+        assert desc.description
+        result = sim.set_parameters([Parameter("rig.sample_rate_hz", value=5.0)])[0]
+        assert not result.successful
+        assert result.reason
+        result = sim.set_parameters([Parameter("limits.voltage_pp_max", value=500.0)])[0]
+        assert not result.successful
+        assert "fixed at start" in result.reason
+        with pytest.raises(InvalidParameterValueException, match="limits.voltage_pp_max"):
+            FinSim(
+                context=g.context, node_name="over", parameter_overrides=params(limits__voltage_pp_max=2000.0)
+            )
+        with pytest.raises(StartupError, match="mode"):
+            Controller(context=g.context, parameter_overrides=params(mode="sometimes"))
+        with pytest.raises(StartupError, match="outside"):
+            Controller(context=g.context, node_name="c2", parameter_overrides=params(voltages=[900.0]))
+        bad_fin = g.add(
+            FinSim(context=g.context, node_name="nofin", parameter_overrides=params(fin="M0000-X"))
+        )
+        assert bad_fin.trigger_configure() == TransitionCallbackReturn.FAILURE
+
+
+def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
+    with graph() as g:
+        sim = g.add(
+            FinSim(context=g.context, parameter_overrides=params(autostart=False, realtime_factor=20.0))
+        )
+        probe = g.add(__import__("rclpy").create_node("probe", context=g.context))
+        drive: list[Block] = []
+        probe.create_subscription(Float64MultiArray, "drive", lambda m: drive.append(m), QOS_DATA)
+        cmd = probe.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+        send = lambda f, v, on: cmd.publish(
+            block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on}))
+        )  # noqa: E731
+        sim.trigger_configure()
+        g.spin_for(0.3)
+        send(5.0, 800.0, 1.0)
+        g.spin_until(lambda: sim.command_log, timeout=5.0)
+        assert "not active" in sim.command_log[-1]
+        assert drive == []
+        sim.trigger_activate()
+        g.spin_until(lambda: len(drive) > 3, timeout=5.0)
+        for f, v, on, why in [
+            (5.0, 2000.0, 1.0, "clamped"),
+            (math.nan, 400.0, 1.0, "non-finite"),
+            (-3.0, 100.0, 1.0, "outside"),
+        ]:
+            send(f, v, on)
+            g.spin_until(
+                lambda why=why: sim.command_log and why in sim.command_log[-1], timeout=5.0, what=why
+            )
+        bad = Float64MultiArray(data=[1.0, 2.0])
+        cmd.publish(bad)
+        g.spin_until(lambda: "malformed" in sim.command_log[-1], timeout=5.0)
+        sim.trigger_deactivate()  # publishes the ramp to zero, then nothing more
+        g.spin_for(0.3)
+        n = len(drive)
+        g.spin_for(0.3)
+        assert len(drive) == n
+        from piezofin_ros.nodes._common import msg_block
+
+        v = np.concatenate([msg_block(m)["voltage_V"] for m in drive])
+        assert np.max(np.abs(v)) <= 400.0 + 5 * 0.2 * 6  # never beyond 800 Vpp (noise aside)
+        assert np.all(np.abs(v[-20:]) < 2.0)  # deactivate ramped it to zero
