@@ -358,7 +358,7 @@ class StreamEstimator:
         vv = np.concatenate([[v_prev], v]) if math.isfinite(t_prev) else v
         cand = np.flatnonzero((vv[:-1] < 0) & (vv[1:] >= 0)) + 1
         start = 0
-        for k in cand:
+        for k in cand.tolist():
             seg = vv[start:k]
             if seg.size:
                 self._vmin = min(self._vmin, float(seg.min()))

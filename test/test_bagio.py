@@ -53,7 +53,7 @@ def test_rosbags_reads_every_message(tmp_path: Path, compression: str) -> None:
     np.testing.assert_array_equal(drive[123].data[10:], np.full(10, 123.0))
     assert [t for topic, t, _ in got if topic == "/fin/drive"] == [int(k * 1e8) for k in range(300)]
     # Our own reader agrees, and decodes blocks.
-    ours = [m for m in read_messages(path, ["/fin/drive"])]
+    ours = list(read_messages(path, ["/fin/drive"]))
     assert block_of(ours[7].type_name, ours[7].data)["voltage_V"][0] == 7.0
 
 

@@ -105,7 +105,7 @@ def test_load_cell_reads_mean_thrust_over_its_stiffness(m8528: Fin) -> None:
 
 
 def test_rig_config_rejects_bad_values() -> None:
-    with pytest.raises(ValueError, match="rig.sample_rate_hz"):
+    with pytest.raises(ValueError, match=r"rig\.sample_rate_hz"):
         RigConfig(sample_rate_hz=0.0)
-    with pytest.raises(ValueError, match="rig.current_noise_a"):
+    with pytest.raises(ValueError, match=r"rig\.current_noise_a"):
         RigConfig(current_noise_a=math.nan)

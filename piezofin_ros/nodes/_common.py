@@ -87,7 +87,9 @@ def bool_param(node: Node, name: str, default: bool, description: str) -> bool:
     return bool(node.declare_parameter(name, default, ParameterDescriptor(description=description)).value)
 
 
-def array_param(node: Node, name: str, default: list[Any], kind: Parameter.Type, description: str) -> list[Any]:
+def array_param(
+    node: Node, name: str, default: list[Any], kind: Parameter.Type, description: str
+) -> list[Any]:
     """Declare a typed array parameter (an empty default stays typed); return its value as a list."""
     desc = ParameterDescriptor(description=description)
     value = node.declare_parameter(name, default if default else kind, desc).value
@@ -166,11 +168,10 @@ def run_node(
         node = factory(context)
         executor = EventsExecutor(context=context)
         executor.add_node(node)
-        if until is None:
-            executor.spin()
-        else:
-            while context.ok() and not until(node):
-                executor.spin_once(timeout_sec=0.1)
+        # spin_once in a loop, not spin(): with rclpy 7.1's EventsExecutor.spin() a lifecycle
+        # node's services do not answer clients in other processes (measured), spin_once does.
+        while context.ok() and not (until is not None and until(node)):
+            executor.spin_once(timeout_sec=0.1)
     except (StartupError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -225,7 +225,6 @@ class FinSim(LifecycleNode):
             self._publish(step)
             n -= step
 
-
     def close(self) -> None:
         """Ramp the drive down (if still active) and report what was published."""
         if self._timer is not None and self.context.ok():

@@ -1,0 +1,110 @@
+"""Across processes: `fin_sim` started as `ros2 run` would, this process subscribing over DDS."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from std_msgs.msg import Float64MultiArray
+
+from piezofin_ros.blocks import Block
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
+
+from .rosutil import graph
+
+pytestmark = pytest.mark.ros
+BIN = Path(sys.executable).parent
+
+
+def start(exe: str, *ros_args: str) -> subprocess.Popen[str]:
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "LD_LIBRARY_PATH")
+    }
+    return subprocess.Popen(
+        [str(BIN / exe), "--ros-args", *ros_args],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+
+
+@pytest.mark.slow
+def test_no_drops_at_the_default_rate_for_10_s() -> None:
+    """fin_sim at 1 kHz in real time, 12 s: every published sample arrives, in order, once.
+
+    fin_sim starts unconfigured; this process configures it through the lifecycle service,
+    waits until its subscriptions match, then activates it: so the counts must be equal.
+    """
+    proc = start("fin_sim", "-r", "__ns:=/xp", "-p", "seed:=7", "-p", "autostart:=false")
+    blocks: dict[str, list[Block]] = {"drive": [], "tip_velocity": [], "loadcell": []}
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("counter", namespace="xp", context=g.context))
+            for topic, store in blocks.items():
+                node.create_subscription(
+                    Float64MultiArray, topic, lambda m, s=store: s.append(msg_block(m)), QOS_DATA
+                )
+            cmd = node.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+            change = node.create_client(ChangeState, "fin_sim/change_state")
+            g.spin_until(change.service_is_ready, timeout=20.0, what="fin_sim's lifecycle service")
+            for transition in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
+                if transition == Transition.TRANSITION_ACTIVATE:
+                    g.spin_until(
+                        lambda: all(node.count_publishers(f"/xp/{t}") for t in blocks),
+                        timeout=20.0,
+                        what="match",
+                    )
+                    g.spin_for(0.5)  # both sides of the match
+                future = change.call_async(ChangeState.Request(transition=Transition(id=transition)))
+                g.spin_until(future.done, timeout=20.0, what=f"transition {transition}")
+                assert future.result().success
+            g.spin_until(lambda: all(blocks.values()), timeout=20.0, what="first blocks from fin_sim")
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 12.0:  # drive it, as a controller would (heartbeat 10 Hz)
+                cmd.publish(
+                    block_msg(Block.from_record({"frequency_hz": 9.0, "voltage_pp_V": 800.0, "on": 1.0}))
+                )
+                g.spin_for(0.1)
+            proc.send_signal(signal.SIGINT)
+            out, _ = proc.communicate(timeout=20)
+            g.spin_for(0.5)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    published = {k: int(v) for k, v in re.findall(r"(\w+) (\d+)", out.split("published samples:")[-1])}
+    for topic, store in blocks.items():
+        t = np.concatenate([b["t_s"] for b in store])
+        assert np.allclose(np.diff(t), 1e-3, atol=1e-6), topic  # contiguous: nothing missing or twice
+        assert t.size >= 12_000
+        assert t.size == published[topic], (topic, published[topic], t.size)  # no drop at all
+    v = np.concatenate([b["voltage_V"] for b in blocks["drive"]])
+    assert 390 < np.max(np.abs(v)) < 402  # the command reached the drive, within the limit
+
+
+def test_bad_parameter_exits_2_with_the_name() -> None:
+    proc = start("fin_sim", "-p", "limits.voltage_pp_max:=2000.0")
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 2
+    assert "limits.voltage_pp_max" in out
+    assert "Traceback" not in out
+
+
+def test_bad_fin_exits_2_naming_it() -> None:
+    proc = start("fin_sim", "-p", "fin:=no-such-fin")
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 2
+    assert "no-such-fin" in out
+    assert "Traceback" not in out
