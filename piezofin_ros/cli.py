@@ -176,7 +176,48 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.set_defaults(func=run_sweep)
     fins = sub.add_parser("fins", help="list the preset fins and their derived parameters")
     fins.set_defaults(func=run_fins)
+    est = sub.add_parser("estimate", help="run the thrust estimator offline on a recorded bag")
+    est.add_argument("bag", help="an .mcap file recorded by the suite (or a rig driver)")
+    est.add_argument("--namespace", default="/fin", help="the fin's namespace in the bag (default /fin)")
+    est.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
+    est.add_argument("--json", action="store_true", help="print the estimates as JSON")
+    est.set_defaults(func=run_estimate)
     return parser
+
+
+def run_estimate(args: argparse.Namespace) -> int:
+    from .bagio import BagError
+    from .offline import replay_estimates
+
+    fin = _load(args.fin, None)
+    try:
+        replay = replay_estimates(args.bag, fin, args.namespace)
+    except BagError as exc:
+        raise UsageError(str(exc)) from None
+    for line in replay.skipped[:20]:
+        print(f"skipped {line}", file=sys.stderr)
+    if args.json:
+        print(json.dumps([e.as_dict() for e in replay.replayed], indent=1))
+    else:
+        print(
+            f"{'t_start':>12} {'final':>5} {'f [Hz]':>7} {'Vpp':>5} {'T [mN]':>8} {'T_self':>8} "
+            f"{'T_cell':>8} {'P [mW]':>8} {'T/P [mN/W]':>10}"
+        )
+        for e in replay.replayed:
+            print(
+                f"{e.t_start:12.3f} {int(e.final):5d} {e.frequency_hz:7.3f} {e.voltage_pp:5.0f} "
+                f"{e.thrust_n * 1e3:8.3f} {e.thrust_self_n * 1e3:8.3f} {e.thrust_loadcell_n * 1e3:8.3f} "
+                f"{e.power_w * 1e3:8.3f} {e.thrust_per_watt * 1e3:10.1f}"
+            )
+    if replay.recorded:
+        diff = replay.max_relative_difference()
+        same = "reproduces" if diff <= 1e-9 else "DIFFERS FROM"
+        print(
+            f"{len(replay.replayed)} estimates; {same} the {len(replay.recorded)} recorded live "
+            f"(largest relative difference {diff:.1e})",
+            file=sys.stderr,
+        )
+    return 0
 
 
 def run_fins(args: argparse.Namespace) -> int:

@@ -38,7 +38,16 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
     assert proc.returncode == 0, proc.stdout + proc.stderr
     prefix = ws / "install" / "piezofin_ros"
     # `ros2 run piezofin_ros <exe>` looks in <prefix>/lib/<package>/ ...
-    for exe in ("piezofin", "sweep"):
+    for exe in (
+        "piezofin",
+        "sweep",
+        "fin_sim",
+        "thrust_estimator",
+        "controller",
+        "recorder",
+        "player",
+        "bringup",
+    ):
         assert os.access(prefix / "lib" / "piezofin_ros" / exe, os.X_OK), exe
     # ... for a package registered in the ament index, with its share/ files.
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "piezofin_ros").exists()
@@ -48,6 +57,10 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
         "M8514-P1.yaml",
         "M8528-P1.yaml",
     ]
+    share = prefix / "share" / "piezofin_ros"
+    assert (share / "config" / "bringup.yaml").exists()
+    launch = share / "launch" / "piezofin.launch.py"
+    compile(launch.read_text(), str(launch), "exec")  # launch itself is not on PyPI: syntax only
     # The installed executable runs from the install tree and finds the installed presets.
     site = next(prefix.glob("lib/python3*/site-packages"))
     env = {**os.environ, "PYTHONPATH": str(site)}

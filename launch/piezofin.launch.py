@@ -1,0 +1,101 @@
+"""Launch the suite on a ROS 2 machine (``ros2 launch piezofin_ros piezofin.launch.py``).
+
+One fin per namespace: ``fin_sim`` (a managed node, configured and activated here),
+``thrust_estimator`` and ``controller``; one ``recorder``.  Parameters come from the package's
+``config/bringup.yaml`` (or ``params_file:=...``).  With ``sim:=false`` no ``fin_sim`` is
+started: a rig driver or the fish's drive electronics publishes ``drive`` (and, on a rig,
+``tip_velocity`` and ``loadcell``) in the same namespace instead.
+
+    ros2 launch piezofin_ros piezofin.launch.py namespaces:="left right" realtime_factor:=10
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.events import matches_action
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import LifecycleNode, Node
+from launch_ros.event_handlers import OnStateTransition
+from launch_ros.events.lifecycle import ChangeState
+from launch_ros.substitutions import FindPackageShare
+from lifecycle_msgs.msg import Transition
+
+
+def _nodes(context, *args, **kwargs):
+    params_file = LaunchConfiguration("params_file").perform(context)
+    namespaces = LaunchConfiguration("namespaces").perform(context).split()
+    sim = LaunchConfiguration("sim").perform(context).lower() in ("1", "true", "yes")
+    factor = float(LaunchConfiguration("realtime_factor").perform(context))
+    use_sim_time = sim and factor != 1.0
+    actions = []
+    for k, ns in enumerate(namespaces):
+        if sim:
+            fin_sim = LifecycleNode(
+                package="piezofin_ros",
+                executable="fin_sim",
+                name="fin_sim",
+                namespace=ns,
+                parameters=[
+                    params_file,
+                    {"autostart": False, "realtime_factor": factor, "publish_clock": use_sim_time and k == 0},
+                ],
+                output="screen",
+            )
+            configure = EmitEvent(
+                event=ChangeState(
+                    lifecycle_node_matcher=matches_action(fin_sim),
+                    transition_id=Transition.TRANSITION_CONFIGURE,
+                )
+            )
+            activate = RegisterEventHandler(
+                OnStateTransition(
+                    target_lifecycle_node=fin_sim,
+                    goal_state="inactive",
+                    entities=[
+                        EmitEvent(
+                            event=ChangeState(
+                                lifecycle_node_matcher=matches_action(fin_sim),
+                                transition_id=Transition.TRANSITION_ACTIVATE,
+                            )
+                        )
+                    ],
+                )
+            )
+            actions += [fin_sim, activate, configure]
+        for exe in ("thrust_estimator", "controller"):
+            actions.append(
+                Node(
+                    package="piezofin_ros",
+                    executable=exe,
+                    name=exe,
+                    namespace=ns,
+                    parameters=[params_file, {"use_sim_time": use_sim_time}],
+                    output="screen",
+                )
+            )
+    actions.append(
+        Node(
+            package="piezofin_ros",
+            executable="recorder",
+            name="recorder",
+            parameters=[params_file, {"namespaces": namespaces, "use_sim_time": use_sim_time}],
+            output="screen",
+        )
+    )
+    return actions
+
+
+def generate_launch_description():
+    default_params = [FindPackageShare("piezofin_ros"), "/config/bringup.yaml"]
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "params_file", default_value=default_params, description="ROS 2 parameter file"
+            ),
+            DeclareLaunchArgument("namespaces", default_value="fin", description="one namespace per fin"),
+            DeclareLaunchArgument(
+                "sim", default_value="true", description="start fin_sim (false: real drive)"
+            ),
+            DeclareLaunchArgument("realtime_factor", default_value="1.0", description="fin_sim speed"),
+            OpaqueFunction(function=_nodes),
+        ]
+    )
