@@ -191,10 +191,13 @@ def test_parameters_have_ranges_and_reasons() -> None:
         result = sim.set_parameters([Parameter("limits.voltage_pp_max", value=500.0)])[0]
         assert not result.successful
         assert "fixed at start" in result.reason
-        with pytest.raises(InvalidParameterValueException, match=r"limits\.voltage_pp_max"):
+        with pytest.raises((InvalidParameterValueException, StartupError), match=r"limits\.voltage_pp_max"):
             FinSim(
                 context=g.context, node_name="over", parameter_overrides=params(limits__voltage_pp_max=2000.0)
             )
+        with pytest.raises(StartupError, match=r"realtime_factor.*outside"):
+            FinSim(context=g.context, node_name="slow", parameter_overrides=params(realtime_factor=0))
+        assert FinSim(context=g.context, node_name="int", parameter_overrides=params(block_s=1))._block_s == 1.0
         with pytest.raises(StartupError, match="mode"):
             Controller(context=g.context, parameter_overrides=params(mode="sometimes"))
         with pytest.raises(StartupError, match="outside"):

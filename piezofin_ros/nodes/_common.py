@@ -62,13 +62,23 @@ def msg_block(msg: Float64MultiArray, expect: Sequence[str] | None = None) -> Bl
 def float_param(
     node: Node, name: str, default: float, lo: float, hi: float, description: str, *, read_only: bool = False
 ) -> float:
-    """Declare a double parameter with a range; return its value."""
+    """Declare a double parameter with a range; return its value.
+
+    Integers are accepted too (``-p realtime_factor:=10`` parses as an integer), so the
+    descriptor allows dynamic typing and the type and range are checked here for every value.
+    """
     desc = ParameterDescriptor(
         description=description,
         floating_point_range=[FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)],
         read_only=read_only,
+        dynamic_typing=True,
     )
-    return float(node.declare_parameter(name, float(default), desc).value)
+    value = node.declare_parameter(name, float(default), desc).value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise StartupError(f"parameter {name}: expected a number, got {value!r}")
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise StartupError(f"parameter {name}: {value!r} is outside [{lo:g}, {hi:g}]")
+    return float(value)
 
 
 def int_param(node: Node, name: str, default: int, lo: int, hi: int, description: str) -> int:

@@ -78,7 +78,7 @@ class FinSim(LifecycleNode):
         self._fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path")
         self._seed = int_param(self, "seed", 0, 0, 2**31 - 1, "noise seed")
         self._block_s = float_param(
-            self, "block_s", 0.05, 0.005, 1.0, "simulated time per published block, s"
+            self, "block_s", 0.05, 0.0005, 1.0, "simulated time per published block, s"
         )
         self._factor = float_param(self, "realtime_factor", 1.0, 0.01, 1000.0, "simulated s per wall s")
         self._publish_clock = bool_param(self, "publish_clock", False, "publish /clock (sample times)")
@@ -199,17 +199,14 @@ class FinSim(LifecycleNode):
             self.get_logger().warning(event)
         if self._clock_pub is not None:
             self._clock_pub.publish(Clock(clock=Time(nanoseconds=round(float(b.t[-1]) * 1e9)).to_msg()))
-        self._pubs[TOPIC_DRIVE].publish(  # type: ignore[attr-defined]
-            block_msg(Block.from_columns(t_s=b.t, voltage_V=b.voltage, current_A=b.current))
-        )
-        self._pubs[TOPIC_TIP].publish(  # type: ignore[attr-defined]
-            block_msg(Block.from_columns(t_s=b.t, tip_velocity_m_s=b.tip_velocity))
-        )
-        self._pubs[TOPIC_LOADCELL].publish(  # type: ignore[attr-defined]
-            block_msg(Block.from_columns(t_s=b.t, displacement_m=b.displacement))
-        )
-        for key in self.published:
-            self.published[key] += n
+        blocks = {
+            TOPIC_DRIVE: Block.from_columns(t_s=b.t, voltage_V=b.voltage, current_A=b.current),
+            TOPIC_TIP: Block.from_columns(t_s=b.t, tip_velocity_m_s=b.tip_velocity),
+            TOPIC_LOADCELL: Block.from_columns(t_s=b.t, displacement_m=b.displacement),
+        }
+        for topic, block in blocks.items():
+            self._pubs[topic].publish(block_msg(block))  # type: ignore[attr-defined]
+            self.published[topic] += n
 
     def _ramp_down(self, why: str) -> None:
         rig = self._rig
@@ -227,8 +224,11 @@ class FinSim(LifecycleNode):
 
     def close(self) -> None:
         """Ramp the drive down (if still active) and report what was published."""
-        if self._timer is not None and self.context.ok():
-            self._ramp_down("stopping")
+        if self._timer is not None:
+            if self.context.ok():
+                self._ramp_down("stopping")
+            self.destroy_timer(self._timer)
+            self._timer = None
         counts = ", ".join(f"{k} {v}" for k, v in self.published.items())
         self.get_logger().info(f"published samples: {counts}")
 
