@@ -75,9 +75,10 @@ def bench_writers(n: int) -> dict[str, dict[str, float]]:
                 bag.write("/fin/drive", k * 50_000_000, d)
         ours = time.perf_counter() - t0
         t0 = time.perf_counter()
-        with Writer(tmp / "rosbags", version=9, storage_plugin=StoragePlugin.MCAP) as w:
-            if compression == "zstd":
-                w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        w = Writer(tmp / "rosbags", version=9, storage_plugin=StoragePlugin.MCAP)
+        if compression == "zstd":
+            w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        with w:
             conn = w.add_connection("/fin/drive", "std_msgs/msg/Float64MultiArray", typestore=store)
             for k, d in enumerate(data):
                 w.write(conn, k * 50_000_000, d)

@@ -108,3 +108,60 @@ def test_bad_fin_exits_2_naming_it() -> None:
     assert proc.returncode == 2
     assert "no-such-fin" in out
     assert "Traceback" not in out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_recorder_leaves_a_complete_indexed_bag_on_signal(tmp_path: Path, sig: signal.Signals) -> None:
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    bag = tmp_path / "run.mcap"
+    sim = start("fin_sim", "-r", "__ns:=/sig", "-p", "realtime_factor:=5")
+    rec = start("recorder", "-p", f"path:={bag}", "-p", "namespaces:=[sig]")
+    try:
+        time.sleep(6.0)
+        rec.send_signal(sig)
+        out, _ = rec.communicate(timeout=30)
+    finally:
+        for p in (sim, rec):
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                p.communicate(timeout=30)
+    assert rec.returncode == 0, out
+    assert "closed" in out
+    with open(bag, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None  # the summary section and its indexes were written
+    assert summary.statistics is not None and summary.statistics.message_count > 50
+    assert summary.chunk_indexes
+    with AnyReader([bag]) as reader:
+        n = sum(1 for _ in reader.messages())
+    assert n == summary.statistics.message_count
+
+
+@pytest.mark.slow
+def test_bringup_interrupted_closes_the_bag_and_reports(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    bag = tmp_path / "main.mcap"
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "LD_LIBRARY_PATH")
+    }
+    proc = subprocess.Popen(
+        [str(BIN / "bringup"), "--bag", str(bag), "--realtime-factor", "20"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    time.sleep(8.0)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out
+    assert "interrupted, closing the bag" in out
+    assert "trial  f [Hz]" in out  # the summary table of what was done
+    with open(bag, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 100

@@ -197,7 +197,9 @@ def test_parameters_have_ranges_and_reasons() -> None:
             )
         with pytest.raises(StartupError, match=r"realtime_factor.*outside"):
             FinSim(context=g.context, node_name="slow", parameter_overrides=params(realtime_factor=0))
-        assert FinSim(context=g.context, node_name="int", parameter_overrides=params(block_s=1))._block_s == 1.0
+        assert (
+            FinSim(context=g.context, node_name="int", parameter_overrides=params(block_s=1))._block_s == 1.0
+        )
         with pytest.raises(StartupError, match="mode"):
             Controller(context=g.context, parameter_overrides=params(mode="sometimes"))
         with pytest.raises(StartupError, match="outside"):

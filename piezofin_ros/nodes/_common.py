@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import fields
@@ -158,6 +159,34 @@ class StartupError(RuntimeError):
     """A node cannot start (bad configuration); the text is shown without a traceback."""
 
 
+class StopFlag:
+    """SIGINT/SIGTERM set a flag that the spin loop checks between callbacks.
+
+    rclpy's own handler chains to Python's default, which raises ``KeyboardInterrupt`` at any
+    bytecode, possibly in the middle of a callback (half a block published, a bag write cut
+    short).  With this flag a node always finishes the callback it is in, then closes cleanly.
+    """
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def install(self) -> StopFlag:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: object) -> None:
+        self.signal = signum
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def __bool__(self) -> bool:
+        return self.signal is not None
+
+
 def run_node(
     factory: Callable[[rclpy.context.Context], Node],
     args: list[str] | None = None,
@@ -165,13 +194,17 @@ def run_node(
 ) -> int:
     """``ros2 run`` entry point body: init, build, spin with the EventsExecutor, clean up.
 
-    Spins until shutdown, or until ``until(node)`` is true.  Configuration errors exit with
-    status 2 and one readable line; Ctrl-C and SIGTERM exit 0.
+    Spins until SIGINT/SIGTERM (see :class:`StopFlag`), or until ``until(node)`` is true, then
+    calls the node's ``close()``.  Configuration errors exit with status 2 and one readable
+    line; Ctrl-C and SIGTERM exit 0.
     """
     from rclpy.experimental import EventsExecutor
+    from rclpy.signals import SignalHandlerOptions
 
     context = rclpy.Context()
-    rclpy.init(args=args if args is not None else sys.argv, context=context)
+    argv = args if args is not None else sys.argv
+    rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopFlag().install()
     node = None
     executor = None
     try:
@@ -180,7 +213,7 @@ def run_node(
         executor.add_node(node)
         # spin_once in a loop, not spin(): with rclpy 7.1's EventsExecutor.spin() a lifecycle
         # node's services do not answer clients in other processes (measured), spin_once does.
-        while context.ok() and not (until is not None and until(node)):
+        while context.ok() and not stop and not (until is not None and until(node)):
             executor.spin_once(timeout_sec=0.1)
     except (StartupError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -197,4 +230,5 @@ def run_node(
             executor.shutdown()
         if context.ok():
             rclpy.shutdown(context=context)
+        stop.restore()
     return 0

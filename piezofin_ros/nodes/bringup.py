@@ -23,11 +23,12 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 
 from ..fin import FinConfigError, config_dir
 from ..params import load_parameter_file, node_parameters
 from ..report import plot_trials, trial_table
-from ._common import StartupError
+from ._common import StartupError, StopFlag
 from .controller import Controller
 from .fin_sim import FinSim
 from .recorder import Recorder, default_bag_path
@@ -142,8 +143,8 @@ def main(argv: list[str] | None = None) -> int:
 
     args = parse_args(argv if argv is not None else sys.argv[1:])
     context = rclpy.Context()
-    rclpy.init(args=["bringup"], context=context)
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.shutdown(context=context))
+    rclpy.init(args=["bringup"], context=context, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopFlag().install()
     suite = None
     executor = EventsExecutor(context=context)
     wall0 = time.monotonic()
@@ -154,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         suite.activate(executor)
         print(f"bringup: {', '.join(args.namespaces)} -> {suite.bag_path}", file=sys.stderr, flush=True)
         last = -1.0
-        while context.ok() and not suite.finished:
+        while context.ok() and not suite.finished and not stop:
             executor.spin_once(timeout_sec=0.1)
             elapsed = time.monotonic() - wall0
             if elapsed - last >= 5.0:
@@ -169,8 +170,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
-        print("bringup: interrupted, closing the bag", file=sys.stderr)
+        stop.signal = signal.SIGINT
     finally:
+        if stop:
+            print("bringup: interrupted, closing the bag", file=sys.stderr)
         statuses: dict[str, dict[str, Any]] = {}
         if suite is not None:
             suite.close()
@@ -182,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                 n.destroy_node()
         if context.ok():
             rclpy.shutdown(context=context)
+        stop.restore()
     assert suite is not None
     sim_s = max((s.rig.t - s.rig._t0) for s in suite.fin_sims if s.rig is not None)
     for (ns, st), fin in zip(statuses.items(), suite.fins, strict=True):
