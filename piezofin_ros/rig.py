@@ -226,8 +226,35 @@ class RigBlock:
     events: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True)
+class Protocol:
+    """The paper's trial: ``off_s`` without voltage, ``on_s`` of sine, ``off_s`` without voltage."""
+
+    off_s: float = 10.0
+    on_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("off_s", "on_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"protocol {name} must be finite and > 0 s, got {value!r}")
+
+
+@dataclass
+class _Trial:
+    command: DriveCommand
+    t_on: float
+    t_off: float
+    t_end: float
+
+
 class SimulatedRig:
     """Streams the rig's measurements block by block; deterministic for a given ``seed``.
+
+    With ``protocol`` set, the rig runs the paper's trial on its own, like the lab's sequencer:
+    an *on* command for a new operating point starts one trial (off, on, off) that runs to its
+    end without further commands (repeats of the same command are heartbeats; an *off* command
+    aborts the trial and ramps down).  Send *off* then *on* to repeat a point.
 
     >>> rig = SimulatedRig(load_fin("M8528-P1"))
     >>> rig.command(5.5, 800, 1)
@@ -242,8 +269,12 @@ class SimulatedRig:
         *,
         seed: int = 0,
         t0: float = 0.0,
+        protocol: Protocol | None = None,
     ) -> None:
         self.fin = fin
+        self.protocol = protocol
+        self.trial: _Trial | None = None
+        self._last_trial_command: DriveCommand | None = None
         self.config = config or RigConfig()
         self.drive = Drive(limits or DriveLimits(), t=t0)
         self._rng = np.random.default_rng(seed)
@@ -266,18 +297,46 @@ class SimulatedRig:
     def command(self, frequency_hz: float, voltage_pp: float, on: float) -> tuple[bool, str | None]:
         """Check and apply a raw command now; returns ``(accepted, reason)``."""
         cmd, reason = check_command(frequency_hz, voltage_pp, on, self.drive.limits)
-        if cmd is not None:
+        if cmd is None:
+            return False, reason
+        if self.protocol is None:
             self.drive.apply(cmd, self.t)
-        return cmd is not None, reason
+        elif not cmd.on:
+            self.trial = self._last_trial_command = None
+            self.drive.apply(OFF, self.t)
+        elif cmd != self._last_trial_command:
+            p = self.protocol
+            t_on = self.t + p.off_s
+            self.trial = _Trial(cmd, t_on, t_on + p.on_s, t_on + p.on_s + p.off_s)
+            self._last_trial_command = cmd
+            self.drive.apply(OFF, self.t)
+        return True, reason
+
+    def _sequence(self) -> None:
+        """Protocol mode: switch the drive at the trial's times (at block boundaries)."""
+        trial = self.trial
+        if trial is None:
+            return
+        t = self.t
+        if trial.t_on <= t < trial.t_off:
+            self.drive.apply(trial.command, t)  # also keeps the watchdog fed during the burst
+        elif t >= trial.t_off:
+            self.drive.apply(OFF, t)
+            if t >= trial.t_end:
+                self.trial = None
+        else:
+            self.drive.last_command_t = t
 
     def stop(self) -> None:
-        """Ramp to zero (lifecycle deactivate, shutdown)."""
+        """Ramp to zero (lifecycle deactivate, shutdown) and forget any running trial."""
+        self.trial = self._last_trial_command = None
         self.drive.apply(OFF, self.t)
 
     def step(self, n: int) -> RigBlock:
         """Advance by ``n`` samples and return them."""
         cfg, fin = self.config, self.fin
         events = []
+        self._sequence()
         reason = self.drive.watchdog(self.t)
         if reason:
             events.append(reason)

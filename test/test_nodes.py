@@ -253,3 +253,33 @@ def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
         v = np.concatenate([msg_block(m)["voltage_V"] for m in drive])
         assert np.max(np.abs(v)) <= 400.0 + 5 * 0.2 * 6  # never beyond 800 Vpp (noise aside)
         assert np.all(np.abs(v[-20:]) < 2.0)  # deactivate ramped it to zero
+
+
+def test_fin_sim_protocol_mode_one_command_one_trial() -> None:
+    """`-p protocol:=true`: one typed command runs the paper's trial; the estimator reports it."""
+    with graph() as g:
+        sim = g.add(
+            FinSim(
+                context=g.context,
+                parameter_overrides=params(
+                    autostart=False, protocol=True, protocol_off_s=4.0, protocol_on_s=6.0,
+                    realtime_factor=50.0, publish_clock=True, start_time_s=T0,
+                ),
+            )
+        )  # fmt: skip
+        est = g.add(
+            ThrustEstimator(
+                context=g.context, parameter_overrides=SIM_TIME + params(estimator__baseline_s=3.0)
+            )
+        )
+        probe = g.add(__import__("rclpy").create_node("probe", context=g.context))
+        cmd = probe.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+        sim.trigger_configure()
+        g.spin_until(lambda: sim.matched() >= 1 and cmd.get_subscription_count() >= 1, timeout=10.0)
+        sim.trigger_activate()
+        cmd.publish(Float64MultiArray(data=[9.0, 800.0, 1.0]))  # unlabelled, as typed by a person
+        g.spin_until(lambda: any(e.final for e in est.estimates), timeout=30.0, what="the trial's estimate")
+        e = next(e for e in est.estimates if e.final)
+        assert e.frequency_hz == pytest.approx(9.0, rel=1e-4)
+        assert e.loadcell_baselines == 2
+        assert T0 + 4.0 < e.t_start < e.t_end <= T0 + 10.0 + 1e-3

@@ -109,3 +109,38 @@ def test_rig_config_rejects_bad_values() -> None:
         RigConfig(sample_rate_hz=0.0)
     with pytest.raises(ValueError, match=r"rig\.current_noise_a"):
         RigConfig(current_noise_a=math.nan)
+
+
+def test_protocol_mode_runs_the_papers_trial_on_one_command(m8528: Fin) -> None:
+    from piezofin_ros.rig import Protocol
+
+    rig = SimulatedRig(m8528, QUIET, protocol=Protocol(off_s=2.0, on_s=3.0))
+    rig.command(9.0, 800.0, 1)  # one command only: the watchdog must not stop the burst
+    blocks = [rig.step(50) for _ in range(200)]  # 10 s
+    t = np.concatenate([b.t for b in blocks])
+    v = np.concatenate([b.voltage for b in blocks])
+    assert np.all(v[t <= 2.0] == 0.0)
+    burst = (t > 2.25) & (t < 5.0)
+    assert np.max(np.abs(v[burst])) == pytest.approx(400.0, rel=1e-3)
+    assert np.all(v[t > 5.25] == 0.0)
+    assert rig.trial is None
+    assert not any(e for b in blocks for e in b.events)  # no watchdog event
+    rig.command(9.0, 800.0, 1)  # the same point again: a heartbeat, not a new trial
+    assert rig.trial is None
+    rig.command(9.0, 0.0, 0)
+    rig.command(9.0, 800.0, 1)  # off, then on: a new trial
+    assert rig.trial is not None
+
+
+def test_protocol_mode_off_aborts(m8528: Fin) -> None:
+    from piezofin_ros.rig import Protocol
+
+    rig = SimulatedRig(m8528, QUIET, protocol=Protocol(off_s=0.5, on_s=5.0))
+    rig.command(9.0, 800.0, 1)
+    for _ in range(30):
+        rig.step(50)
+    assert rig.drive.voltage_pp == pytest.approx(800.0)
+    rig.command(0.0, 0.0, 0)
+    v = np.concatenate([rig.step(50).voltage for _ in range(10)])
+    assert np.all(v[-200:] == 0.0)
+    assert rig.trial is None

@@ -1,7 +1,9 @@
 """``fin_sim``: the simulated hardware, a lifecycle node over :class:`~piezofin_ros.rig.SimulatedRig`.
 
 The drive is at zero volts unless the node is active.  On deactivate (and on shutdown) the
-drive ramps to zero and the ramp is published, so the last samples show a safe drive.  Each
+drive ramps to zero and the ramp is published, so the last samples show a safe drive.  With
+``protocol`` the node runs the paper's trial (``protocol_off_s`` off, ``protocol_on_s`` on,
+``protocol_off_s`` off) on each on-command for a new operating point, like the lab's sequencer.  Each
 timer tick advances the simulation by one block (``block_s``); the timer period is
 ``block_s / realtime_factor``, so the simulation runs at ``realtime_factor`` times real time.
 With ``publish_clock`` the node publishes ``/clock`` (the time of its last sample) and the rest
@@ -23,7 +25,7 @@ from std_msgs.msg import Float64MultiArray
 
 from ..blocks import COMMAND_FIELDS, Block, BlockFormatError
 from ..fin import Fin, FinConfigError, load_fin
-from ..rig import HARD_VOLTAGE_PP_MAX, DriveLimits, RigConfig, SimulatedRig
+from ..rig import HARD_VOLTAGE_PP_MAX, DriveLimits, Protocol, RigConfig, SimulatedRig
 from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
@@ -90,6 +92,11 @@ class FinSim(LifecycleNode):
             1e10,
             "time of the first sample, s (0: the node clock at configure)",
         )
+        self._protocol = bool_param(
+            self, "protocol", False, "run the paper's trial (off, on, off) on each new on-command"
+        )
+        self._protocol_off = float_param(self, "protocol_off_s", 10.0, 0.1, 600.0, "protocol: time off, s")
+        self._protocol_on = float_param(self, "protocol_on_s", 10.0, 0.1, 600.0, "protocol: time on, s")
         self.autostart = bool_param(self, "autostart", True, "configure and activate at start (ros2 run)")
         self._rig_config = dataclass_params(self, "rig", RigConfig(), RIG_RANGES, "rig model (SI units)")
         self._limits = dataclass_params(
@@ -112,7 +119,10 @@ class FinSim(LifecycleNode):
             self.get_logger().error(f"cannot configure: {exc}")
             return TransitionCallbackReturn.FAILURE
         t0 = self._start_time or self.get_clock().now().nanoseconds * 1e-9
-        self._rig = SimulatedRig(self._fin, self._rig_config, self._limits, seed=self._seed, t0=t0)
+        protocol = Protocol(self._protocol_off, self._protocol_on) if self._protocol else None
+        self._rig = SimulatedRig(
+            self._fin, self._rig_config, self._limits, seed=self._seed, t0=t0, protocol=protocol
+        )
         self._n_block = max(1, round(self._block_s * self._rig_config.sample_rate_hz))
         self._pubs = {
             name: self.create_lifecycle_publisher(Float64MultiArray, name, QOS_DATA)
