@@ -20,7 +20,6 @@ This module has no ROS dependency: nodes convert messages with :func:`from_layou
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -169,8 +168,3 @@ def check_samples(block: Block, channels: Sequence[str]) -> Block:
     if block.n > 1 and np.any(np.diff(t) <= 0):
         raise BlockFormatError("sample times do not increase strictly")
     return Block(tuple(channels), np.stack([block[c] for c in channels]))
-
-
-def finite_or_nan(x: float) -> float:
-    """``x`` if finite else NaN (estimates use NaN for "not available")."""
-    return x if math.isfinite(x) else math.nan

@@ -257,7 +257,7 @@ class _Pending:
     t_end: float
     n_periods: int
     final: bool
-    pre: tuple[float, float] | None
+    pre: tuple[float, float] | None  # load-cell pre-baseline window (the drive off before it), if any
     post: tuple[float, float] | None = None
     post_open: bool = False  # the post baseline may still be cut short by a restart
     await_off: bool = False  # ended by a change: a stop that follows soon still gives a post baseline
@@ -265,9 +265,7 @@ class _Pending:
 
 @dataclass
 class _Segment:
-    t_on: float  # first time above the threshold (or the segment's first crossing)
-    from_off: bool  # started from rest: the load cell has a pre baseline
-    pre: tuple[float, float] | None
+    pre: tuple[float, float] | None  # load-cell pre-baseline window (the drive off before it), if any
     periods: list[tuple[float, float, float]] = field(default_factory=list)  # (t0, t1, vpp)
     next_window: int = 0  # index of the first period of the next running window
 
@@ -394,7 +392,7 @@ class StreamEstimator:
         self._last_final = None
         pre = (t_on - guard - cfg.baseline_s, t_on - guard)
         ok = self._off_since <= pre[0] and self._first_t <= pre[0]
-        self._segment = _Segment(t_on, True, pre if ok else None)
+        self._segment = _Segment(pre if ok else None)
         self._last_cross = math.nan
 
     def _on_period(self, t0: float, t1: float, vpp: float) -> None:
@@ -410,7 +408,7 @@ class StreamEstimator:
                 # pre baseline on; the next settled segment is the same trial.
                 transient = seg.periods[-1][1] - seg.periods[0][0] < cfg.settle_s
                 self._end_segment(t0, by_off=False)
-                seg = self._segment = _Segment(t0, seg.from_off and transient, seg.pre if transient else None)
+                seg = self._segment = _Segment(seg.pre if transient else None)
         seg.periods.append((t0, t1, vpp))
         settled = [p for p in seg.periods[seg.next_window :] if p[0] >= seg.periods[0][0] + cfg.settle_s]
         if settled and self._last_final is not None:

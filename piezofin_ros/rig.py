@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from .fin import Fin
-from .timedomain import _rk4_batch, default_step
+from .timedomain import default_step, integrate_nodes
 
 FloatArray = NDArray[Any]
 
@@ -346,21 +346,7 @@ class SimulatedRig:
         k0 = self._k
         nodes = self._t0 + (k0 + np.arange(2 * substeps * n + 1) / (2 * substeps)) * dt
         v_nodes, dv_nodes = self.drive.render(nodes)
-        eta = np.empty((1, n + 1))
-        deta = np.empty((1, n + 1))
-        _rk4_batch(
-            v_nodes[None, :],
-            h,
-            substeps,
-            1.0 / (1.0 + fin.mu),
-            2.0 * fin.zeta * fin.omega_n,
-            fin.gamma,
-            fin.omega_n**2,
-            fin.theta,
-            self._state,
-            eta,
-            deta,
-        )
+        eta, deta = integrate_nodes(fin, v_nodes[None, :], h, substeps, self._state)
         self._state = np.array([[eta[0, -1], deta[0, -1]]])
         self._k += n
         t = self._t0 + (k0 + np.arange(1, n + 1)) * dt

@@ -156,6 +156,35 @@ class Trajectory:
         )
 
 
+def integrate_nodes(
+    fin: Fin, v_nodes: FloatArray, h: float, substeps: int, state0: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """RK4 of Eq. (9) from ``state0`` (``(n, 2)``) over voltages given at every half step.
+
+    ``v_nodes`` is ``(n, 2 * substeps * (n_out - 1) + 1)``; returns ``eta`` and ``deta/dt`` at the
+    ``n_out`` output samples (the first is ``state0``).  Shared by :func:`simulate_batch` and the
+    streaming rig, which calls it block by block with the state carried over.
+    """
+    n, n_nodes = v_nodes.shape
+    n_out = (n_nodes - 1) // (2 * substeps) + 1
+    eta = np.empty((n, n_out))
+    deta = np.empty((n, n_out))
+    _rk4_batch(
+        v_nodes,
+        h,
+        substeps,
+        1.0 / (1.0 + fin.mu),
+        2.0 * fin.zeta * fin.omega_n,
+        fin.gamma,
+        fin.omega_n**2,
+        fin.theta,
+        np.ascontiguousarray(state0, dtype=float),
+        eta,
+        deta,
+    )
+    return eta, deta
+
+
 def default_step(fin: Fin, max_drive_hz: float = 0.0) -> float:
     """Largest step (s) that keeps 60 steps per shortest period (free vibration or drive)."""
     f_fast = max(fin.f_water_linear, fin.f_sc if fin.rho_w == 0 else 0.0, max_drive_hz)
@@ -193,21 +222,7 @@ def simulate_batch(
     v_nodes = np.stack([np.asarray(w.value(t_nodes), dtype=float) for w in waveforms])
     n = len(waveforms)
     state0 = np.zeros((n, 2)) if initial_state is None else np.asarray(initial_state, float).reshape(n, 2)
-    eta = np.empty((n, n_out))
-    deta = np.empty((n, n_out))
-    _rk4_batch(
-        v_nodes,
-        h,
-        substeps,
-        1.0 / (1.0 + fin.mu),
-        2.0 * fin.zeta * fin.omega_n,
-        fin.gamma,
-        fin.omega_n**2,
-        fin.theta,
-        state0,
-        eta,
-        deta,
-    )
+    eta, deta = integrate_nodes(fin, v_nodes, h, substeps, state0)
     t = t_nodes[:: 2 * substeps]
     return [
         Trajectory(

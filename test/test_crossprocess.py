@@ -94,19 +94,15 @@ def test_no_drops_at_the_default_rate_for_10_s() -> None:
     assert 390 < np.max(np.abs(v)) < 402  # the command reached the drive, within the limit
 
 
-def test_bad_parameter_exits_2_with_the_name() -> None:
-    proc = start("fin_sim", "-p", "limits.voltage_pp_max:=2000.0")
+@pytest.mark.parametrize(
+    ("arg", "named"),
+    [("limits.voltage_pp_max:=2000.0", "limits.voltage_pp_max"), ("fin:=no-such-fin", "no-such-fin")],
+)
+def test_bad_configuration_exits_2_naming_it(arg: str, named: str) -> None:
+    proc = start("fin_sim", "-p", arg)
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 2
-    assert "limits.voltage_pp_max" in out
-    assert "Traceback" not in out
-
-
-def test_bad_fin_exits_2_naming_it() -> None:
-    proc = start("fin_sim", "-p", "fin:=no-such-fin")
-    out, _ = proc.communicate(timeout=30)
-    assert proc.returncode == 2
-    assert "no-such-fin" in out
+    assert named in out
     assert "Traceback" not in out
 
 

@@ -128,7 +128,7 @@ class Controller(Node):
             if self._missing_in_a_row() >= self.max_missing:
                 self.runner.aborted = f"{self.max_missing} trials in a row without an estimate"
                 self.get_logger().error(f"stopping the run and the drive: {self.runner.aborted}")
-        if self.runner.done and not self.finished and self._all_settled(t):
+        if self.runner.done and not self.finished and self._all_settled():
             self._finish()
         if self.finished:
             c = self.chosen
@@ -146,7 +146,7 @@ class Controller(Node):
                 break
         return n
 
-    def _all_settled(self, t: float) -> bool:
+    def _all_settled(self) -> bool:
         return all(r.estimate is not None or r.index in self._reported_missing for r in self.runner.results)
 
     def _finish(self) -> None:
