@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -283,3 +284,57 @@ def test_fin_sim_protocol_mode_one_command_one_trial() -> None:
         assert e.frequency_hz == pytest.approx(9.0, rel=1e-4)
         assert e.loadcell_baselines == 2
         assert T0 + 4.0 < e.t_start < e.t_end <= T0 + 10.0 + 1e-3
+
+
+def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
+    """Live: the controller optimises from self-sensed estimates; kill the estimator, the drive ramps to 0."""
+    with graph() as g:
+        ctx = g.context
+        sim = g.add(
+            FinSim(
+                context=ctx,
+                parameter_overrides=params(
+                    autostart=False, realtime_factor=50.0, publish_clock=True, start_time_s=T0
+                ),
+            )
+        )
+        est = ThrustEstimator(
+            context=ctx,
+            parameter_overrides=SIM_TIME + params(estimator__window_s=2.0, estimator__settle_s=2.0),
+        )
+        g.executor.add_node(est)
+        ctl = g.add(
+            Controller(
+                context=ctx,
+                parameter_overrides=SIM_TIME
+                + params(mode="optimise", demand_n=4e-3, estimate_timeout_s=3.0, slew_vpp_per_s=400.0),
+            )
+        )
+        probe = g.add(__import__("rclpy").create_node("probe", context=ctx, parameter_overrides=SIM_TIME))
+        sent: list[tuple[float, float, float]] = []
+
+        def on_cmd(m: Float64MultiArray) -> None:
+            from piezofin_ros.nodes._common import msg_block
+
+            b = msg_block(m)
+            sent.append(
+                (probe.get_clock().now().nanoseconds * 1e-9, b.scalar("voltage_pp_V"), b.scalar("on"))
+            )
+
+        probe.create_subscription(Float64MultiArray, "cmd", on_cmd, QOS_COMMAND)
+        sim.trigger_configure()
+        g.spin_until(lambda: sim.matched() >= 1, timeout=10.0)
+        sim.trigger_activate()
+        g.spin_until(lambda: ctl.loop.trials >= 2, timeout=60.0, what="two optimiser trials")
+        assert max(v for _, v, _ in sent) <= 800.0
+        assert ctl.status()["self_vs_vibrometer"] == pytest.approx(0.0, abs=0.01)
+        g.executor.remove_node(est)  # the estimator dies
+        est.destroy_node()
+        t_kill = sent[-1][0]
+        g.spin_until(lambda: ctl.loop.state == "stopped", timeout=60.0, what="ramp down")
+        g.spin_for(0.2)
+        assert sent[-1][1] == 0.0 and sent[-1][2] == 0.0
+        after = [v for t, v, _ in sent if t > t_kill + 0.5]  # (a trial change may be in flight at the kill)
+        assert all(b <= a + 1e-9 for a, b in itertools.pairwise(after))  # holds, then only down
+        t_zero = next(t for t, v, _ in sent if t > t_kill and v == 0.0)
+        assert t_zero - t_kill <= 2 * 3.0 + 800.0 / 400.0 + 1.0  # bounded: 2 x timeout + a full ramp

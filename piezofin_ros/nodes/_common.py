@@ -40,6 +40,7 @@ TOPIC_CMD = "cmd"
 TOPIC_ESTIMATE = "estimate"
 TOPIC_SPEED = "swim_speed"
 TOPIC_STATUS = "controller/status"
+TOPIC_DEMAND = "thrust_demand"
 
 
 def block_msg(block: Block) -> Float64MultiArray:

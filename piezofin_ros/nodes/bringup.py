@@ -48,7 +48,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--realtime-factor", type=float, default=40.0, help="simulated s per wall s (default 40)")
     p.add_argument("--frequencies", type=float, nargs="+", help="trial frequencies, Hz (override the config)")
     p.add_argument("--voltages", type=float, nargs="+", help="trial voltages, Vpp (override the config)")
-    p.add_argument("--mode", choices=("protocol", "continuous"), help="trial mode (override the config)")
+    p.add_argument(
+        "--mode", choices=("protocol", "continuous", "optimise"), help="controller mode (override)"
+    )
+    p.add_argument("--demand", type=float, help="optimise: thrust demand, N")
+    p.add_argument("--duration", type=float, help="optimise: simulated seconds to run")
     p.add_argument("--plot", help="write a figure of the results to this PNG")
     p.add_argument("--json", help="write the controllers' final status to this JSON file")
     p.add_argument("--timeout", type=float, default=3600.0, help="stop after this many wall seconds")
@@ -94,6 +98,10 @@ class Suite:
                 ctl_extra["voltages"] = [float(v) for v in args.voltages]
             if args.mode:
                 ctl_extra["mode"] = args.mode
+            if args.demand is not None:
+                ctl_extra["demand_n"] = float(args.demand)
+            if args.duration is not None:
+                ctl_extra["duration_s"] = float(args.duration)
             ctl = Controller(
                 context=context, namespace=ns, parameter_overrides=params("controller", ctl_extra)
             )
@@ -189,6 +197,17 @@ def main(argv: list[str] | None = None) -> int:
     assert suite is not None
     sim_s = max((s.rig.t - s.rig._t0) for s in suite.fin_sims if s.rig is not None)
     for (ns, st), fin in zip(statuses.items(), suite.fins, strict=True):
+        if st.get("mode") == "optimise":
+            demand = st["demand_n"]
+            print(
+                f"\n{ns}: {fin.name}, optimiser {st['state']} after {st['trials']} trials, "
+                f"{'converged' if st['converged'] else 'not converged'}: {st['frequency_hz']:.2f} Hz, "
+                f"{st['voltage_pp']:.0f} Vpp, thrust {st['predicted_thrust_n'] * 1e3:.3f} mN, "
+                f"power {st['predicted_power_w'] * 1e3:.3f} mW"
+                + (f" (demand {demand * 1e3:.2f} mN)" if demand else "")
+                + f"; self-sensed vs vibrometer thrust {st['self_vs_vibrometer'] * 100:+.2f} %"
+            )
+            continue
         print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))
         print(trial_table(st["results"], st["chosen"]))  # type: ignore[arg-type]
         if args.plot:

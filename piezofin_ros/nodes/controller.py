@@ -17,16 +17,19 @@ import sys
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64MultiArray, String
+from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..blocks import Block, BlockFormatError
 from ..estimation import Estimate
+from ..fin import FinConfigError, load_fin
+from ..optimise import DriveLoop, Limits, Optimiser
 from ..rig import HARD_VOLTAGE_PP_MAX
 from ..trials import SOURCES, Mode, TrialPlan, TrialRunner, choose
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
     TOPIC_CMD,
+    TOPIC_DEMAND,
     TOPIC_ESTIMATE,
     TOPIC_STATUS,
     StartupError,
@@ -46,7 +49,12 @@ class Controller(Node):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         freqs = array_param(self, "frequencies", [5.5], Parameter.Type.DOUBLE_ARRAY, "trial frequencies, Hz")
         volts = array_param(self, "voltages", [800.0], Parameter.Type.DOUBLE_ARRAY, "trial voltages, Vpp")
-        mode = str_param(self, "mode", "protocol", "protocol (10 s off, on_s on, 10 s off) or continuous")
+        mode = str_param(
+            self,
+            "mode",
+            "protocol",
+            "protocol or continuous (trials of a grid), or optimise (thrust per watt)",
+        )
         off_s = float_param(
             self, "off_s", 10.0, 0.5, 600.0, "protocol: time without voltage before and after, s"
         )
@@ -61,18 +69,68 @@ class Controller(Node):
         self.min_thrust = float_param(
             self, "min_thrust_n", 1e-3, 0.0, 10.0, "least thrust of the chosen point, N"
         )
-        self.source = str_param(
-            self, "source", "vibrometer", f"estimate that ranks points: {', '.join(SOURCES)}"
-        )
+        self.source = str_param(self, "source", "self", f"estimate that ranks points: {', '.join(SOURCES)}")
         self.after = str_param(
             self, "after", "stop", "after the trials: stop (0 V) or hold (drive the chosen point)"
         )
         self.max_missing = int_param(
             self, "max_missing", 2, 1, 1000, "missing estimates in a row that stop the run"
         )
+        fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path (the optimiser's model)")
+        demand = float_param(self, "demand_n", 0.0, 0.0, 10.0, "optimise: thrust demand, N (0: none)")
+        self.voltage_pp = float_param(
+            self, "voltage_pp", 800.0, 1.0, HARD_VOLTAGE_PP_MAX, "optimise, no demand: the drive voltage, Vpp"
+        )
+        f_min = float_param(self, "frequency_min_hz", 1.0, 0.01, 1000.0, "lowest frequency, Hz")
+        slew = float_param(self, "slew_vpp_per_s", 400.0, 1.0, 1e5, "optimise: voltage slew limit, Vpp/s")
+        timeout = float_param(
+            self,
+            "estimate_timeout_s",
+            10.0,
+            0.5,
+            600.0,
+            "optimise: hold after this long without estimates, s",
+        )
+        self.duration_s = float_param(
+            self, "duration_s", 0.0, 0.0, 1e7, "optimise: stop after this long (0: never)"
+        )
         reject_runtime_changes(self, mutable=set())
+        self.loop: DriveLoop | None = None
+        if mode == "optimise":
+            if self.source not in SOURCES:
+                raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
+            try:
+                limits = Limits(f_min, self.frequency_max, 50.0, self.voltage_limit)
+                optimiser = Optimiser(
+                    load_fin(fin_name), limits, self.voltage_pp, demand or None, min_thrust_n=self.min_thrust
+                )
+            except (ValueError, FinConfigError) as exc:
+                raise StartupError(f"optimiser: {exc}") from None
+            self.loop = DriveLoop(optimiser, self.source, slew, timeout)
+            self.runner = TrialRunner(
+                TrialPlan(((optimiser.choice.frequency_hz, optimiser.choice.voltage_pp),))
+            )
+            self._start_t: float | None = None
+            self._last_status_t = -math.inf
+            self.finished = False
+            self.chosen = None
+            self._reported_missing: set[int] = set()
+            self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
+            self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
+            self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
+            self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
+            self._timer = self.create_timer(1.0 / heartbeat, self._tick_optimise)
+            self.get_logger().info(
+                f"optimising thrust per watt from {self.source} estimates, "
+                + (
+                    f"demand {demand * 1e3:.2f} mN"
+                    if demand
+                    else f"best frequency at {self.voltage_pp:g} Vpp"
+                )
+            )
+            return
         if mode not in {m.value for m in Mode}:
-            raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous")
+            raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous, optimise")
         if self.source not in SOURCES:
             raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
         if self.after not in ("stop", "hold"):
@@ -163,16 +221,54 @@ class Controller(Node):
             )
         self._publish_status()
 
+    def _on_demand(self, msg: Float64) -> None:
+        assert self.loop is not None
+        d = float(msg.data)
+        if not (math.isfinite(d) and 0.0 <= d <= 10.0):
+            self.get_logger().warning(f"ignored thrust demand {d!r} N (must be within [0, 10] N)")
+            return
+        self.loop.optimiser.set_demand(d or None)
+        self.get_logger().info(f"thrust demand {d * 1e3:.2f} mN" if d else "no thrust demand")
+
+    def _tick_optimise(self) -> None:
+        loop = self.loop
+        assert loop is not None
+        t = self._now()
+        if t == 0.0:
+            return
+        if self._start_t is None:
+            self._start_t = t
+        if self.duration_s and t - self._start_t >= self.duration_s and not self.finished:
+            self.finished = True
+            c = loop.optimiser.choice
+            self.get_logger().info(f"done after {self.duration_s:g} s: {c}")
+            self._publish_status()
+        if self.finished and self.after == "stop":
+            loop.state = "ramping down" if loop.state != "stopped" else "stopped"
+        f, v, on = loop.tick(t)
+        for event in loop.events:
+            self.get_logger().warning(event)
+        loop.events.clear()
+        self._send(f, v, on)
+        if t - self._last_status_t >= 1.0:
+            self._last_status_t = t
+            self._publish_status()
+
     def _on_estimate(self, msg: Float64MultiArray) -> None:
         try:
             e = Estimate.from_dict(msg_block(msg, expect=Estimate.field_names()).as_dict())
         except (BlockFormatError, KeyError) as exc:
             self.get_logger().warning(f"ignored an estimate: {exc}", throttle_duration_sec=5.0)
             return
+        if self.loop is not None:
+            self.loop.add_estimate(self._now(), e)
+            return
         if self.runner.add_estimate(e):
             self._publish_status()
 
     def status(self) -> dict[str, object]:
+        if self.loop is not None:
+            return {"mode": "optimise", "finished": self.finished, **self.loop.status()}
         r = self.runner
         state = "aborted" if r.aborted else ("done" if self.finished else "running")
         return {

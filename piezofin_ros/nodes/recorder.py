@@ -24,6 +24,7 @@ from ._common import (
     QOS_COMMAND,
     QOS_DATA,
     TOPIC_CMD,
+    TOPIC_DEMAND,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
     TOPIC_LOADCELL,
@@ -50,6 +51,7 @@ SUITE_TOPICS = {
     TOPIC_ESTIMATE: F64A,
     TOPIC_SPEED: "std_msgs/msg/Float64",
     TOPIC_STATUS: "std_msgs/msg/String",
+    TOPIC_DEMAND: "std_msgs/msg/Float64",
 }
 GLOBAL_TOPICS = {"/clock": "rosgraph_msgs/msg/Clock"}
 

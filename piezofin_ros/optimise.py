@@ -1,0 +1,488 @@
+r"""Thrust-per-watt optimiser: the model's map, corrected by what the fin measures.
+
+The problem
+-----------
+Choose the drive frequency ``f`` and peak-to-peak voltage ``V`` within :class:`Limits`:
+
+* with a thrust demand ``D``: deliver ``T(f, V) >= D`` with the least electrical power (the most
+  thrust per watt at that thrust).  ``T`` increases strictly with ``V`` at any ``f`` (a property
+  the tests check on the model), so for every ``f`` the least voltage ``V*(f)`` that gives ``D`` is
+  found by bisection and the search is one-dimensional: ``min_f P(f, V*(f))``;
+* without a demand: the paper's convention, the frequency of the highest thrust per watt at the
+  configured voltage, among frequencies that give at least ``min_thrust_n`` (default 1 mN: without
+  it the nominal model's optimum is the lowest frequency, where thrust and power are both a few
+  micro-units and the power is below the current monitor's noise);
+* when ``D`` cannot be met within the limits: the most thrust available, flagged infeasible.
+
+How it learns
+-------------
+The map comes from the harmonic balance of the fin model, through a *correction*: five
+parameters a real fin changes (:class:`Correction`): the resonance (``resonance_scale``), its
+fall with drive voltage (``softening``, electroelastic), the drag coefficient (``drag_scale``), a
+dielectric loss ``P += (1/2) tan(delta) C_eq w (V/2)^2`` and a thrust gain.  After each trial
+the correction is fitted to the measurements (log thrust and log power, weighted by the
+measurement noise) with weak priors around the nominal fin, so one trial already moves the map
+and the fit stays well posed.  The next trial goes to the corrected map's optimum; when that
+optimum stops moving (within ``tolerance``) the point is held, and every ``probe_every`` trials
+a probe at ``f (1 +- probe_step)`` keeps the fit informed.  A measurement more than
+``change_sigma`` off the fit's prediction means the fin has changed (drift, temperature, a new
+load): the older measurements are dropped and the fit starts again from the latest, so a
+drifting fin is followed without a restart.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize
+
+from .fin import Fin
+from .plants import Noise, Plant, PlantResponse
+from .rig import HARD_VOLTAGE_PP_MAX
+
+FloatArray = NDArray[Any]
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The operating box.  ``voltage_pp_max`` can never exceed the MFC's hard cap."""
+
+    frequency_min_hz: float = 1.0
+    frequency_max_hz: float = 20.0
+    voltage_pp_min: float = 50.0
+    voltage_pp_max: float = 800.0
+
+    def __post_init__(self) -> None:
+        vals = (self.frequency_min_hz, self.frequency_max_hz, self.voltage_pp_min, self.voltage_pp_max)
+        if not all(math.isfinite(x) and x > 0 for x in vals):
+            raise ValueError(f"limits must be finite and > 0, got {vals}")
+        if self.frequency_min_hz >= self.frequency_max_hz or self.voltage_pp_min >= self.voltage_pp_max:
+            raise ValueError("limits: each minimum must be below its maximum")
+        if self.voltage_pp_max > HARD_VOLTAGE_PP_MAX:
+            raise ValueError(
+                f"voltage_pp_max {self.voltage_pp_max} V exceeds the hard cap {HARD_VOLTAGE_PP_MAX} V"
+            )
+
+    def clamp(self, f: float, v: float) -> tuple[float, float]:
+        """The nearest point inside the box (NaN goes to the lower corner: the safe side)."""
+        f = (
+            self.frequency_min_hz
+            if not math.isfinite(f)
+            else min(max(f, self.frequency_min_hz), self.frequency_max_hz)
+        )
+        v = (
+            self.voltage_pp_min
+            if not math.isfinite(v)
+            else min(max(v, self.voltage_pp_min), self.voltage_pp_max)
+        )
+        return f, v
+
+
+@dataclass(frozen=True)
+class Correction:
+    """How the real fin differs from the model (1/0 = the nominal model)."""
+
+    resonance_scale: float = 1.0
+    softening: float = 0.0
+    drag_scale: float = 1.0
+    loss_tan_delta: float = 0.0
+    thrust_gain: float = 1.0
+
+    def plant(self, fin: Fin) -> Plant:
+        return Plant(
+            fin.replace(c_d=fin.c_d * self.drag_scale),
+            softening=self.softening,
+            loss_tan_delta=self.loss_tan_delta,
+            resonance_scale=self.resonance_scale,
+        )
+
+    def response(self, fin: Fin, f: Any, v: Any) -> PlantResponse:
+        r = self.plant(fin).steady(f, v)
+        return PlantResponse(r.thrust_n * self.thrust_gain, r.power_w, r.tip_velocity_rms)
+
+
+# (vector -> Correction) with log parameters where a scale is positive; priors (mean, sigma).
+_PRIOR_MEAN = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+_PRIOR_SIGMA = np.array([0.3, 0.3, 0.7, 0.3, 0.3])
+_LOWER = np.array([math.log(0.3), 0.0, math.log(0.1), 0.0, math.log(0.2)])
+_UPPER = np.array([math.log(2.0), 0.8, math.log(10.0), 2.0, math.log(5.0)])
+
+
+def _correction(x: FloatArray) -> Correction:
+    return Correction(math.exp(x[0]), float(x[1]), math.exp(x[2]), float(x[3]), math.exp(x[4]))
+
+
+@dataclass(frozen=True)
+class Choice:
+    frequency_hz: float
+    voltage_pp: float
+    thrust_n: float  # predicted
+    power_w: float  # predicted
+    feasible: bool  # the demand can be met
+
+    @property
+    def thrust_per_watt(self) -> float:
+        return self.thrust_n / self.power_w if self.power_w > 0 else 0.0
+
+
+def best_point(
+    fin: Fin,
+    correction: Correction,
+    limits: Limits,
+    demand_n: float | None,
+    voltage_pp: float,
+    min_thrust_n: float = 1e-3,
+    n_grid: int = 160,
+) -> Choice:
+    """The optimum of the corrected map (see the module docstring)."""
+    f = np.geomspace(limits.frequency_min_hz, limits.frequency_max_hz, n_grid)
+    if demand_n is None:
+        v = min(max(voltage_pp, limits.voltage_pp_min), limits.voltage_pp_max)
+        r = correction.response(fin, f, v)
+        ok = r.thrust_n >= min_thrust_n
+        if not np.any(ok):
+            i = int(np.argmax(r.thrust_n))
+            return Choice(float(f[i]), v, float(r.thrust_n[i]), float(r.power_w[i]), False)
+        i = int(np.argmax(np.where(ok, r.thrust_per_watt, -np.inf)))
+        lo, hi = f[max(i - 1, 0)], f[min(i + 1, n_grid - 1)]
+
+        def negative_tpw(x: float) -> float:
+            rx = correction.response(fin, x, v)
+            return -float(rx.thrust_per_watt) if float(rx.thrust_n) >= min_thrust_n else 0.0
+
+        res = optimize.minimize_scalar(
+            negative_tpw, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * lo}
+        )
+        fb = float(res.x) if -res.fun >= r.thrust_per_watt[i] else float(f[i])
+        rb = correction.response(fin, fb, v)
+        return Choice(fb, v, float(rb.thrust_n), float(rb.power_w), True)
+    vmax = correction.response(fin, f, limits.voltage_pp_max)
+    feasible = vmax.thrust_n >= demand_n
+    if not np.any(feasible):
+        i = int(np.argmax(vmax.thrust_n))
+        return Choice(
+            float(f[i]), limits.voltage_pp_max, float(vmax.thrust_n[i]), float(vmax.power_w[i]), False
+        )
+    lo = np.full_like(f, limits.voltage_pp_min)
+    hi = np.full_like(f, limits.voltage_pp_max)
+    for _ in range(40):  # bisection on V: T increases with V at every f
+        mid = 0.5 * (lo + hi)
+        ok = correction.response(fin, f, mid).thrust_n >= demand_n
+        hi = np.where(ok, mid, hi)
+        lo = np.where(ok, lo, mid)
+    r = correction.response(fin, f, hi)
+    power = np.where(feasible, r.power_w, np.inf)
+    i = int(np.argmin(power))
+    return Choice(float(f[i]), float(hi[i]), float(r.thrust_n[i]), float(r.power_w[i]), True)
+
+
+@dataclass(frozen=True)
+class Observation:
+    t: float
+    frequency_hz: float
+    voltage_pp: float
+    thrust_n: float
+    power_w: float
+
+
+@dataclass
+class Optimiser:
+    """Propose operating points, learn from their estimates; pure Python (the node drives it)."""
+
+    fin: Fin
+    limits: Limits = field(default_factory=Limits)
+    voltage_pp: float = 800.0  # the configured voltage (no demand)
+    demand_n: float | None = None
+    min_thrust_n: float = 1e-3  # without a demand: the least thrust worth having
+    demand_margin: float = 0.005  # aim this much above the demand, so noise and drift rarely miss it
+    noise: Noise = field(default_factory=Noise)
+    memory_s: float = 300.0  # forget measurements older than this
+    change_sigma: float = 3.0  # a measurement this many sigma off the fit means the fin changed
+    changes: int = 0
+    tolerance: float = 0.02
+    probe_every: int = 4
+    probe_step: float = 0.06
+    observations: list[Observation] = field(default_factory=list)
+    correction: Correction = field(default_factory=Correction)
+    choice: Choice | None = None
+    converged: bool = False
+    _held: int = 0
+    _probe_sign: float = 1.0
+
+    def __post_init__(self) -> None:
+        self.choice = best_point(
+            self.fin, self.correction, self.limits, self._target(), self.voltage_pp, self.min_thrust_n
+        )
+
+    def _target(self) -> float | None:
+        return None if self.demand_n is None else self.demand_n * (1.0 + self.demand_margin)
+
+    def set_demand(self, demand_n: float | None) -> None:
+        """A new demand (None or <= 0: none).  Non-finite values are ignored."""
+        if demand_n is not None and not math.isfinite(demand_n):
+            return
+        self.demand_n = demand_n if demand_n is not None and demand_n > 0 else None
+        self.converged = False
+        self._update()
+
+    def observe(
+        self, t: float, frequency_hz: float, voltage_pp: float, thrust_n: float, power_w: float
+    ) -> bool:
+        """Add one trial's estimate; False (and ignored) if it is not usable."""
+        values = (t, frequency_hz, voltage_pp, thrust_n, power_w)
+        if not all(math.isfinite(x) for x in values) or thrust_n <= 0 or power_w <= 0 or voltage_pp <= 0:
+            return False
+        new = Observation(*values)
+        if len(self.observations) >= 3 and self._surprise(new) > self.change_sigma:
+            # The fin no longer behaves as fitted (drift, a new load): keep only the latest evidence.
+            self.observations = self.observations[-1:]
+            self.changes += 1
+        self.observations.append(new)
+        recent = [o for o in self.observations if o.t >= t - self.memory_s]
+        self.observations = recent or self.observations[-2:]
+        self._update()
+        return True
+
+    def _sigmas(self, thrust_n: Any, power_w: Any) -> tuple[Any, Any]:
+        """Noise of log thrust and log power (relative + absolute floor) plus 2 % model error."""
+        n = self.noise
+        sig_t = np.hypot(n.thrust_rel, n.thrust_abs_n / np.asarray(thrust_n)) + 0.02
+        sig_p = np.hypot(n.power_rel, n.power_abs_w / np.asarray(power_w)) + 0.02
+        return sig_t, sig_p
+
+    def _surprise(self, o: Observation) -> float:
+        """How far (in sigma) a new measurement lies from the current fit's prediction."""
+        r = self.correction.response(self.fin, o.frequency_hz, o.voltage_pp)
+        sig_t, sig_p = self._sigmas(o.thrust_n, o.power_w)
+        dt = abs(math.log(o.thrust_n / max(float(r.thrust_n), 1e-300))) / float(sig_t)
+        dp = abs(math.log(o.power_w / max(float(r.power_w), 1e-300))) / float(sig_p)
+        return max(dt, dp)
+
+    def _fit(self) -> Correction:
+        obs = self.observations
+        if not obs:
+            return Correction()
+        f = np.array([o.frequency_hz for o in obs])
+        v = np.array([o.voltage_pp for o in obs])
+        lt = np.log([o.thrust_n for o in obs])
+        lp = np.log([o.power_w for o in obs])
+        sig_t, sig_p = self._sigmas(np.exp(lt), np.exp(lp))
+
+        def residuals(x: FloatArray) -> FloatArray:
+            r = _correction(x).response(self.fin, f, v)
+            with np.errstate(divide="ignore"):
+                rt = (lt - np.log(np.maximum(r.thrust_n, 1e-300))) / sig_t
+                rp = (lp - np.log(np.maximum(r.power_w, 1e-300))) / sig_p
+            return np.concatenate([rt, rp, (x - _PRIOR_MEAN) / _PRIOR_SIGMA])
+
+        c = self.correction
+        x = [
+            math.log(c.resonance_scale),
+            c.softening,
+            math.log(c.drag_scale),
+            c.loss_tan_delta,
+            math.log(c.thrust_gain),
+        ]
+        x0 = np.clip(x, _LOWER + 1e-9, _UPPER - 1e-9)
+        best = None
+        for start in (x0, np.zeros(5)):  # warm start, and the nominal model in case it is a better basin
+            res = optimize.least_squares(residuals, start, bounds=(_LOWER, _UPPER), x_scale=_PRIOR_SIGMA)
+            if best is None or res.cost < best.cost:
+                best = res
+        assert best is not None
+        return _correction(best.x)
+
+    def _update(self) -> None:
+        self.correction = self._fit()
+        new = best_point(
+            self.fin, self.correction, self.limits, self._target(), self.voltage_pp, self.min_thrust_n
+        )
+        old = self.choice
+        self.choice = new
+        last = self.observations[-1] if self.observations else None
+        near_last = last is not None and _close(new, last.frequency_hz, last.voltage_pp, self.tolerance)
+        if near_last and old is not None and _close(new, old.frequency_hz, old.voltage_pp, self.tolerance):
+            self.converged = True
+        elif not near_last:
+            self.converged = False
+
+    def propose(self) -> tuple[float, float]:
+        """The next operating point to drive (always inside the limits)."""
+        assert self.choice is not None
+        c = self.choice
+        f, v = c.frequency_hz, c.voltage_pp
+        if self.converged:
+            self._held += 1
+            if self.probe_every and self._held % self.probe_every == 0:
+                self._probe_sign = -self._probe_sign
+                f = f * (1 + self._probe_sign * self.probe_step)
+        return self.limits.clamp(f, v)
+
+    def status(self) -> dict[str, Any]:
+        c = self.choice
+        assert c is not None
+        return {
+            "converged": self.converged,
+            "feasible": c.feasible,
+            "demand_n": self.demand_n,
+            "frequency_hz": c.frequency_hz,
+            "voltage_pp": c.voltage_pp,
+            "predicted_thrust_n": c.thrust_n,
+            "predicted_power_w": c.power_w,
+            "correction": self.correction.__dict__,
+            "observations": len(self.observations),
+        }
+
+    def replace(self, **changes: Any) -> Optimiser:
+        return replace(self, **changes)
+
+
+def _close(c: Choice, f: float, v: float, tol: float) -> bool:
+    return abs(c.frequency_hz - f) <= tol * f and abs(c.voltage_pp - v) <= tol * max(v, 1.0)
+
+
+# ------------------------------------------------------------------------------ evaluation
+#: Fin time of one trial: continuous driving (2 s settle + two 2 s windows that must agree) and
+#: the paper's protocol (10 s off, 10 s on, 10 s off).
+TRIAL_S_CONTINUOUS = 6.0
+TRIAL_S_PROTOCOL = 30.0
+
+
+def score(
+    plant: Plant, f: float, v: float, demand_n: float | None, min_thrust_n: float = 1e-3, t: float = 0.0
+) -> float:
+    """True objective of a point on a plant: thrust per watt, 0 if it misses the demand (2 % slack)."""
+    r = plant.steady(f, v, t)
+    thrust, power = float(r.thrust_n), float(r.power_w)
+    need = demand_n if demand_n is not None else min_thrust_n
+    if thrust < 0.98 * need or power <= 0:
+        return 0.0
+    return (min(thrust, demand_n) if demand_n is not None else thrust) / power
+
+
+def true_optimum(
+    plant: Plant,
+    limits: Limits,
+    demand_n: float | None,
+    voltage_pp: float = 800.0,
+    min_thrust_n: float = 1e-3,
+    t: float = 0.0,
+) -> tuple[float, float, float]:
+    """Dense evaluation of the plant: ``(f, V, objective)`` of its optimum (2000 x 600 grid)."""
+    f = np.geomspace(limits.frequency_min_hz, limits.frequency_max_hz, 2000)
+    if demand_n is None:
+        v = np.full_like(f, voltage_pp)
+    else:
+        f, v = np.meshgrid(f, np.linspace(limits.voltage_pp_min, limits.voltage_pp_max, 600))
+    r = plant.steady(f, v, t)
+    need = demand_n if demand_n is not None else min_thrust_n
+    thrust = np.minimum(r.thrust_n, demand_n) if demand_n is not None else r.thrust_n
+    obj = np.where(r.thrust_n >= need, thrust / np.maximum(r.power_w, 1e-300), 0.0)
+    i = np.unravel_index(int(np.argmax(obj)), obj.shape)
+    return float(f[i]), float(v[i]), float(obj[i])
+
+
+# ------------------------------------------------------------------------- the live loop
+@dataclass
+class DriveLoop:
+    """The controller's loop around an :class:`Optimiser`: trials, settling, slew, safety.
+
+    ``tick(t)`` returns the command to send at time ``t``; ``add_estimate(t, e)`` takes each
+    running-window estimate.  A trial is settled when two consecutive windows at the point agree
+    within ``settle_tolerance`` (or after ``max_windows``); its last window is the observation.
+    The commanded voltage moves at most ``slew_vpp_per_s`` and never leaves the limits.  When
+    estimates stop for ``estimate_timeout_s`` the loop holds its point; after twice that it ramps
+    the drive down to zero (each with a message in ``events``), and resumes if they come back.
+    """
+
+    optimiser: Optimiser
+    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer"
+    slew_vpp_per_s: float = 400.0
+    estimate_timeout_s: float = 10.0
+    settle_tolerance: float = 0.03
+    max_windows: int = 3
+    state: str = "driving"  # driving, holding, ramping down, stopped
+    target: tuple[float, float] | None = None
+    command_v: float = 0.0
+    trials: int = 0
+    discrepancy: float = math.nan  # self-sensed vs vibrometer thrust, relative, last window
+    events: list[str] = field(default_factory=list)
+    _t_last: float | None = None
+    _t_settled_from: float | None = None
+    _last_estimate_t: float | None = None
+    _windows: list[tuple[float, float]] = field(default_factory=list)
+
+    def tick(self, t: float) -> tuple[float, float, float]:
+        if self._t_last is None:
+            self._t_last = self._last_estimate_t = t
+        assert self._last_estimate_t is not None
+        dt = max(0.0, t - self._t_last)
+        self._t_last = t
+        if self.target is None:
+            self.target = self.optimiser.propose()
+        f, v_target = self.target
+        silence = t - self._last_estimate_t
+        if self.state in ("driving", "holding") and silence > 2 * self.estimate_timeout_s:
+            self.state = "ramping down"
+            self.events.append(f"no estimate for {silence:.1f} s: ramping the drive down to 0 V")
+        elif self.state == "driving" and silence > self.estimate_timeout_s:
+            self.state = "holding"
+            self.events.append(
+                f"no estimate for {silence:.1f} s: holding {f:.2f} Hz, {self.command_v:.0f} Vpp"
+            )
+        goal = 0.0 if self.state in ("ramping down", "stopped") else v_target
+        step = self.slew_vpp_per_s * dt
+        self.command_v += min(max(goal - self.command_v, -step), step)
+        self.command_v = min(max(self.command_v, 0.0), self.optimiser.limits.voltage_pp_max)
+        if self.state == "ramping down" and self.command_v == 0.0:
+            self.state = "stopped"
+        if self._t_settled_from is None and self.command_v == v_target and self.state == "driving":
+            self._t_settled_from = t
+        return (f, self.command_v, 1.0 if self.command_v > 0 else 0.0)
+
+    def add_estimate(self, t: float, e: Any) -> bool:
+        """Use a running-window estimate (an :class:`~piezofin_ros.estimation.Estimate`)."""
+        self._last_estimate_t = t
+        if self.state != "driving":
+            self.events.append(f"estimates are back: resuming from {self.state}")
+            self.state = "driving"
+        thrust = e.thrust_self_n if self.source == "self" else e.thrust_n
+        if math.isfinite(e.thrust_n) and math.isfinite(e.thrust_self_n) and e.thrust_n > 0:
+            self.discrepancy = e.thrust_self_n / e.thrust_n - 1.0
+        if self.target is None or self._t_settled_from is None:
+            return False
+        f, _ = self.target
+        if e.final or e.t_start < self._t_settled_from or abs(e.frequency_hz - f) > 0.02 * f:
+            return False  # a window from before the drive reached this point
+        power = e.power_w
+        if not (math.isfinite(thrust) and math.isfinite(power)):
+            return False
+        self._windows.append((thrust, power))
+        w = self._windows
+        agree = len(w) >= 2 and all(
+            abs(a / b - 1) <= self.settle_tolerance for a, b in zip(w[-1], w[-2], strict=True)
+        )
+        if not (agree or len(w) >= self.max_windows):
+            return True
+        self.optimiser.observe(e.t_end, e.frequency_hz, e.voltage_pp, thrust, power)
+        self.trials += 1
+        self._windows = []
+        new = self.optimiser.propose()
+        if new != self.target:
+            self.target = new
+            self._t_settled_from = None
+        return True
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "state": self.state,
+            "trials": self.trials,
+            "target": self.target,
+            "command_vpp": self.command_v,
+            "self_vs_vibrometer": self.discrepancy,
+            **self.optimiser.status(),
+        }
