@@ -199,7 +199,8 @@ def main() -> int:
 
     print(f"{len(args.fins)} fins x {args.seeds} seeds per plant and task; median [worst] over runs")
     print(
-        f"{'task':<10} {'plant':<10} {'method':<7} {'trials to 98 %':>16} {'fin time to 98 %':>18} {'reached 98 %':>12} {'final fraction':>16}"
+        f"{'task':<10} {'plant':<10} {'method':<7} {'trials to 98 %':>16} {'fin time to 98 %':>18} "
+        f"{'reached 98 %':>12} {'final fraction':>16}"
     )
     for (task, pname, method), runs in results.items():
         k = [r.trials_to() for r in runs]
@@ -218,9 +219,9 @@ def main() -> int:
     ts, ours, frozen = drift_run(args.fins[0], seed=3)
     after = ts > 200.0
     print(
-        f"drift (resonance -10 % over 120 s, {args.fins[0]}, demand): ours {np.min(ours[after]):.3f} of the moving "
-        f"optimum after the drift (lowest during it {np.nanmin(ours[(ts > 60) & (ts <= 200)]):.3f}); a controller "
-        f"that stopped learning at 60 s: {np.nanmin(frozen[after]):.3f}"
+        f"drift (resonance -10 % over 120 s, {args.fins[0]}, demand): ours {np.min(ours[after]):.3f} of the "
+        f"moving optimum after the drift (lowest during it {np.nanmin(ours[(ts > 60) & (ts <= 200)]):.3f}); "
+        f"a controller that stopped learning at 60 s: {np.nanmin(frozen[after]):.3f}"
     )
     print(f"({time.perf_counter() - t0:.0f} s)")
     if args.plot:
