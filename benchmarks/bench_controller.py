@@ -34,6 +34,7 @@ from piezofin_ros.optimise import (
     TRIAL_S_PROTOCOL,
     Limits,
     Optimiser,
+    run_trial,
     score,
     true_optimum,
 )
@@ -93,10 +94,7 @@ def run_ours(fin_name: str, plant: Plant, demand: float | None, best: float, see
     rng = np.random.default_rng(seed)
     fr, t = [], 0.0
     for _ in range(n):
-        f, v = opt.propose()
-        thrust, power = plant.measure(f, v, t, rng)
-        t += TRIAL_S_CONTINUOUS
-        opt.observe(t, f, v, thrust, power)
+        t = run_trial(opt, plant, t, rng)
         c = opt.choice
         assert c is not None
         fr.append(score(plant, c.frequency_hz, c.voltage_pp, demand) / best)
@@ -148,10 +146,7 @@ def drift_run(fin_name: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     frozen = None
     t = 0.0
     while t < 300.0:
-        f, v = opt.propose()
-        thrust, power = plant.measure(f, v, t, rng)
-        t += TRIAL_S_CONTINUOUS
-        opt.observe(t, f, v, thrust, power)
+        t = run_trial(opt, plant, t, rng)
         c = opt.choice
         assert c is not None
         if frozen is None and t >= 60.0:

@@ -352,6 +352,15 @@ TRIAL_S_CONTINUOUS = 6.0
 TRIAL_S_PROTOCOL = 30.0
 
 
+def run_trial(opt: Optimiser, plant: Plant, t: float, rng: np.random.Generator) -> float:
+    """One simulated trial of ``TRIAL_S_CONTINUOUS``: propose, measure on ``plant``, observe; new time."""
+    f, v = opt.propose()
+    thrust, power = plant.measure(f, v, t, rng)
+    t += TRIAL_S_CONTINUOUS
+    opt.observe(t, f, v, thrust, power)
+    return t
+
+
 def score(
     plant: Plant, f: float, v: float, demand_n: float | None, min_thrust_n: float = 1e-3, t: float = 0.0
 ) -> float:

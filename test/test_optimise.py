@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 from piezofin_ros.estimation import Estimate
 from piezofin_ros.fin import Fin, load_fin
 from piezofin_ros.optimise import (
-    TRIAL_S_CONTINUOUS,
     DriveLoop,
     Limits,
     Optimiser,
+    run_trial,
     score,
     true_optimum,
 )
@@ -31,12 +31,10 @@ def campaign(
     t = t0
     fractions = []
     for _ in range(n):
-        f, v = opt.propose()
-        assert LIMITS.frequency_min_hz <= f <= LIMITS.frequency_max_hz
-        assert LIMITS.voltage_pp_min <= v <= LIMITS.voltage_pp_max
-        thrust, power = plant.measure(f, v, t, rng)
-        t += TRIAL_S_CONTINUOUS
-        opt.observe(t, f, v, thrust, power)
+        t = run_trial(opt, plant, t, rng)
+        o = opt.observations[-1]
+        assert LIMITS.frequency_min_hz <= o.frequency_hz <= LIMITS.frequency_max_hz
+        assert LIMITS.voltage_pp_min <= o.voltage_pp <= LIMITS.voltage_pp_max
         c = opt.choice
         _, _, best = true_optimum(plant, LIMITS, opt.demand_n, t=t)
         fractions.append(score(plant, c.frequency_hz, c.voltage_pp, opt.demand_n, t=t) / best)
