@@ -161,3 +161,33 @@ def test_bringup_interrupted_closes_the_bag_and_reports(tmp_path: Path) -> None:
     with open(bag, "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None and summary.statistics.message_count > 100
+
+
+@pytest.mark.slow
+def test_bringup_optimise_mode_converges(tmp_path: Path) -> None:
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "LD_LIBRARY_PATH")
+    }
+    run = subprocess.run(
+        [
+            str(BIN / "bringup"),
+            "--mode",
+            "optimise",
+            "--demand",
+            "0.004",
+            "--duration",
+            "60",
+            "--bag",
+            str(tmp_path / "o.mcap"),
+        ],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    line = next(x for x in run.stdout.splitlines() if "optimiser" in x)
+    assert "converged:" in line and "demand 4.00 mN" in line
+    thrust = float(line.split("thrust ")[1].split(" mN")[0])
+    assert 4.0 <= thrust <= 4.2  # meets the demand without overshooting it

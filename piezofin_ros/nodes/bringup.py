@@ -168,9 +168,13 @@ def main(argv: list[str] | None = None) -> int:
             elapsed = time.monotonic() - wall0
             if elapsed - last >= 5.0:
                 last = elapsed
-                done = sum(c.runner.index for c in suite.controllers)
-                total = sum(len(c.runner.plan.points) for c in suite.controllers)
-                print(f"  {elapsed:5.1f} s: trial {done}/{total}", file=sys.stderr, flush=True)
+                if any(c.loop is not None for c in suite.controllers):
+                    done = sum(c.loop.trials for c in suite.controllers if c.loop is not None)
+                    print(f"  {elapsed:5.1f} s: {done} optimiser trials", file=sys.stderr, flush=True)
+                else:
+                    done = sum(c.runner.index for c in suite.controllers)
+                    total = sum(len(c.runner.plan.points) for c in suite.controllers)
+                    print(f"  {elapsed:5.1f} s: trial {done}/{total}", file=sys.stderr, flush=True)
             if elapsed > args.timeout:
                 print(f"bringup: stopping after {args.timeout:g} s (--timeout)", file=sys.stderr)
                 break

@@ -107,9 +107,6 @@ class Controller(Node):
             except (ValueError, FinConfigError) as exc:
                 raise StartupError(f"optimiser: {exc}") from None
             self.loop = DriveLoop(optimiser, self.source, slew, timeout)
-            self.runner = TrialRunner(
-                TrialPlan(((optimiser.choice.frequency_hz, optimiser.choice.voltage_pp),))
-            )
             self._start_t: float | None = None
             self._last_status_t = -math.inf
             self.finished = False
