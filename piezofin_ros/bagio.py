@@ -9,7 +9,7 @@ decoded on the hot path.  Chunks are flushed at least every ``flush_s`` seconds 
 so a writer killed without warning loses at most that much (the file up to the last chunk is
 recoverable); :meth:`BagWriter.close` is idempotent and leaves a complete, indexed file.
 
-Reading (:func:`read_messages`, :func:`read_blocks`): the ``mcap`` reader, with CDR decoded by
+Reading (:func:`read_messages`, :func:`block_of`): the ``mcap`` reader, with CDR decoded by
 the ``rosbags`` type store, so tests can check the writer against an independent decoder.
 """
 
@@ -198,11 +198,3 @@ def block_of(type_name: str, data: bytes, expect: tuple[str, ...] | None = None)
     msg = decode(type_name, data)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
     return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
-
-
-def read_blocks(path: str | os.PathLike[str], topics: Iterable[str]) -> Iterator[tuple[str, int, Block]]:
-    """``(topic, log_time_ns, block)`` for every ``Float64MultiArray`` on ``topics``."""
-    for m in read_messages(path, topics):
-        if m.type_name != "std_msgs/msg/Float64MultiArray":
-            raise BagError(f"{path}: topic {m.topic} holds {m.type_name}, not std_msgs/msg/Float64MultiArray")
-        yield m.topic, m.log_time_ns, block_of(m.type_name, m.data)

@@ -47,8 +47,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -122,9 +121,6 @@ class EstimatorConfig:
             value = getattr(self, f.name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"estimator.{f.name} must be a finite number > 0, got {value!r}")
-
-    def replace(self, **changes: Any) -> EstimatorConfig:
-        return replace(self, **changes)
 
 
 def _harmonic_fit(t: FloatArray, t_ref: float, omega: float, orders: FloatArray, x: FloatArray) -> FloatArray:
@@ -536,16 +532,3 @@ class StreamEstimator:
             oldest = min(oldest, p.pre[0] if p.pre else p.t_start)
         for ch in (self.drive, self.tip, self.loadcell):
             ch.prune(oldest)
-
-
-def estimate_stream(
-    fin: Fin,
-    drive: Iterable[tuple[FloatArray, FloatArray, FloatArray]],
-    config: EstimatorConfig | None = None,
-) -> list[Estimate]:
-    """Convenience for offline use: run a :class:`StreamEstimator` over drive blocks only."""
-    est = StreamEstimator(fin, config)
-    out: list[Estimate] = []
-    for t, v, i in drive:
-        out += est.add_drive(t, v, i)
-    return out + est.flush()

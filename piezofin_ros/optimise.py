@@ -33,7 +33,7 @@ drifting fin is followed without a restart.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -336,9 +336,6 @@ class Optimiser:
             "correction": self.correction.__dict__,
             "observations": len(self.observations),
         }
-
-    def replace(self, **changes: Any) -> Optimiser:
-        return replace(self, **changes)
 
 
 def _close(c: Choice, f: float, v: float, tol: float) -> bool:

@@ -294,6 +294,11 @@ class SimulatedRig:
         """Time of the last emitted sample (s)."""
         return self._t0 + self._k / self.config.sample_rate_hz
 
+    @property
+    def elapsed(self) -> float:
+        """Simulated time since the first sample's origin ``t0`` (s)."""
+        return self._k / self.config.sample_rate_hz
+
     def command(self, frequency_hz: float, voltage_pp: float, on: float) -> tuple[bool, str | None]:
         """Check and apply a raw command now; returns ``(accepted, reason)``."""
         cmd, reason = check_command(frequency_hz, voltage_pp, on, self.drive.limits)

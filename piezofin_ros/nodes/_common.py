@@ -126,7 +126,7 @@ def dataclass_params(
         default = getattr(instance, f.name)
         if isinstance(default, bool) or not isinstance(default, (int, float)):
             continue
-        if isinstance(default, int) and not isinstance(default, bool) and f.type in ("int", int):
+        if isinstance(default, int):  # bools were skipped above
             values[f.name] = int_param(
                 node, f"{prefix}.{f.name}", default, int(lo), int(min(hi, 2**31 - 1)), docs
             )
@@ -135,21 +135,19 @@ def dataclass_params(
     return type(instance)(**{**{f.name: getattr(instance, f.name) for f in fields(instance)}, **values})
 
 
-def reject_runtime_changes(
-    node: Node, mutable: set[str], check: Callable[[Parameter], str | None] | None = None
-) -> None:
-    """Refuse runtime changes except of ``mutable`` parameters, which ``check`` may veto (reason string)."""
+def freeze_parameters(node: Node) -> None:
+    """Refuse every runtime parameter change (but ``use_sim_time``), with the reason.
+
+    Every value is checked once at start, where it configures the core; changing it under a
+    running simulation, estimator or bag would leave the node half reconfigured.
+    """
 
     def callback(params: list[Parameter]) -> SetParametersResult:
         for p in params:
-            if p.name not in mutable and p.name != "use_sim_time":
+            if p.name != "use_sim_time":
                 return SetParametersResult(
                     successful=False, reason=f"{p.name} is fixed at start; restart the node to change it"
                 )
-            if check is not None:
-                reason = check(p)
-                if reason:
-                    return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(callback)

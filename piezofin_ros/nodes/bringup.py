@@ -199,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
             rclpy.shutdown(context=context)
         stop.restore()
     assert suite is not None
-    sim_s = max((s.rig.t - s.rig._t0) for s in suite.fin_sims if s.rig is not None)
+    sim_s = max((s.rig.elapsed for s in suite.fin_sims if s.rig is not None), default=0.0)
     for (ns, st), fin in zip(statuses.items(), suite.fins, strict=True):
         if st.get("mode") == "optimise":
             demand = st["demand_n"]

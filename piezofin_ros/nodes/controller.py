@@ -36,9 +36,9 @@ from ._common import (
     array_param,
     block_msg,
     float_param,
+    freeze_parameters,
     int_param,
     msg_block,
-    reject_runtime_changes,
     run_node,
     str_param,
 )
@@ -94,11 +94,18 @@ class Controller(Node):
         self.duration_s = float_param(
             self, "duration_s", 0.0, 0.0, 1e7, "optimise: stop after this long (0: never)"
         )
-        reject_runtime_changes(self, mutable=set())
+        freeze_parameters(self)
+        if mode != "optimise" and mode not in {m.value for m in Mode}:
+            raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous, optimise")
+        if self.source not in SOURCES:
+            raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
+        if self.after not in ("stop", "hold"):
+            raise StartupError(f"parameter after: {self.after!r} is not one of stop, hold")
         self.loop: DriveLoop | None = None
+        self._reported_missing: set[int] = set()
+        self.chosen = None
+        self.finished = False
         if mode == "optimise":
-            if self.source not in SOURCES:
-                raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
             try:
                 limits = Limits(f_min, self.frequency_max, 50.0, self.voltage_limit)
                 optimiser = Optimiser(
@@ -109,53 +116,32 @@ class Controller(Node):
             self.loop = DriveLoop(optimiser, self.source, slew, timeout)
             self._start_t: float | None = None
             self._last_status_t = -math.inf
-            self.finished = False
-            self.chosen = None
-            self._reported_missing: set[int] = set()
-            self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
-            self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
-            self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
-            self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
-            self._timer = self.create_timer(1.0 / heartbeat, self._tick_optimise)
-            self.get_logger().info(
-                f"optimising thrust per watt from {self.source} estimates, "
-                + (
-                    f"demand {demand * 1e3:.2f} mN"
-                    if demand
-                    else f"best frequency at {self.voltage_pp:g} Vpp"
+            goal = f"demand {demand * 1e3:.2f} mN" if demand else f"best frequency at {self.voltage_pp:g} Vpp"
+            summary = f"optimising thrust per watt from {self.source} estimates, {goal}"
+        else:
+            bad = [f for f in freqs if not (math.isfinite(f) and 0 < f <= self.frequency_max)]
+            bad += [v for v in volts if not (math.isfinite(v) and 0 <= v <= self.voltage_limit)]
+            if bad:
+                raise StartupError(
+                    f"parameters frequencies/voltages: {bad} outside (0, {self.frequency_max:g}] Hz / "
+                    f"[0, {self.voltage_limit:g}] Vpp"
                 )
-            )
-            return
-        if mode not in {m.value for m in Mode}:
-            raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous, optimise")
-        if self.source not in SOURCES:
-            raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
-        if self.after not in ("stop", "hold"):
-            raise StartupError(f"parameter after: {self.after!r} is not one of stop, hold")
-        bad = [f for f in freqs if not (math.isfinite(f) and 0 < f <= self.frequency_max)]
-        bad += [v for v in volts if not (math.isfinite(v) and 0 <= v <= self.voltage_limit)]
-        if bad:
-            raise StartupError(
-                f"parameters frequencies/voltages: {bad} outside (0, {self.frequency_max:g}] Hz / "
-                f"[0, {self.voltage_limit:g}] Vpp"
-            )
-        try:
-            plan = TrialPlan.grid(freqs, volts, mode=Mode(mode), off_s=off_s, on_s=on_s)
-        except ValueError as exc:
-            raise StartupError(f"trial plan: {exc}") from None
-        self.runner = TrialRunner(plan)
-        self._reported_missing: set[int] = set()
-        self.chosen = None
-        self.finished = False
+            try:
+                plan = TrialPlan.grid(freqs, volts, mode=Mode(mode), off_s=off_s, on_s=on_s)
+            except ValueError as exc:
+                raise StartupError(f"trial plan: {exc}") from None
+            self.runner = TrialRunner(plan)
+            n = len(plan.points)
+            fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
+            summary = f"{n} {mode} trials{fin_time}"
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
         self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
         self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
-        self._timer = self.create_timer(1.0 / heartbeat, self._tick)
-        n = len(plan.points)
-        self.get_logger().info(
-            f"{n} {mode} trials"
-            + (f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else "")
-        )
+        if self.loop is not None:
+            self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
+        tick = self._tick_optimise if self.loop is not None else self._tick
+        self._timer = self.create_timer(1.0 / heartbeat, tick)
+        self.get_logger().info(summary)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

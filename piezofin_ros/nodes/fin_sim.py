@@ -39,9 +39,9 @@ from ._common import (
     bool_param,
     dataclass_params,
     float_param,
+    freeze_parameters,
     int_param,
     msg_block,
-    reject_runtime_changes,
     run_node,
     str_param,
 )
@@ -102,7 +102,7 @@ class FinSim(LifecycleNode):
         self._limits = dataclass_params(
             self, "limits", DriveLimits(), LIMIT_RANGES, "drive limits (SI units)"
         )
-        reject_runtime_changes(self, mutable=set())
+        freeze_parameters(self)
         self._rig: SimulatedRig | None = None
         self._fin: Fin | None = None
         self._timer = None

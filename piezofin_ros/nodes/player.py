@@ -28,7 +28,7 @@ from ._common import (
     array_param,
     bool_param,
     float_param,
-    reject_runtime_changes,
+    freeze_parameters,
     run_node,
     str_param,
 )
@@ -42,7 +42,7 @@ class Player(Node):
         self.rate = float_param(self, "rate", 1.0, 0.01, 1000.0, "playback speed factor")
         topics = array_param(self, "topics", [], Parameter.Type.STRING_ARRAY, "topics to play (default: all)")
         self.publish_clock = bool_param(self, "publish_clock", True, "publish /clock from the bag's time")
-        reject_runtime_changes(self, mutable=set())
+        freeze_parameters(self)
         if not self.bag_path:
             raise StartupError("parameter bag: give the .mcap file to play (-p bag:=run.mcap)")
         self._selected = set(topics) if topics else None

@@ -35,8 +35,8 @@ from ._common import (
     array_param,
     bool_param,
     float_param,
+    freeze_parameters,
     int_param,
-    reject_runtime_changes,
     run_node,
     str_param,
 )
@@ -97,7 +97,7 @@ class Recorder(Node):
         chunk_kib = int_param(self, "chunk_kib", 1024, 16, 65536, "chunk size, KiB")
         flush_s = float_param(self, "flush_s", 1.0, 0.05, 600.0, "longest log time between chunk flushes, s")
         self.discover = bool_param(self, "discover", False, "also record any other topic that appears")
-        reject_runtime_changes(self, mutable=set())
+        freeze_parameters(self)
         self.path = Path(path) if path else default_bag_path()
         try:
             self.bag = BagWriter(

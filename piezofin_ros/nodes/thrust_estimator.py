@@ -29,8 +29,8 @@ from ._common import (
     StartupError,
     block_msg,
     dataclass_params,
+    freeze_parameters,
     msg_block,
-    reject_runtime_changes,
     run_node,
     str_param,
 )
@@ -65,7 +65,7 @@ class ThrustEstimator(Node):
             config = dataclass_params(self, "estimator", default, ESTIMATOR_RANGES, "estimator window (s, V)")
         except (FinConfigError, ValueError) as exc:
             raise StartupError(str(exc)) from None
-        reject_runtime_changes(self, mutable=set())
+        freeze_parameters(self)
         self.core = StreamEstimator(self.fin, config)
         self.estimates: list[Estimate] = []
         self.rejected = 0
