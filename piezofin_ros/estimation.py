@@ -83,6 +83,7 @@ class Estimate:
     thrust_loadcell_n: float  # N, load cell with the pre/post baseline
     loadcell_baselines: float  # 0, 1 (pre only) or 2 (pre and post)
     swim_speed_m_s: float  # U used in Eq. (19)
+    tip_phase_rad: float = math.nan  # phase of the fundamental tip velocity relative to the voltage's
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
@@ -93,10 +94,14 @@ class Estimate:
 
     @classmethod
     def from_dict(cls, record: dict[str, float]) -> Estimate:
-        missing = [n for n in cls.field_names() if n not in record]
+        missing = [n for n in cls.field_names() if n not in record and n not in OPTIONAL_FIELDS]
         if missing:
             raise KeyError(f"estimate lacks field(s) {', '.join(missing)}")
-        return cls(**{n: float(record[n]) for n in cls.field_names()})
+        return cls(**{n: float(record.get(n, math.nan)) for n in cls.field_names()})
+
+
+#: Fields added after the first recordings: older bags lack them, and they read as NaN.
+OPTIONAL_FIELDS = ("tip_phase_rad",)
 
 
 @dataclass(frozen=True)
@@ -196,6 +201,7 @@ def analyse_window(
         "thrust_self_n": thrust_self,
         "thrust_per_watt_self": per_watt(thrust_self),
         "swim_speed_m_s": swim_speed_m_s,
+        "tip_phase_rad": math.nan,
     }
     if tip_velocity is not None:
         tu = t if tip_t is None else np.asarray(tip_t, dtype=float)
@@ -204,7 +210,13 @@ def analyse_window(
         if np.count_nonzero(ok) >= 2 * len(orders) + 1:
             Uk = _harmonic_fit(tu[ok], t[0], w, orders, u[ok])
             u_rms, thrust, c_tau = lighthill(Uk)
-            out.update(tip_velocity_rms=u_rms, thrust_n=thrust, thrust_per_watt=per_watt(thrust), c_tau=c_tau)
+            out.update(
+                tip_velocity_rms=u_rms,
+                thrust_n=thrust,
+                thrust_per_watt=per_watt(thrust),
+                c_tau=c_tau,
+                tip_phase_rad=float(np.angle(Uk[0] / V[0])) if abs(V[0]) > 0 else math.nan,
+            )
     return out
 
 

@@ -1,0 +1,387 @@
+r"""Which effect causes the gap, and how far adding it closes the gap on held-out trials.
+
+Procedure (:func:`diagnose`)
+----------------------------
+1. **Split.**  With several voltages, the highest is held out and the rest train (the model must
+   *extrapolate* in amplitude, where nonlinear effects differ most); with one voltage, every third
+   frequency is held out.
+2. **Fit.**  Each candidate (every effect of the library alone, then pairs of the best four) is fitted
+   on the training trials by noise-weighted least squares (``scipy.optimize.least_squares``, bounded,
+   two starts) over every measured channel: drive voltage, tip velocity and phase, current, power,
+   load-cell thrust.  A weak prior (ten times each parameter's typical size) keeps unidentified
+   parameters from wandering.
+3. **Score.**  On the held-out trials, ``chi^2 = sum ((measured - predicted) / sigma)^2``; the
+   ranking criterion adds ``k ln n`` for ``k`` parameters and ``n`` held-out residuals (a BIC-style
+   penalty, so an extra parameter must buy a ``chi^2`` drop of ``ln n``, about 4).
+4. **Decide.**
+   * no stage has a gap: "no gap";
+   * the best candidate leaves a held-out ``chi^2`` that the noise explains (p >= 1e-3), or removes
+     at least ``close_fraction`` (95 %) of the held-out ``chi^2`` and leaves a reduced ``chi^2``
+     below ``max_reduced_chi2`` (3): "explained", naming it;
+   * otherwise "unexplained", with the best candidate quoted only as the least bad;
+   * candidates whose criterion is within ``ambiguity`` (6, a likelihood ratio of 20) of the best
+     "cannot be told apart on this data", and the report proposes the operating point where
+     their fitted predictions differ most in units of the expected noise.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize, stats
+
+from ..fin import Fin
+from .data import CHANNELS, Trials
+from .model import LIBRARY, Augmented, Prediction, effect_class
+from .stages import Resonance, StageGap, resonances, stage_gaps
+
+FloatArray = NDArray[Any]
+FIT_CHANNELS = tuple(CHANNELS)
+
+
+def _wrap(x: FloatArray) -> FloatArray:
+    return np.angle(np.exp(1j * x))
+
+
+def predicted_channels(model: Augmented, trials: Trials) -> dict[str, FloatArray]:
+    """The model's value of every channel for the table's trials (measured voltage as input where known)."""
+    pred = model.predict(trials.frequency_hz, trials.voltage_pp, drive_pp=trials.measured_drive())
+    return {name: np.asarray(getattr(pred, name), float) for name in FIT_CHANNELS}
+
+
+def residuals(model: Augmented, trials: Trials) -> dict[str, FloatArray]:
+    """``(measured - predicted) / sigma`` per channel (NaN where not measured)."""
+    pred = predicted_channels(model, trials)
+    out = {}
+    for name in FIT_CHANNELS:
+        d = trials.channel(name) - pred[name]
+        if name == "tip_phase_rad":
+            d = _wrap(d)
+        out[name] = d / trials.sigma[name]
+    return out
+
+
+def _stack(res: dict[str, FloatArray]) -> FloatArray:
+    r = np.concatenate([res[k] for k in FIT_CHANNELS])
+    return r[np.isfinite(r)]
+
+
+def chi2(model: Augmented, trials: Trials) -> tuple[float, int]:
+    r = _stack(residuals(model, trials))
+    return float(np.sum(r * r)), int(r.size)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    effects: tuple[str, ...]
+    model: Augmented
+    chi2_train: float
+    chi2_test: float
+    n_test: int
+    k: int
+    criterion: float
+
+    @property
+    def label(self) -> str:
+        return " + ".join(self.effects) if self.effects else "nominal model"
+
+
+def fit(fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[float, ...]] | None = None) -> Augmented:
+    """Least-squares parameters of ``names`` on ``train`` (bounded, two starts, weak prior)."""
+    classes = [effect_class(n) for n in names]
+    params = [q for c in classes for q in c.params]
+    lo = np.array([q.lower for q in params])
+    hi = np.array([q.upper for q in params])
+    scale = np.array([q.scale for q in params])
+    neutral = np.array([q.neutral for q in params])
+    sizes = [len(c.params) for c in classes]
+
+    def model_of(x: FloatArray) -> Augmented:
+        vals, j = [], 0
+        for s in sizes:
+            vals.append(tuple(float(v) for v in x[j : j + s]))
+            j += s
+        return Augmented(fin, tuple(names), tuple(vals))
+
+    def fun(z: FloatArray) -> FloatArray:
+        x = np.clip(neutral + z * scale, lo, hi)
+        try:
+            r = _stack(residuals(model_of(x), train))
+        except (ValueError, FloatingPointError):
+            return np.full(n_res, 1e6)
+        if r.size != n_res or not np.all(np.isfinite(r)):
+            return np.full(n_res, 1e6)
+        return np.concatenate([r, z / 10.0])
+
+    n_res = _stack(residuals(Augmented(fin), train)).size
+    zlo, zhi = (lo - neutral) / scale, (hi - neutral) / scale
+    starts = []
+    if start:
+        x0 = np.concatenate([np.asarray(start.get(n, effect_class(n).neutral()), float) for n in names])
+        starts.append((x0 - neutral) / scale)
+    if all(q.starts for q in params) and len(params) == 1:
+        starts += [np.array([(x - neutral[0]) / scale[0]]) for x in params[0].starts]
+    else:
+        starts += [np.full(len(params), 0.5), np.full(len(params), -0.5)]
+    best, best_cost = None, math.inf
+    for z0 in starts:
+        z0 = np.clip(z0, zlo + 1e-9 * (zhi - zlo), zhi - 1e-9 * (zhi - zlo))
+        with np.errstate(all="ignore"):
+            sol = optimize.least_squares(fun, z0, bounds=(zlo, zhi), x_scale=1.0, max_nfev=60 * len(params), method="trf")
+        if sol.cost < best_cost:
+            best, best_cost = sol, sol.cost
+    assert best is not None
+    return model_of(np.clip(neutral + best.x * scale, lo, hi))
+
+
+def split(trials: Trials) -> tuple[NDArray[np.bool_], str]:
+    """Held-out mask and its description."""
+    volts = trials.voltages
+    if volts.size >= 2:
+        test = np.round(trials.voltage_pp) == volts[-1]
+        return test, f"fit on {', '.join(f'{v:.0f}' for v in volts[:-1])} Vpp, judged on {volts[-1]:.0f} Vpp"
+    order = np.argsort(trials.frequency_hz)
+    test = np.zeros(len(trials), bool)
+    test[order[1::3]] = True
+    return test, "fit on two frequencies in three, judged on the third"
+
+
+@dataclass(frozen=True)
+class ChannelGap:
+    channel: str
+    unit: str
+    rms_before: float  # in unit
+    rms_after: float
+    rel_before_percent: float
+    rel_after_percent: float
+    n: int
+
+
+def channel_gaps(before: Augmented, after: Augmented, trials: Trials) -> list[ChannelGap]:
+    """Per channel, the RMS gap in units and relative to the RMS of the measurement (percent)."""
+    pb, pa = predicted_channels(before, trials), predicted_channels(after, trials)
+    out = []
+    for name, (unit, scale, _) in CHANNELS.items():
+        m = trials.channel(name)
+        ok = np.isfinite(m) & np.isfinite(pb[name]) & np.isfinite(pa[name])
+        if not np.any(ok):
+            continue
+        db, da = m[ok] - pb[name][ok], m[ok] - pa[name][ok]
+        if name == "tip_phase_rad":
+            db, da = _wrap(db), _wrap(da)
+            rb = ra = math.nan
+        else:
+            ref = math.sqrt(float(np.mean(m[ok] ** 2))) or 1e-30
+            rb = float(np.sqrt(np.mean(db**2)) / ref * 100)
+            ra = float(np.sqrt(np.mean(da**2)) / ref * 100)
+        out.append(
+            ChannelGap(
+                name, unit, float(np.sqrt(np.mean(db**2)) * scale), float(np.sqrt(np.mean(da**2)) * scale), rb, ra, int(ok.sum())
+            )
+        )
+    return out
+
+
+def shrink(before: float, after: float) -> float:
+    """Fraction of the held-out gap removed, in noise units: ``1 - sqrt(chi2_after / chi2_before)``
+    (the RMS normalised residual; 0 when nothing changes, 1 when nothing is left)."""
+    return 1.0 - math.sqrt(after / before) if before > 0 else math.nan
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """Where two candidates' predictions differ most (in units of the expected noise)."""
+
+    frequency_hz: float
+    voltage_pp: float
+    channel: str
+    difference_sigma: float
+    a: str
+    b: str
+
+
+def separating_experiment(
+    a: Candidate, b: Candidate, trials: Trials, f_max: float | None = None, v_max: float = 1000.0
+) -> Experiment:
+    """The operating point (frequency x voltage, within the drive's limits) that best tells ``a`` from ``b``."""
+    f_hi = f_max or 1.5 * float(np.max(trials.frequency_hz))
+    f = np.linspace(0.5, f_hi, 60)
+    v = np.linspace(100.0, v_max, 19)
+    ff, vv = (x.ravel() for x in np.meshgrid(f, v))
+    pa, pb = a.model.predict(ff, vv), b.model.predict(ff, vv)
+    best = (0.0, 0, "")
+    for name in FIT_CHANNELS:
+        if not trials.has(name):
+            continue
+        ya, yb = np.asarray(getattr(pa, name)), np.asarray(getattr(pb, name))
+        if name == "tip_phase_rad":
+            d = np.abs(_wrap(ya - yb)) / 0.02
+        else:
+            med_rel = float(np.nanmedian(trials.sigma[name] / np.maximum(np.abs(trials.channel(name)), 1e-30)))
+            floor = float(np.nanmin(trials.sigma[name]))
+            d = np.abs(ya - yb) / np.hypot(med_rel * np.maximum(np.abs(ya), np.abs(yb)), floor)
+        j = int(np.nanargmax(d))
+        if d[j] > best[0]:
+            best = (float(d[j]), j, name)
+    return Experiment(float(ff[best[1]]), float(vv[best[1]]), best[2], best[0], a.label, b.label)
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    fin: Fin
+    trials: Trials
+    stages: list[StageGap]
+    resonances: list[Resonance]
+    holdout: NDArray[np.bool_]
+    holdout_text: str
+    candidates: list[Candidate]  # ranked, best first
+    nominal: Candidate
+    verdict: str  # "no gap" | "explained" | "unexplained"
+    chosen: Candidate | None
+    ambiguous: list[Candidate]
+    experiments: list[Experiment]
+    gaps: list[ChannelGap]  # held out, before/after the best candidate
+    shrink: float
+    final_model: Augmented  # refitted on all trials
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def confident(self) -> bool:
+        return self.verdict == "explained" and not self.ambiguous
+
+    @property
+    def named(self) -> tuple[str, ...]:
+        return self.chosen.effects if self.chosen else ()
+
+
+def diagnose(
+    trials: Trials,
+    fin: Fin,
+    *,
+    library: Sequence[str] | None = None,
+    pairs_of: int = 4,
+    ambiguity: float = 6.0,
+    close_fraction: float = 0.95,
+    max_reduced_chi2: float = 3.0,
+    progress: Callable[[str], None] | None = None,
+) -> Diagnosis:
+    """Where, which and how far; see the module docstring."""
+    say = progress or (lambda _msg: None)
+    names = list(library or LIBRARY)
+    nominal_model = Augmented(fin)
+    stages = stage_gaps(trials, nominal_model)
+    res = resonances(trials, nominal_model)
+    test, test_text = split(trials)
+    train, held = trials.subset(~test), trials.subset(test)
+    c_tr0, _ = chi2(nominal_model, train)
+    c_te0, n_te = chi2(nominal_model, held)
+    pen = math.log(max(n_te, 2))
+    nominal = Candidate((), nominal_model, c_tr0, c_te0, n_te, 0, c_te0)
+    has_gap = any(s.significant for s in stages)
+
+    def candidate(combo: tuple[str, ...], start: dict[str, tuple[float, ...]] | None = None) -> Candidate:
+        m = fit(fin, combo, train, start)
+        c_tr, _ = chi2(m, train)
+        c_te, n = chi2(m, held)
+        k = sum(len(effect_class(e).params) for e in combo)
+        return Candidate(combo, m, c_tr, c_te, n, k, c_te + k * pen)
+
+    singles = []
+    for j, name in enumerate(names):
+        say(f"fitting {name} ({j + 1}/{len(names)})")
+        singles.append(candidate((name,)))
+    singles.sort(key=lambda c: c.criterion)
+    cands = list(singles)
+    top = singles[:pairs_of]
+    for j, (a, b) in enumerate(itertools.combinations(top, 2)):
+        say(f"fitting {a.effects[0]} + {b.effects[0]} (pair {j + 1}/{len(top) * (len(top) - 1) // 2})")
+        start = {a.effects[0]: a.model.values[0], b.effects[0]: b.model.values[0]}
+        cands.append(candidate((a.effects[0], b.effects[0]), start))
+    cands.sort(key=lambda c: c.criterion)
+
+    def adequate(c: Candidate) -> bool:
+        if not c.n_test or c.criterion >= nominal.criterion:
+            return False
+        if float(stats.chi2.sf(c.chi2_test, c.n_test)) >= 1e-3:
+            return True
+        return c.chi2_test <= (1 - close_fraction) * c_te0 and c.chi2_test / c.n_test <= max_reduced_chi2
+
+    # The smallest adequate explanation: one effect if one suffices, else a pair.
+    fitting = [c for c in singles if adequate(c)] or [c for c in cands if len(c.effects) == 2 and adequate(c)]
+    best = fitting[0] if fitting else cands[0]
+    notes: list[str] = []
+    if not has_gap and float(stats.chi2.sf(c_te0, n_te)) >= 1e-3:
+        verdict, chosen = "no gap", None
+    elif fitting:
+        verdict, chosen = "explained", best
+    else:
+        verdict, chosen = "unexplained", None
+        notes.append(
+            f"no candidate closes the gap: the best, {best.label}, leaves a held-out chi2 of "
+            f"{best.chi2_test:.0f} over {best.n_test} residuals (nominal model: {c_te0:.0f})"
+        )
+    ambiguous = []
+    experiments = []
+    if chosen is not None:
+        for c in cands:
+            if c is best or len(c.effects) != len(best.effects) or c.criterion - best.criterion > ambiguity:
+                continue
+            ambiguous.append(c)  # as simple as the chosen one and (almost) as good
+        for c in ambiguous[:3]:
+            experiments.append(separating_experiment(best, c, trials))
+    gaps = channel_gaps(nominal_model, best.model, held)
+    shrunk = shrink(c_te0, best.chi2_test)
+    final = best.model
+    if chosen is not None:
+        say("refitting the chosen effect(s) on all trials")
+        final = fit(fin, best.effects, trials, dict(zip(best.effects, best.model.values, strict=True)))
+    return Diagnosis(
+        fin, trials, stages, res, test, test_text, cands, nominal, verdict, chosen, ambiguous, experiments, gaps,
+        shrunk, final, notes,
+    )
+
+
+def summary_json(d: Diagnosis) -> dict[str, Any]:
+    """Everything the report says, as plain JSON types."""
+
+    def cand(c: Candidate) -> dict[str, Any]:
+        return {
+            "effects": list(c.effects),
+            "parameters": c.model.parameters(),
+            "chi2_train": c.chi2_train,
+            "chi2_heldout": c.chi2_test,
+            "heldout_residuals": c.n_test,
+            "parameters_count": c.k,
+            "criterion": c.criterion,
+        }
+
+    return {
+        "fin": d.fin.name,
+        "source": d.trials.source,
+        "trials": len(d.trials),
+        "verdict": d.verdict,
+        "confident": d.confident,
+        "named": list(d.named),
+        "notes": d.notes,
+        "where": [s.summary(d.trials) for s in d.stages],
+        "resonances": [r.__dict__ for r in d.resonances],
+        "holdout": d.holdout_text,
+        "which": {
+            "chosen": cand(d.chosen) if d.chosen else None,
+            "cannot_tell_apart": [cand(c) for c in d.ambiguous],
+            "separating_experiments": [e.__dict__ for e in d.experiments],
+            "ranking": [cand(c) for c in d.candidates],
+            "nominal": cand(d.nominal),
+        },
+        "how_far": {
+            "heldout_shrink": d.shrink,
+            "channels": [g.__dict__ for g in d.gaps],
+        },
+        "augmented_model": d.final_model.to_mapping(),
+    }

@@ -1,0 +1,369 @@
+"""Measured trials as the diagnosis sees them: one row per operating point, with uncertainties.
+
+A :class:`Trials` table comes from a bag (the estimator run offline over the suite's topics,
+:func:`from_bags`), from a CSV of per-trial summaries (published data without time series,
+:func:`from_csv`), or from the synthetic generator.  Channels a source lacks are NaN
+(a CSV has no phase; a fish has no vibrometer and no load cell).
+
+Uncertainties (1 sigma) follow from the measurement noise.  For a bag they are measured on the
+bag itself, in the windows where the drive is off: the standard deviation ``s`` of each signal
+there, propagated through the lock-in of a window of ``N`` samples (``s sqrt(2/N)`` per phasor
+component) and through the load-cell baseline subtraction.  A relative floor (``model_floor``,
+default 1 %) covers what the noise does not: the single-harmonic model, window edges.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..bagio import BagError, block_of, read_messages
+from ..blocks import COMMAND_FIELDS, DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..estimation import Estimate, EstimatorConfig
+from ..fin import Fin
+from ..offline import replay_estimates
+
+FloatArray = NDArray[Any]
+
+#: Measured channels the diagnosis compares with the model, with their unit and scale for display.
+CHANNELS: dict[str, tuple[str, float, str]] = {
+    "voltage_pp_drive": ("V", 1.0, "drive voltage"),
+    "tip_velocity_rms": ("mm/s", 1e3, "RMS tip velocity"),
+    "tip_phase_rad": ("deg", 180 / math.pi, "tip-velocity phase"),
+    "current_rms": ("uA", 1e6, "RMS current"),
+    "power_w": ("mW", 1e3, "mean power"),
+    "thrust_loadcell_n": ("mN", 1e3, "load-cell thrust"),
+}
+
+CSV_COLUMNS = {
+    "frequency_hz": ("frequency_hz", "f_hz", "frequency"),
+    "voltage_pp": ("voltage_pp", "vpp", "voltage_pp_v"),
+    "tip_velocity_rms": ("tip_velocity_rms", "tip_velocity_rms_m_s", "u_rms"),
+    "current_rms": ("current_rms", "current_rms_a", "i_rms"),
+    "power_w": ("power_w", "mean_power_w", "power"),
+    "thrust_loadcell_n": ("thrust_n", "mean_thrust_n", "thrust_loadcell_n", "thrust"),
+    "tip_phase_rad": ("tip_phase_rad",),
+    "voltage_pp_drive": ("voltage_pp_drive",),
+}
+
+
+class DataError(ValueError):
+    """Input data that cannot be diagnosed; the message names the file and the problem."""
+
+
+@dataclass(frozen=True)
+class Trials:
+    """Per-trial measurements (arrays of equal length; NaN where a channel is missing).
+
+    ``voltage_pp`` is the nominal (commanded) drive; ``voltage_pp_drive`` the measured one, if known.
+    ``sigma`` holds the 1-sigma uncertainty of each channel in :data:`CHANNELS`.
+    """
+
+    frequency_hz: FloatArray
+    voltage_pp: FloatArray
+    voltage_pp_drive: FloatArray
+    tip_velocity_rms: FloatArray
+    tip_phase_rad: FloatArray
+    current_rms: FloatArray
+    power_w: FloatArray
+    thrust_loadcell_n: FloatArray
+    sigma: dict[str, FloatArray]
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        n = len(self.frequency_hz)
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray) and v.shape != (n,):
+                raise DataError(f"{self.source}: column {f.name} has {v.shape} values, expected {n}")
+        if n == 0:
+            raise DataError(f"{self.source}: no trial")
+        bad = ~(np.isfinite(self.frequency_hz) & (self.frequency_hz > 0))
+        bad |= ~(np.isfinite(self.voltage_pp) & (self.voltage_pp > 0))
+        if np.any(bad):
+            raise DataError(f"{self.source}: trial(s) {np.flatnonzero(bad).tolist()} lack a valid frequency or voltage")
+
+    def __len__(self) -> int:
+        return len(self.frequency_hz)
+
+    def channel(self, name: str) -> FloatArray:
+        return np.asarray(getattr(self, name), float)
+
+    def has(self, name: str) -> bool:
+        return bool(np.any(np.isfinite(self.channel(name))))
+
+    @property
+    def voltages(self) -> FloatArray:
+        """Distinct nominal voltages (rounded to 1 V)."""
+        return np.unique(np.round(self.voltage_pp))
+
+    def subset(self, index: FloatArray | Sequence[int] | NDArray[np.bool_]) -> Trials:
+        idx = np.asarray(index)
+        cols = {f.name: getattr(self, f.name)[idx] for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)}
+        return replace(self, **cols, sigma={k: v[idx] for k, v in self.sigma.items()})
+
+    def measured_drive(self) -> FloatArray | None:
+        """The measured drive (Vpp) if every trial has it, else None (the model then drives the fin)."""
+        if np.all(np.isfinite(self.voltage_pp_drive)):
+            return self.voltage_pp_drive
+        return None
+
+    def records(self) -> list[dict[str, float]]:
+        names = ["frequency_hz", "voltage_pp", *CHANNELS]
+        out = []
+        for i in range(len(self)):
+            row = {n: float(self.channel(n)[i]) for n in names}
+            row.update({f"{n}_sigma": float(self.sigma[n][i]) for n in CHANNELS})
+            out.append(row)
+        return out
+
+    def to_csv(self, path: str | os.PathLike[str]) -> None:
+        rows = self.records()
+        with open(path, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+
+
+def _floor(values: FloatArray, sigma: FloatArray, rel: float, absolute: float = 0.0) -> FloatArray:
+    return np.sqrt(sigma**2 + (rel * np.abs(values)) ** 2 + absolute**2)
+
+
+def make_trials(
+    columns: dict[str, FloatArray], noise: dict[str, FloatArray], source: str, model_floor: float = 0.01
+) -> Trials:
+    """A table from measured columns and their noise-only sigmas (a relative model floor is added)."""
+    n = len(columns["frequency_hz"])
+    nan = np.full(n, np.nan)
+    cols = {name: np.asarray(columns.get(name, nan), float) for name in ("frequency_hz", "voltage_pp", *CHANNELS)}
+    sigma = {}
+    for name in CHANNELS:
+        s = np.asarray(noise.get(name, np.zeros(n)), float)
+        if name == "tip_phase_rad":
+            sigma[name] = np.sqrt(s**2 + model_floor**2)  # 1 % of a radian ~ 0.6 deg
+        else:
+            sigma[name] = _floor(cols[name], s, model_floor)
+    return Trials(**cols, sigma=sigma, source=source)
+
+
+def from_estimates(
+    estimates: Iterable[Estimate],
+    noise: Noise,
+    sample_rate_hz: float = 1000.0,
+    commands: Sequence[tuple[float, float, float]] = (),
+    source: str = "",
+    baseline_s: float = 5.0,
+    loadcell_stiffness: float = EstimatorConfig().loadcell_stiffness_n_per_m,
+) -> Trials:
+    """One row per *final* estimate (a whole trial), with sigmas from the noise levels.
+
+    ``commands`` are ``(t, frequency_hz, voltage_pp)`` as commanded; the nominal voltage of a trial is
+    the last command before it (else the measured drive voltage).
+    """
+    rows = [e for e in estimates if e.final == 1.0 and math.isfinite(e.power_w)]
+    if not rows:
+        raise DataError(f"{source}: no completed trial (a trial needs the drive on for > 3 s and off after it)")
+    f = np.array([e.frequency_hz for e in rows])
+    v_drive = np.array([e.voltage_pp for e in rows])
+    nominal = v_drive.copy()
+    cmd = sorted(commands)
+    for j, e in enumerate(rows):
+        before = [c for c in cmd if c[0] <= e.t_start and c[2] > 0]
+        if before:
+            nominal[j] = before[-1][2]
+    n = np.array([max((e.t_end - e.t_start) * sample_rate_hz, 1.0) for e in rows])
+    u = np.array([e.tip_velocity_rms for e in rows])
+    lock = np.sqrt(2.0 / n)  # sigma of a phasor component over the noise sigma
+    nb = baseline_s * sample_rate_hz * np.array([max(e.loadcell_baselines, 1.0) for e in rows])
+    sig = {
+        "voltage_pp_drive": 2 * noise.voltage * lock,
+        "tip_velocity_rms": noise.tip * lock / math.sqrt(2),
+        "tip_phase_rad": np.divide(noise.tip * lock / math.sqrt(2), u, out=np.full(len(rows), np.inf), where=u > 0),
+        "current_rms": noise.current / np.sqrt(n),
+        "power_w": 0.5 * (0.5 * v_drive) * noise.current * lock,
+        "thrust_loadcell_n": loadcell_stiffness * noise.loadcell * np.sqrt(1 / n + 1 / nb) + noise.loadcell_drift,
+    }
+    cols = {
+        "frequency_hz": f,
+        "voltage_pp": nominal,
+        "voltage_pp_drive": v_drive,
+        "tip_velocity_rms": u,
+        "tip_phase_rad": np.array([e.tip_phase_rad for e in rows]),
+        "current_rms": np.array([e.current_rms for e in rows]),
+        "power_w": np.array([e.power_w for e in rows]),
+        "thrust_loadcell_n": np.array([e.thrust_loadcell_n for e in rows]),
+    }
+    return make_trials(cols, sig, source)
+
+
+@dataclass(frozen=True)
+class Noise:
+    """1-sigma white noise of each signal (V, A, m/s, m) and the load cell's residual drift (N)."""
+
+    voltage: float
+    current: float
+    tip: float
+    loadcell: float
+    loadcell_drift: float = 0.0
+
+
+def _merge(a: Trials, b: Trials) -> Trials:
+    cols = {
+        f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)])
+        for f in fields(a)
+        if isinstance(getattr(a, f.name), np.ndarray)
+    }
+    sigma = {k: np.concatenate([a.sigma[k], b.sigma[k]]) for k in a.sigma}
+    return Trials(**cols, sigma=sigma, source=f"{a.source}, {b.source}")
+
+
+def measure_noise(path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0) -> Noise:
+    """Noise of each signal where the drive is off (``|v| < threshold`` for at least 2 s)."""
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    topics = {f"{ns}/drive": "drive", f"{ns}/tip_velocity": "tip", f"{ns}/loadcell": "loadcell"}
+    parts: dict[str, list[FloatArray]] = {k: [] for k in ("t", "v", "i", "tt", "u", "tl", "d")}
+    for m in read_messages(path, topics):
+        try:
+            b = block_of(m.type_name, m.data)
+            kind = topics[m.topic]
+            if kind == "drive":
+                s = check_samples(b, DRIVE_CHANNELS)
+                parts["t"].append(s["t_s"])
+                parts["v"].append(s["voltage_V"])
+                parts["i"].append(s["current_A"])
+            elif kind == "tip":
+                s = check_samples(b, TIP_CHANNELS)
+                parts["tt"].append(s["t_s"])
+                parts["u"].append(s["tip_velocity_m_s"])
+            else:
+                s = check_samples(b, LOADCELL_CHANNELS)
+                parts["tl"].append(s["t_s"])
+                parts["d"].append(s["displacement_m"])
+        except (BlockFormatError, KeyError, ValueError):
+            continue  # the estimator's replay reports these
+    cat = {k: np.concatenate(v) if v else np.empty(0) for k, v in parts.items()}
+    t, v = cat["t"], cat["v"]
+    if t.size < 100:
+        raise DataError(f"{path}: too few drive samples on {ns}/drive to measure the noise")
+    on = np.abs(v) >= threshold_v
+    # off = at least 1 s away from any on-sample, on both sides
+    t_on = t[on]
+    if t_on.size:
+        pos = np.searchsorted(t_on, t)
+        prev = np.where(pos > 0, t - t_on[np.maximum(pos - 1, 0)], np.inf)
+        nxt = np.where(pos < t_on.size, t_on[np.minimum(pos, t_on.size - 1)] - t, np.inf)
+        quiet_t = t[(prev > 2.0) & (nxt > 0.5)]
+    else:
+        quiet_t = t
+    if quiet_t.size < 100:
+        raise DataError(f"{path}: no stretch with the drive off to measure the noise (need > 0.1 s)")
+    lo, hi = quiet_t.min(), quiet_t.max()
+
+    def quiet(tt: FloatArray, x: FloatArray) -> FloatArray:
+        if tt.size == 0:
+            return np.empty(0)
+        idx = np.clip(np.searchsorted(quiet_t, tt), 0, quiet_t.size - 1)
+        near = np.abs(quiet_t[idx] - tt) < 1.5e-3
+        return x[near & (tt >= lo) & (tt <= hi) & np.isfinite(x)]
+
+    def std(x: FloatArray) -> float:
+        return float(np.std(x)) if x.size > 10 else math.nan
+
+    sel = np.isin(t, quiet_t)
+    lc = quiet(cat["tl"], cat["d"])
+    # the load cell drifts: the white part from first differences, the drift from the slope
+    lc_white = float(np.std(np.diff(lc)) / math.sqrt(2)) if lc.size > 10 else math.nan
+    return Noise(
+        voltage=std(v[sel]),
+        current=std(cat["i"][sel]),
+        tip=std(quiet(cat["tt"], cat["u"])),
+        loadcell=lc_white,
+    )
+
+
+def from_bags(
+    paths: Sequence[str | os.PathLike[str]], fin: Fin, namespace: str = "/fin", progress: Any = None
+) -> tuple[Trials, list[str]]:
+    """Trials of one fin from one or more bags; returns the table and the lines the replay skipped."""
+    tables: list[Trials] = []
+    skipped: list[str] = []
+    for j, path in enumerate(paths):
+        if progress:
+            progress(f"reading {path} ({j + 1}/{len(paths)})")
+        replay = replay_estimates(path, fin, namespace)
+        skipped += [f"{path}: {s}" for s in replay.skipped]
+        noise = measure_noise(path, namespace)
+        commands = _commands(path, namespace)
+        tables.append(from_estimates(replay.replayed, noise, commands=commands, source=str(path)))
+    out = tables[0]
+    for t in tables[1:]:
+        out = _merge(out, t)
+    return out, skipped
+
+
+def _commands(path: str | os.PathLike[str], namespace: str) -> list[tuple[float, float, float]]:
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    out = []
+    for m in read_messages(path, {f"{ns}/cmd"}):
+        try:
+            cmd = block_of(m.type_name, m.data, expect=COMMAND_FIELDS)
+            f, v, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
+        except (BlockFormatError, KeyError, ValueError, IndexError):
+            continue  # a malformed command is not a command (fin_sim rejected it too)
+        if math.isfinite(f) and math.isfinite(v) and on > 0:
+            out.append((m.log_time_ns * 1e-9, f, v))
+    return out
+
+
+def from_csv(path: str | os.PathLike[str], relative_sigma: float = 0.02, model_floor: float = 0.01) -> Trials:
+    """Per-trial summaries (one row per trial; SI units; header names as in :data:`CSV_COLUMNS`).
+
+    Columns ``<channel>_sigma`` give uncertainties; otherwise ``relative_sigma`` of each value.
+    """
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise DataError(f"{path}: cannot read as CSV ({exc})") from None
+    if not rows:
+        raise DataError(f"{path}: no data row")
+    header = {h.strip().lower(): h for h in rows[0] if h}
+    cols: dict[str, FloatArray] = {}
+    noise: dict[str, FloatArray] = {}
+    for key, aliases in CSV_COLUMNS.items():
+        found = next((header[a] for a in aliases if a in header), None)
+        if found is None:
+            continue
+        cols[key] = _floats(path, rows, found)
+        sig = header.get(f"{key}_sigma")
+        if sig is not None:
+            noise[key] = _floats(path, rows, sig)
+        elif key in CHANNELS:
+            noise[key] = relative_sigma * np.abs(cols[key])
+    for need in ("frequency_hz", "voltage_pp"):
+        if need not in cols:
+            raise DataError(f"{path}: no column for {need} (accepted names: {', '.join(CSV_COLUMNS[need])})")
+    if not any(k in cols for k in CHANNELS):
+        raise DataError(f"{path}: no measured column (accepted: {', '.join(CHANNELS)})")
+    return make_trials(cols, noise, str(path), model_floor)
+
+
+def _floats(path: str | os.PathLike[str], rows: list[dict[str, str]], column: str) -> FloatArray:
+    out = []
+    for j, r in enumerate(rows):
+        text = (r.get(column) or "").strip()
+        try:
+            out.append(float(text) if text else math.nan)
+        except ValueError:
+            raise DataError(f"{path}: row {j + 2}, column {column}: not a number: {text!r}") from None
+    return np.array(out)
+
+
+__all__ = ["CHANNELS", "DataError", "Noise", "Trials", "from_bags", "from_csv", "from_estimates", "make_trials", "BagError"]
