@@ -29,6 +29,7 @@ setup(
         "console_scripts": [
             "piezofin = piezofin_ros.cli:main",
             "sweep = piezofin_ros.cli:sweep_main",
+            "diagnose = piezofin_ros.cli:diagnose_main",
             "fin_sim = piezofin_ros.nodes.fin_sim:main",
             "thrust_estimator = piezofin_ros.nodes.thrust_estimator:main",
             "controller = piezofin_ros.nodes.controller:main",

@@ -174,6 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
     sweep = sub.add_parser("sweep", help="steady-state table/plot over frequency and voltage")
     _add_sweep_args(sweep)
     sweep.set_defaults(func=run_sweep)
+    diag = sub.add_parser("diagnose", help="where, why and how far the model misses measured trials")
+    _add_diagnose_args(diag)
+    diag.set_defaults(func=run_diagnose)
     fins = sub.add_parser("fins", help="list the preset fins and their derived parameters")
     fins.set_defaults(func=run_fins)
     est = sub.add_parser("estimate", help="run the thrust estimator offline on a recorded bag")
@@ -218,6 +221,76 @@ def run_estimate(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="+", help="MCAP bags of trials (the suite's topics), or one CSV of per-trial summaries")
+    p.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
+    p.add_argument("--namespace", default="/fin", help="the fin's namespace in the bags (default /fin)")
+    p.add_argument("--json", metavar="OUT.json", help="write the findings as JSON")
+    p.add_argument("--report", metavar="OUT_DIR", help="write report.md, plots, JSON and augmented_model.yaml here")
+    p.add_argument(
+        "--relative-sigma", type=float, default=0.02, help="CSV without *_sigma columns: 1-sigma relative uncertainty (0.02)"
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def run_diagnose(args: argparse.Namespace) -> int:
+    import time
+
+    from .bagio import BagError
+    from .diagnosis.attribute import diagnose, summary_json
+    from .diagnosis.data import DataError, from_bags, from_csv
+    from .diagnosis.report import text, write
+
+    fin = _load(args.fin, None)
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    if not (np.isfinite(args.relative_sigma) and 0 < args.relative_sigma < 1):
+        raise UsageError("--relative-sigma: expected a number in (0, 1)")
+    csvs = [d for d in args.data if d.lower().endswith(".csv")]
+    try:
+        if csvs:
+            if len(args.data) != 1:
+                raise UsageError("give either one CSV or one or more bags, not a mix")
+            say(f"reading {csvs[0]}")
+            trials = from_csv(csvs[0], relative_sigma=args.relative_sigma)
+        else:
+            trials, skipped = from_bags(args.data, fin, args.namespace, progress=say)
+            for line in skipped[:20]:
+                print(f"skipped {line}", file=sys.stderr)
+            if len(skipped) > 20:
+                print(f"... and {len(skipped) - 20} more skipped messages", file=sys.stderr)
+        say(f"{len(trials)} trials; checking each stage and fitting {14} candidate effects")
+        d = diagnose(trials, fin, progress=say)
+    except (BagError, DataError) as exc:
+        raise UsageError(str(exc)) from None
+    summary = summary_json(d)
+    print(text(d))
+    try:
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(summary, fh, indent=1, default=float)
+            say(f"wrote {args.json}")
+        if args.report:
+            for path in write(d, args.report, summary):
+                say(f"wrote {path}")
+    except OSError as exc:
+        raise UsageError(f"cannot write the output ({exc})") from None
+    say("done")
+    return 0
+
+
+def diagnose_main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezofin_ros diagnose ...``: the ``diagnose`` sub-command on its own."""
+    parser = argparse.ArgumentParser(prog="diagnose", description="sim-to-real gap diagnosis of measured trials")
+    _add_diagnose_args(parser)
+    parser.set_defaults(func=run_diagnose)
+    return _run(parser, argv)
 
 
 def run_fins(args: argparse.Namespace) -> int:

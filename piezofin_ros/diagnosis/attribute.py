@@ -5,7 +5,8 @@ Procedure (:func:`diagnose`)
 1. **Split.**  With several voltages, the highest is held out and the rest train (the model must
    *extrapolate* in amplitude, where nonlinear effects differ most); with one voltage, every third
    frequency is held out.
-2. **Fit.**  Each candidate (every effect of the library alone, then pairs of the best four) is fitted
+2. **Fit.**  Each candidate (every effect of the library alone, then the best one paired with each other
+   effect and the best ``pairs_of`` (3) paired among themselves) is fitted
    on the training trials by noise-weighted least squares (``scipy.optimize.least_squares``, bounded,
    two starts) over every measured channel: drive voltage, tip velocity and phase, current, power,
    load-cell thrust.  A weak prior (ten times each parameter's typical size) keeps unidentified
@@ -265,7 +266,7 @@ def diagnose(
     fin: Fin,
     *,
     library: Sequence[str] | None = None,
-    pairs_of: int = 4,
+    pairs_of: int = 3,
     ambiguity: float = 6.0,
     close_fraction: float = 0.95,
     max_reduced_chi2: float = 3.0,
@@ -298,11 +299,13 @@ def diagnose(
         singles.append(candidate((name,)))
     singles.sort(key=lambda c: c.criterion)
     cands = list(singles)
-    top = singles[:pairs_of]
-    for j, (a, b) in enumerate(itertools.combinations(top, 2)):
-        say(f"fitting {a.effects[0]} + {b.effects[0]} (pair {j + 1}/{len(top) * (len(top) - 1) // 2})")
-        start = {a.effects[0]: a.model.values[0], b.effects[0]: b.model.values[0]}
-        cands.append(candidate((a.effects[0], b.effects[0]), start))
+    # Pairs: the best single with every other effect (forward selection), and the best few together.
+    combos = {tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1:]}
+    combos |= {tuple(sorted((a.effects[0], b.effects[0]))) for a, b in itertools.combinations(singles[:pairs_of], 2)}
+    by_name = {c.effects[0]: c for c in singles}
+    for j, (a, b) in enumerate(sorted(combos)):
+        say(f"fitting {a} + {b} (pair {j + 1}/{len(combos)})")
+        cands.append(candidate((a, b), {a: by_name[a].model.values[0], b: by_name[b].model.values[0]}))
     cands.sort(key=lambda c: c.criterion)
 
     def adequate(c: Candidate) -> bool:

@@ -11,8 +11,8 @@ amplitude.  With :class:`Knobs` ``s`` (stiffness), ``m`` (added mass), ``c`` (st
     A^2 (a^2 + d^2) = F^2                                   (the quartic of steady.py)
 
     U_1 = j w phi(L) (H0 - j H1)                            tip-velocity phasor (V real)
-    I_1 = j w C_eq r V + q theta j w (H0 - j H1)            Eq. (10)
-    P   = (1/2) q theta w r V H1 + P_loss                   mean(v i)
+    I_1 = (G_loss + j w C_eq) r V + q theta j w (H0 - j H1)  Eq. (10) plus a loss current
+    P   = (1/2) q theta w r V H1 + (1/2) G_loss (r V)^2       mean(v i); G_loss: loss conductance
     T   = gain (1/2) m m_v [u^2 - U^2 (phi'/phi)^2 x^2] + bias   Eqs. (19)-(20), load cell
 
 When a knob depends on the amplitude (``A`` enters through the tip amplitude ``X = phi(L) A``
@@ -56,7 +56,7 @@ class Knobs:
     drag: FloatArray | float = 1.0  # x gamma
     coupling: FloatArray | float = 1.0  # x theta
     voltage: FloatArray | float = 1.0  # effective / nominal drive voltage (amplifier)
-    loss_w: FloatArray | float = 0.0  # W, electrical power not converted to motion
+    loss_conductance: FloatArray | float = 0.0  # S, in-phase current not converted to motion
     thrust_gain: FloatArray | float = 1.0  # load cell reading / true thrust
     thrust_bias_n: FloatArray | float = 0.0  # N, load cell offset
     swim_speed: FloatArray | float = 0.0  # m/s, U of Eq. (19)
@@ -207,8 +207,7 @@ class DielectricLoss(Effect):
     stages = ("current", "power budget")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
-        v = 0.5 * op.voltage_pp * k.voltage
-        k.loss_w = k.loss_w + 0.5 * p[0] * op.fin.C_eq * op.omega * v * v
+        k.loss_conductance = k.loss_conductance + p[0] * op.fin.C_eq * op.omega
 
 
 class Leakage(Effect):
@@ -218,8 +217,7 @@ class Leakage(Effect):
     stages = ("current", "power budget")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
-        v = 0.5 * op.voltage_pp * k.voltage
-        k.loss_w = k.loss_w + 0.5 * p[0] * 1e-6 * v * v
+        k.loss_conductance = k.loss_conductance + p[0] * 1e-6
 
 
 class SwimSpeed(Effect):
@@ -475,8 +473,8 @@ def predict(
         h1 = np.where(den > 0, force * d / den, 0.0)
     vel = 1j * w * (h0 - 1j * h1)  # modal velocity phasor
     tip = phi * vel
-    current = 1j * w * fin.C_eq * v_amp + fin.theta * kk.coupling * vel
-    power = 0.5 * v_amp * np.real(current) + kk.loss_w
+    current = (kk.loss_conductance + 1j * w * fin.C_eq) * v_amp + fin.theta * kk.coupling * vel
+    power = 0.5 * v_amp * np.real(current)
     u_ms = 0.5 * np.abs(tip) ** 2
     x_ms = 0.5 * (fin.phi_tip_slope * amp) ** 2
     thrust = 0.5 * fin.m_v * kk.mass * (u_ms - kk.swim_speed**2 * x_ms)

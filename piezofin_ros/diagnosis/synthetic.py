@@ -199,7 +199,7 @@ def draw_strength(name: str, rng: np.random.Generator) -> float:
         "drag_kc": u(0.3, 1.0),
         "dielectric_loss": u(0.02, 0.1),
         "leakage": u(0.02, 0.2),  # uS
-        "swim_speed": u(0.1, 0.4),  # m/s
+        "swim_speed": u(0.5, 1.0),  # m/s (below ~0.4 m/s the U term hides in the load-cell noise)
         "amplifier_limit": u(0.45, 0.8),  # clip at this fraction of the highest current demand
         "loadcell_offset": sign * u(0.3, 2.0),  # mN
         "loadcell_gain": 1.0 + sign * u(0.15, 0.4),

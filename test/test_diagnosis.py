@@ -1,0 +1,176 @@
+"""The sim-to-real diagnosis: model identities, stage localisation, blind attribution on a fixed subset."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from numpy.testing import assert_allclose
+
+from piezofin_ros.diagnosis.attribute import diagnose, summary_json
+from piezofin_ros.diagnosis.data import DataError, from_csv
+from piezofin_ros.diagnosis.model import LIBRARY, Augmented, ModelError
+from piezofin_ros.diagnosis.stages import stage_gaps
+from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, simulate_case
+from piezofin_ros.fin import load_fin
+from piezofin_ros.steady import harmonic_balance
+
+FIN = load_fin("M8528-P1")
+F = np.tile(np.linspace(1, 11, 11), 3)
+V = np.repeat([400.0, 600.0, 800.0], 11)
+
+
+def test_nominal_augmented_model_is_the_harmonic_balance() -> None:
+    hb = harmonic_balance(FIN, F, V)
+    p = Augmented(FIN).predict(F, V)
+    assert_allclose(p.tip_velocity_rms, hb.tip_velocity_rms, rtol=1e-12)
+    assert_allclose(p.power_w, hb.power_w, rtol=1e-12)
+    assert_allclose(p.current_rms, hb.current_rms, rtol=1e-12)
+    assert_allclose(p.thrust_n, hb.thrust_n, rtol=1e-12)
+
+
+def test_every_effect_is_neutral_at_its_neutral_values() -> None:
+    base = Augmented(FIN).predict(F, V)
+    for name, cls in LIBRARY.items():
+        p = Augmented.of(FIN, {name: list(cls.neutral())}).predict(F, V)
+        for ch in ("tip_velocity_rms", "power_w", "current_rms", "thrust_loadcell_n", "voltage_pp_drive"):
+            assert_allclose(getattr(p, ch), getattr(base, ch), rtol=1e-9, err_msg=f"{name}: {ch}")
+
+
+def test_closed_forms_of_simple_effects() -> None:
+    # resonance offset: same as a fin with f_sc scaled
+    p = Augmented.of(FIN, {"resonance_offset": [0.8]}).predict(F, V)
+    hb = harmonic_balance(FIN.replace(f_sc=FIN.f_sc * 0.8), F, V)
+    assert_allclose(p.tip_velocity_rms, hb.tip_velocity_rms, rtol=1e-12)
+    # dielectric loss adds (1/2) tan(delta) C w V^2 to the power and nothing to the motion
+    q = Augmented.of(FIN, {"dielectric_loss": [0.05]}).predict(F, V)
+    base = Augmented(FIN).predict(F, V)
+    assert_allclose(q.power_w - base.power_w, 0.5 * 0.05 * FIN.C_eq * 2 * math.pi * F * (V / 2) ** 2, rtol=1e-12)
+    assert_allclose(q.tip_velocity_rms, base.tip_velocity_rms, rtol=1e-12)
+    # clipping at half the amplitude keeps (2/pi)(asin r + r sqrt(1 - r^2)) of the fundamental
+    amp = Augmented.of(FIN, {"amplifier_limit": [1.0]})  # I_max = 1 mA
+    f = np.array([10.0])
+    v = np.array([2 * 2 * 1e-3 / (FIN.C_eq * 2 * math.pi * 10.0)])  # amplitude = 2 x clip level
+    r = 0.5
+    assert_allclose(amp.predict(f, v).voltage_pp_drive, v * (2 / math.pi) * (math.asin(r) + r * math.sqrt(1 - r * r)))
+
+
+def test_augmented_model_round_trips_through_safe_yaml(tmp_path: Path) -> None:
+    m = Augmented.of(FIN, {"electroelastic_softening": [0.3], "dielectric_loss": [0.04]})
+    text = yaml.safe_dump(m.to_mapping())
+    back = Augmented.from_mapping(yaml.safe_load(text))
+    assert back.parameters() == m.parameters()
+    assert_allclose(back.predict(F, V).power_w, m.predict(F, V).power_w)
+    with pytest.raises(ModelError, match="unknown effect 'bogus'"):
+        Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"bogus": {}}})
+    with pytest.raises(ModelError, match="softening"):
+        Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"electroelastic_softening": {"softening": 7.0}}})
+    with pytest.raises(ModelError, match="must be a number"):
+        Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"dielectric_loss": {"tan_delta": "x"}}})
+
+
+@pytest.fixture(scope="module")
+def clean() -> Case:
+    return Case("M8528-P1", {}, 11)
+
+
+def test_clean_data_has_no_gap(clean: Case) -> None:
+    g = simulate_case(clean)
+    d = diagnose(g.trials, FIN)
+    assert d.verdict == "no gap"
+    assert not any(s.significant for s in stage_gaps(g.trials, Augmented(FIN)))
+
+
+@pytest.mark.parametrize(
+    ("effect", "stage"),
+    [
+        ("electroelastic_softening", "tip"),
+        ("dielectric_loss", "current"),
+        ("loadcell_gain", "thrust"),
+        ("amplifier_limit", "drive"),
+    ],
+)
+def test_the_gap_is_found_where_it_arises(effect: str, stage: str) -> None:
+    strength = {"electroelastic_softening": 0.35, "dielectric_loss": 0.06, "loadcell_gain": 1.3, "amplifier_limit": 0.6}
+    g = simulate_case(Case("M8528-P1", {effect: strength[effect]}, 3))
+    gaps = {s.stage for s in stage_gaps(g.trials, Augmented(FIN)) if s.significant}
+    assert stage in gaps
+    downstream_only = {"tip": {"thrust", "current"}, "thrust": {"tip", "current", "drive"}, "current": {"tip", "thrust"}}
+    assert not (gaps & downstream_only.get(stage, set())), gaps
+
+
+# A small fixed subset of the benchmark: blind attribution, the named effect and the shrink.
+SUBSET = [
+    Case("M8528-P1", {"electroelastic_softening": 0.3}, 101),
+    Case("M8514-P1", {"added_mass_kc": 0.5}, 102),
+    Case("M8507-P1", {"dielectric_loss": 0.05}, 103),
+    Case("M8528-P1", {"drag_offset": 2.5}, 104),
+    Case("M8514-P1", {"loadcell_offset": -1.0}, 105),
+]
+
+
+@pytest.mark.parametrize("case", SUBSET, ids=lambda c: next(iter(c.effects)))
+def test_blind_attribution_of_single_effects(case: Case) -> None:
+    g = simulate_case(case)
+    d = diagnose(g.trials, load_fin(case.fin))
+    assert d.verdict == "explained"
+    assert d.named == tuple(case.effects)
+    assert d.shrink >= 0.8
+    assert d.chosen is not None and d.chosen.chi2_test < 0.05 * d.nominal.chi2_test
+
+
+def test_out_of_library_effect_is_unexplained() -> None:
+    g = simulate_case(Case("M8528-P1", {"wake_modulation": 0.3}, 7))
+    d = diagnose(g.trials, FIN)
+    assert d.verdict == "unexplained" and not d.confident
+    assert "no candidate closes the gap" in d.notes[0]
+
+
+def test_summary_is_json_and_model_reloads() -> None:
+    g = simulate_case(Case("M8528-P1", {"resonance_offset": 0.85}, 9))
+    d = diagnose(g.trials, FIN)
+    s = json.loads(json.dumps(summary_json(d), default=float))
+    assert s["verdict"] == "explained" and s["named"] == ["resonance_offset"]
+    m = Augmented.from_mapping(s["augmented_model"])
+    assert abs(m.parameters()["resonance_offset"]["scale"] - 0.85) < 0.01
+
+
+def test_generator_covers_the_library() -> None:
+    assert set(IN_LIBRARY) == set(LIBRARY)
+
+
+def test_csv_input_and_cli(tmp_path: Path) -> None:
+    g = simulate_case(Case("M8528-P1", {"electroelastic_softening": 0.3}, 5))
+    path = tmp_path / "trials.csv"
+    g.trials.to_csv(path)
+    t = from_csv(path)
+    assert_allclose(t.power_w, g.trials.power_w)
+    exe = Path(sys.executable).parent / "piezofin"
+    out = tmp_path / "report"
+    run = subprocess.run(
+        [exe, "diagnose", str(path), "--report", str(out), "--json", str(tmp_path / "d.json")],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "Explained by electroelastic_softening" in run.stdout
+    assert "fitting" in run.stderr  # progress
+    for name in ("report.md", "measured_vs_model.png", "stage_gaps.png", "before_after.png", "augmented_model.yaml"):
+        assert (out / name).stat().st_size > 0
+    assert json.loads((tmp_path / "d.json").read_text())["named"] == ["electroelastic_softening"]
+
+
+@pytest.mark.parametrize("content", ["", "a,b\n1,2\n", "frequency_hz,voltage_pp,power_w\n1,x,3\n"])
+def test_bad_csv_names_the_file(tmp_path: Path, content: str) -> None:
+    path = tmp_path / "bad.csv"
+    path.write_text(content)
+    with pytest.raises(DataError, match="bad.csv"):
+        from_csv(path)
+    exe = Path(sys.executable).parent / "piezofin"
+    run = subprocess.run([exe, "diagnose", str(path)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "bad.csv" in run.stderr and "Traceback" not in run.stderr
