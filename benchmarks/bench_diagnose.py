@@ -8,7 +8,7 @@ Reported: top-1 attribution accuracy on single in-library effects (goal >= 90 %)
 confident wrong answers on out-of-library cases (goal <= 10 %), both effects named for pairs, "no
 gap" on clean data, the median held-out shrink of the gap (goal >= 80 %) and the time per dataset.
 
-    python benchmarks/bench_diagnose.py [--per-effect 4] [--outside 20] [--double 14] [--clean 6] [--json out.json]
+    python benchmarks/bench_diagnose.py [--per-effect 4] [--outside 20] [--double 14] [--clean 6]
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from piezofin_ros.diagnosis.attribute import diagnose  # noqa: E402
-from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, random_case, simulate_case  # noqa: E402
-from piezofin_ros.fin import load_fin  # noqa: E402
+from piezofin_ros.diagnosis.attribute import diagnose
+from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, random_case, simulate_case
+from piezofin_ros.fin import load_fin
 
 
 def cases(per_effect: int, outside: int, double: int, clean: int, seed: int) -> list[tuple[str, Case]]:
@@ -38,7 +38,10 @@ def cases(per_effect: int, outside: int, double: int, clean: int, seed: int) -> 
             out.append(("single", Case(c.fin, {name: _strength(name, rng)}, c.seed)))
     out += [("outside", random_case(rng, "outside")) for _ in range(outside)]
     out += [("double", random_case(rng, "double")) for _ in range(double)]
-    out += [("clean", Case(str(rng.choice(["M8507-P1", "M8514-P1", "M8528-P1"])), {}, int(rng.integers(2**31)))) for _ in range(clean)]
+    out += [
+        ("clean", Case(str(rng.choice(["M8507-P1", "M8514-P1", "M8528-P1"])), {}, int(rng.integers(2**31))))
+        for _ in range(clean)
+    ]
     return out
 
 
@@ -91,7 +94,7 @@ def main() -> int:
             results.append(r)
             mark = "ok" if r["correct"] or (r["kind"] == "outside" and not r["confident"]) else "MISS"
             print(
-                f"[{j + 1:3d}/{len(items)}] {r['kind']:<7} {r['fin']:<9} {','.join(r['truth']) or '-':<45} -> "  # type: ignore[arg-type]
+                f"[{j + 1:3d}/{len(items)}] {r['kind']:<7} {r['fin']:<9} {','.join(r['truth']) or '-':<45} -> "  # type: ignore[arg-type]  # noqa: E501
                 f"{r['verdict']:<11} {','.join(r['named']):<45} {mark}",  # type: ignore[arg-type]
                 flush=True,
             )
@@ -101,17 +104,25 @@ def main() -> int:
         return [r for r in results if r["kind"] == kind]
 
     single, outside, double, clean = pick("single"), pick("outside"), pick("double"), pick("clean")
-    shrinks = [float(r["shrink"]) for r in results if r["shrink"] is not None and r["kind"] in ("single", "double")]  # type: ignore[arg-type]
+    shrinks = [
+        float(r["shrink"]) for r in results if r["shrink"] is not None and r["kind"] in ("single", "double")
+    ]  # type: ignore[arg-type]
     print()
-    print(f"datasets: {len(results)} ({len(single)} single, {len(double)} double, {len(outside)} outside, {len(clean)} clean); {wall:.0f} s wall")
-    print(f"top-1 on single in-library effects: {sum(bool(r['top1']) for r in single)}/{len(single)} = {np.mean([bool(r['top1']) for r in single]):.0%}")
     print(
-        f"out-of-library, confident wrong answer: {sum(bool(r['confident_wrong']) for r in outside)}/{len(outside)}"
+        f"datasets: {len(results)} ({len(single)} single, {len(double)} double, {len(outside)} outside, {len(clean)} clean); {wall:.0f} s wall"  # noqa: E501
+    )
+    print(
+        f"top-1 on single in-library effects: {sum(bool(r['top1']) for r in single)}/{len(single)} = {np.mean([bool(r['top1']) for r in single]):.0%}"  # noqa: E501
+    )
+    print(
+        f"out-of-library, confident wrong answer: {sum(bool(r['confident_wrong']) for r in outside)}/{len(outside)}"  # noqa: E501
         f" (said unexplained: {sum(r['verdict'] == 'unexplained' for r in outside)})"
     )
     print(f"pairs, both effects named: {sum(bool(r['correct']) for r in double)}/{len(double)}")
     print(f"clean data, 'no gap': {sum(r['verdict'] == 'no gap' for r in clean)}/{len(clean)}")
-    print(f"median held-out shrink (explained in-library cases): {np.median(shrinks):.1%} (min {np.min(shrinks):.1%}, n={len(shrinks)})")
+    print(
+        f"median held-out shrink (explained in-library cases): {np.median(shrinks):.1%} (min {np.min(shrinks):.1%}, n={len(shrinks)})"  # noqa: E501
+    )
     secs = [float(r["seconds"]) for r in results]  # type: ignore[arg-type]
     print(f"diagnosis time per 33-trial dataset: median {np.median(secs):.1f} s, max {np.max(secs):.1f} s")
     print()
@@ -120,7 +131,7 @@ def main() -> int:
         rs = [r for r in single if name in r["truth"]]  # type: ignore[operator]
         sh = [float(r["shrink"]) for r in rs if r["shrink"] is not None]  # type: ignore[arg-type]
         print(
-            f"{name:<26} {len(rs):>2} {sum(bool(r['top1']) for r in rs):>6} {sum(bool(r['ambiguous_with']) for r in rs):>9} "
+            f"{name:<26} {len(rs):>2} {sum(bool(r['top1']) for r in rs):>6} {sum(bool(r['ambiguous_with']) for r in rs):>9} "  # noqa: E501
             f"{(f'{np.median(sh):.0%}' if sh else '-'):>14}"
         )
     if args.json:

@@ -141,9 +141,16 @@ def _add_sweep_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--plot", metavar="FILE.png", help="draw thrust, power and thrust/W vs frequency")
+    p.add_argument(
+        "--model",
+        metavar="AUGMENTED.yaml",
+        help="an augmented model saved by `diagnose --report` (its fin and effects)",
+    )
 
 
 def run_sweep(args: argparse.Namespace) -> int:
+    if args.model:
+        return _sweep_augmented(args)
     fin = _load(args.fin, args.c_d)
     freqs = parse_frequencies(args.freq)
     vpp = np.asarray(args.vpp, dtype=float)
@@ -165,6 +172,49 @@ def run_sweep(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--plot {args.plot}: cannot write ({exc.strerror})") from None
         print(f"wrote {args.plot}", file=sys.stderr)
+    return 0
+
+
+def _sweep_augmented(args: argparse.Namespace) -> int:
+    from .diagnosis.model import Augmented, ModelError
+    from .fin import safe_load_yaml
+
+    try:
+        with open(args.model) as fh:
+            model = Augmented.from_mapping(safe_load_yaml(fh.read()), source=args.model)
+    except (OSError, ModelError, FinConfigError, ValueError) as exc:
+        raise UsageError(f"--model: {exc}") from None
+    freqs = parse_frequencies(args.freq)
+    vpp = np.asarray(args.vpp, dtype=float)
+    if np.any(~np.isfinite(vpp)) or np.any(vpp < 0):
+        raise UsageError("--vpp: voltages must be finite and >= 0 V")
+    f, v = (x.ravel() for x in np.meshgrid(freqs, vpp, indexing="ij"))
+    p = model.predict(f, v)
+    records = [
+        {
+            "frequency_hz": float(f[j]),
+            "voltage_pp": float(v[j]),
+            "tip_velocity_rms": float(p.tip_velocity_rms[j]),
+            "current_rms": float(p.current_rms[j]),
+            "power_w": float(p.power_w[j]),
+            "thrust_n": float(p.thrust_loadcell_n[j]),
+            "thrust_per_watt": float(p.thrust_per_watt[j]),
+        }
+        for j in range(f.size)
+    ]
+    if args.json:
+        json.dump(
+            {"fin": model.fin.name, "effects": model.parameters(), "points": records}, sys.stdout, indent=1
+        )
+        sys.stdout.write("\n")
+        return 0
+    print(f"# {model.fin.name} with {', '.join(model.effects) or 'no effect'}")
+    print(f"{'f [Hz]':>7} {'Vpp':>5} {'u_rms [mm/s]':>12} {'P [mW]':>8} {'T [mN]':>8} {'T/P [mN/W]':>10}")
+    for r in records:
+        print(
+            f"{r['frequency_hz']:7.2f} {r['voltage_pp']:5.0f} {r['tip_velocity_rms'] * 1e3:12.2f} "
+            f"{r['power_w'] * 1e3:8.3f} {r['thrust_n'] * 1e3:8.3f} {r['thrust_per_watt'] * 1e3:10.1f}"
+        )
     return 0
 
 
@@ -224,13 +274,23 @@ def run_estimate(args: argparse.Namespace) -> int:
 
 
 def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("data", nargs="+", help="MCAP bags of trials (the suite's topics), or one CSV of per-trial summaries")
+    p.add_argument(
+        "data", nargs="*", help="MCAP bags of trials (the suite's topics), or one CSV of per-trial summaries"
+    )
+    p.add_argument(
+        "--paper", action="store_true", help="check what the paper reports for M8528-P1 (no data needed)"
+    )
     p.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
     p.add_argument("--namespace", default="/fin", help="the fin's namespace in the bags (default /fin)")
     p.add_argument("--json", metavar="OUT.json", help="write the findings as JSON")
-    p.add_argument("--report", metavar="OUT_DIR", help="write report.md, plots, JSON and augmented_model.yaml here")
     p.add_argument(
-        "--relative-sigma", type=float, default=0.02, help="CSV without *_sigma columns: 1-sigma relative uncertainty (0.02)"
+        "--report", metavar="OUT_DIR", help="write report.md, plots, JSON and augmented_model.yaml here"
+    )
+    p.add_argument(
+        "--relative-sigma",
+        type=float,
+        default=0.02,
+        help="CSV without *_sigma columns: 1-sigma relative uncertainty (0.02)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
@@ -252,6 +312,21 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     if not (np.isfinite(args.relative_sigma) and 0 < args.relative_sigma < 1):
         raise UsageError("--relative-sigma: expected a number in (0, 1)")
+    if args.paper:
+        from .diagnosis.paper import paper_gap, paper_text
+
+        if args.data:
+            raise UsageError("--paper takes no data files")
+        result = paper_gap(fin, progress=say)
+        print(paper_text(fin, result))
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(
+                    result, fh, indent=1, default=lambda o: o.__dict__ if hasattr(o, "__dict__") else float(o)
+                )
+        return 0
+    if not args.data:
+        raise UsageError("give one or more bags, or one CSV (or --paper)")
     csvs = [d for d in args.data if d.lower().endswith(".csv")]
     try:
         if csvs:
@@ -265,7 +340,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
                 print(f"skipped {line}", file=sys.stderr)
             if len(skipped) > 20:
                 print(f"... and {len(skipped) - 20} more skipped messages", file=sys.stderr)
-        say(f"{len(trials)} trials; checking each stage and fitting {14} candidate effects")
+        say(f"{len(trials)} trials; checking each stage, then fitting the candidate effects")
         d = diagnose(trials, fin, progress=say)
     except (BagError, DataError) as exc:
         raise UsageError(str(exc)) from None
@@ -287,7 +362,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 def diagnose_main(argv: Sequence[str] | None = None) -> int:
     """``ros2 run piezofin_ros diagnose ...``: the ``diagnose`` sub-command on its own."""
-    parser = argparse.ArgumentParser(prog="diagnose", description="sim-to-real gap diagnosis of measured trials")
+    parser = argparse.ArgumentParser(
+        prog="diagnose", description="sim-to-real gap diagnosis of measured trials"
+    )
     _add_diagnose_args(parser)
     parser.set_defaults(func=run_diagnose)
     return _run(parser, argv)

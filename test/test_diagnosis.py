@@ -44,21 +44,25 @@ def test_every_effect_is_neutral_at_its_neutral_values() -> None:
 
 
 def test_closed_forms_of_simple_effects() -> None:
-    # resonance offset: same as a fin with f_sc scaled
+    # resonance offset: a fin with f_sc scaled and 2 zeta wn kept (the effect moves the spring only)
     p = Augmented.of(FIN, {"resonance_offset": [0.8]}).predict(F, V)
-    hb = harmonic_balance(FIN.replace(f_sc=FIN.f_sc * 0.8), F, V)
+    hb = harmonic_balance(FIN.replace(f_sc=FIN.f_sc * 0.8, zeta=FIN.zeta / 0.8), F, V)
     assert_allclose(p.tip_velocity_rms, hb.tip_velocity_rms, rtol=1e-12)
     # dielectric loss adds (1/2) tan(delta) C w V^2 to the power and nothing to the motion
     q = Augmented.of(FIN, {"dielectric_loss": [0.05]}).predict(F, V)
     base = Augmented(FIN).predict(F, V)
-    assert_allclose(q.power_w - base.power_w, 0.5 * 0.05 * FIN.C_eq * 2 * math.pi * F * (V / 2) ** 2, rtol=1e-12)
+    assert_allclose(
+        q.power_w - base.power_w, 0.5 * 0.05 * FIN.C_eq * 2 * math.pi * F * (V / 2) ** 2, rtol=1e-12
+    )
     assert_allclose(q.tip_velocity_rms, base.tip_velocity_rms, rtol=1e-12)
     # clipping at half the amplitude keeps (2/pi)(asin r + r sqrt(1 - r^2)) of the fundamental
     amp = Augmented.of(FIN, {"amplifier_limit": [1.0]})  # I_max = 1 mA
     f = np.array([10.0])
     v = np.array([2 * 2 * 1e-3 / (FIN.C_eq * 2 * math.pi * 10.0)])  # amplitude = 2 x clip level
     r = 0.5
-    assert_allclose(amp.predict(f, v).voltage_pp_drive, v * (2 / math.pi) * (math.asin(r) + r * math.sqrt(1 - r * r)))
+    assert_allclose(
+        amp.predict(f, v).voltage_pp_drive, v * (2 / math.pi) * (math.asin(r) + r * math.sqrt(1 - r * r))
+    )
 
 
 def test_augmented_model_round_trips_through_safe_yaml(tmp_path: Path) -> None:
@@ -70,7 +74,9 @@ def test_augmented_model_round_trips_through_safe_yaml(tmp_path: Path) -> None:
     with pytest.raises(ModelError, match="unknown effect 'bogus'"):
         Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"bogus": {}}})
     with pytest.raises(ModelError, match="softening"):
-        Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"electroelastic_softening": {"softening": 7.0}}})
+        Augmented.from_mapping(
+            {"fin": FIN.inputs(), "effects": {"electroelastic_softening": {"softening": 7.0}}}
+        )
     with pytest.raises(ModelError, match="must be a number"):
         Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"dielectric_loss": {"tan_delta": "x"}}})
 
@@ -97,11 +103,20 @@ def test_clean_data_has_no_gap(clean: Case) -> None:
     ],
 )
 def test_the_gap_is_found_where_it_arises(effect: str, stage: str) -> None:
-    strength = {"electroelastic_softening": 0.35, "dielectric_loss": 0.06, "loadcell_gain": 1.3, "amplifier_limit": 0.6}
+    strength = {
+        "electroelastic_softening": 0.35,
+        "dielectric_loss": 0.06,
+        "loadcell_gain": 1.3,
+        "amplifier_limit": 0.6,
+    }
     g = simulate_case(Case("M8528-P1", {effect: strength[effect]}, 3))
     gaps = {s.stage for s in stage_gaps(g.trials, Augmented(FIN)) if s.significant}
     assert stage in gaps
-    downstream_only = {"tip": {"thrust", "current"}, "thrust": {"tip", "current", "drive"}, "current": {"tip", "thrust"}}
+    downstream_only = {
+        "tip": {"thrust", "current"},
+        "thrust": {"tip", "current", "drive"},
+        "current": {"tip", "thrust"},
+    }
     assert not (gaps & downstream_only.get(stage, set())), gaps
 
 
@@ -155,12 +170,20 @@ def test_csv_input_and_cli(tmp_path: Path) -> None:
     out = tmp_path / "report"
     run = subprocess.run(
         [exe, "diagnose", str(path), "--report", str(out), "--json", str(tmp_path / "d.json")],
-        capture_output=True, text=True, timeout=300,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert run.returncode == 0, run.stderr
     assert "Explained by electroelastic_softening" in run.stdout
     assert "fitting" in run.stderr  # progress
-    for name in ("report.md", "measured_vs_model.png", "stage_gaps.png", "before_after.png", "augmented_model.yaml"):
+    for name in (
+        "report.md",
+        "measured_vs_model.png",
+        "stage_gaps.png",
+        "before_after.png",
+        "augmented_model.yaml",
+    ):
         assert (out / name).stat().st_size > 0
     assert json.loads((tmp_path / "d.json").read_text())["named"] == ["electroelastic_softening"]
 
@@ -169,7 +192,7 @@ def test_csv_input_and_cli(tmp_path: Path) -> None:
 def test_bad_csv_names_the_file(tmp_path: Path, content: str) -> None:
     path = tmp_path / "bad.csv"
     path.write_text(content)
-    with pytest.raises(DataError, match="bad.csv"):
+    with pytest.raises(DataError, match=r"bad\.csv"):
         from_csv(path)
     exe = Path(sys.executable).parent / "piezofin"
     run = subprocess.run([exe, "diagnose", str(path)], capture_output=True, text=True, timeout=120)

@@ -39,7 +39,7 @@ from scipy import optimize, stats
 
 from ..fin import Fin
 from .data import CHANNELS, Trials
-from .model import LIBRARY, Augmented, Prediction, effect_class
+from .model import LIBRARY, Augmented, effect_class
 from .stages import Resonance, StageGap, resonances, stage_gaps
 
 FloatArray = NDArray[Any]
@@ -93,7 +93,9 @@ class Candidate:
         return " + ".join(self.effects) if self.effects else "nominal model"
 
 
-def fit(fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[float, ...]] | None = None) -> Augmented:
+def fit(
+    fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[float, ...]] | None = None
+) -> Augmented:
     """Least-squares parameters of ``names`` on ``train`` (bounded, two starts, weak prior)."""
     classes = [effect_class(n) for n in names]
     params = [q for c in classes for q in c.params]
@@ -134,7 +136,9 @@ def fit(fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[fl
     for z0 in starts:
         z0 = np.clip(z0, zlo + 1e-9 * (zhi - zlo), zhi - 1e-9 * (zhi - zlo))
         with np.errstate(all="ignore"):
-            sol = optimize.least_squares(fun, z0, bounds=(zlo, zhi), x_scale=1.0, max_nfev=60 * len(params), method="trf")
+            sol = optimize.least_squares(
+                fun, z0, bounds=(zlo, zhi), x_scale=1.0, max_nfev=60 * len(params), method="trf"
+            )
         if sol.cost < best_cost:
             best, best_cost = sol, sol.cost
     assert best is not None
@@ -183,7 +187,13 @@ def channel_gaps(before: Augmented, after: Augmented, trials: Trials) -> list[Ch
             ra = float(np.sqrt(np.mean(da**2)) / ref * 100)
         out.append(
             ChannelGap(
-                name, unit, float(np.sqrt(np.mean(db**2)) * scale), float(np.sqrt(np.mean(da**2)) * scale), rb, ra, int(ok.sum())
+                name,
+                unit,
+                float(np.sqrt(np.mean(db**2)) * scale),
+                float(np.sqrt(np.mean(da**2)) * scale),
+                rb,
+                ra,
+                int(ok.sum()),
             )
         )
     return out
@@ -210,7 +220,7 @@ class Experiment:
 def separating_experiment(
     a: Candidate, b: Candidate, trials: Trials, f_max: float | None = None, v_max: float = 1000.0
 ) -> Experiment:
-    """The operating point (frequency x voltage, within the drive's limits) that best tells ``a`` from ``b``."""
+    """The operating point (frequency x voltage, within the drive's limits) best telling ``a`` from ``b``."""
     f_hi = f_max or 1.5 * float(np.max(trials.frequency_hz))
     f = np.linspace(0.5, f_hi, 60)
     v = np.linspace(100.0, v_max, 19)
@@ -224,7 +234,9 @@ def separating_experiment(
         if name == "tip_phase_rad":
             d = np.abs(_wrap(ya - yb)) / 0.02
         else:
-            med_rel = float(np.nanmedian(trials.sigma[name] / np.maximum(np.abs(trials.channel(name)), 1e-30)))
+            med_rel = float(
+                np.nanmedian(trials.sigma[name] / np.maximum(np.abs(trials.channel(name)), 1e-30))
+            )
             floor = float(np.nanmin(trials.sigma[name]))
             d = np.abs(ya - yb) / np.hypot(med_rel * np.maximum(np.abs(ya), np.abs(yb)), floor)
         j = int(np.nanargmax(d))
@@ -301,7 +313,9 @@ def diagnose(
     cands = list(singles)
     # Pairs: the best single with every other effect (forward selection), and the best few together.
     combos = {tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1:]}
-    combos |= {tuple(sorted((a.effects[0], b.effects[0]))) for a, b in itertools.combinations(singles[:pairs_of], 2)}
+    combos |= {
+        tuple(sorted((a.effects[0], b.effects[0]))) for a, b in itertools.combinations(singles[:pairs_of], 2)
+    }
     by_name = {c.effects[0]: c for c in singles}
     for j, (a, b) in enumerate(sorted(combos)):
         say(f"fitting {a} + {b} (pair {j + 1}/{len(combos)})")
@@ -345,8 +359,22 @@ def diagnose(
         say("refitting the chosen effect(s) on all trials")
         final = fit(fin, best.effects, trials, dict(zip(best.effects, best.model.values, strict=True)))
     return Diagnosis(
-        fin, trials, stages, res, test, test_text, cands, nominal, verdict, chosen, ambiguous, experiments, gaps,
-        shrunk, final, notes,
+        fin,
+        trials,
+        stages,
+        res,
+        test,
+        test_text,
+        cands,
+        nominal,
+        verdict,
+        chosen,
+        ambiguous,
+        experiments,
+        gaps,
+        shrunk,
+        final,
+        notes,
     )
 
 

@@ -25,7 +25,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..bagio import BagError, block_of, read_messages
-from ..blocks import COMMAND_FIELDS, DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..blocks import (
+    COMMAND_FIELDS,
+    DRIVE_CHANNELS,
+    LOADCELL_CHANNELS,
+    TIP_CHANNELS,
+    BlockFormatError,
+    check_samples,
+)
 from ..estimation import Estimate, EstimatorConfig
 from ..fin import Fin
 from ..offline import replay_estimates
@@ -88,7 +95,9 @@ class Trials:
         bad = ~(np.isfinite(self.frequency_hz) & (self.frequency_hz > 0))
         bad |= ~(np.isfinite(self.voltage_pp) & (self.voltage_pp > 0))
         if np.any(bad):
-            raise DataError(f"{self.source}: trial(s) {np.flatnonzero(bad).tolist()} lack a valid frequency or voltage")
+            raise DataError(
+                f"{self.source}: trial(s) {np.flatnonzero(bad).tolist()} lack a valid frequency or voltage"
+            )
 
     def __len__(self) -> int:
         return len(self.frequency_hz)
@@ -106,7 +115,11 @@ class Trials:
 
     def subset(self, index: FloatArray | Sequence[int] | NDArray[np.bool_]) -> Trials:
         idx = np.asarray(index)
-        cols = {f.name: getattr(self, f.name)[idx] for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)}
+        cols = {
+            f.name: getattr(self, f.name)[idx]
+            for f in fields(self)
+            if isinstance(getattr(self, f.name), np.ndarray)
+        }
         return replace(self, **cols, sigma={k: v[idx] for k, v in self.sigma.items()})
 
     def measured_drive(self) -> FloatArray | None:
@@ -142,7 +155,9 @@ def make_trials(
     """A table from measured columns and their noise-only sigmas (a relative model floor is added)."""
     n = len(columns["frequency_hz"])
     nan = np.full(n, np.nan)
-    cols = {name: np.asarray(columns.get(name, nan), float) for name in ("frequency_hz", "voltage_pp", *CHANNELS)}
+    cols = {
+        name: np.asarray(columns.get(name, nan), float) for name in ("frequency_hz", "voltage_pp", *CHANNELS)
+    }
     sigma = {}
     for name in CHANNELS:
         s = np.asarray(noise.get(name, np.zeros(n)), float)
@@ -169,7 +184,9 @@ def from_estimates(
     """
     rows = [e for e in estimates if e.final == 1.0 and math.isfinite(e.power_w)]
     if not rows:
-        raise DataError(f"{source}: no completed trial (a trial needs the drive on for > 3 s and off after it)")
+        raise DataError(
+            f"{source}: no completed trial (a trial needs the drive on for > 3 s and off after it)"
+        )
     f = np.array([e.frequency_hz for e in rows])
     v_drive = np.array([e.voltage_pp for e in rows])
     nominal = v_drive.copy()
@@ -185,10 +202,13 @@ def from_estimates(
     sig = {
         "voltage_pp_drive": 2 * noise.voltage * lock,
         "tip_velocity_rms": noise.tip * lock / math.sqrt(2),
-        "tip_phase_rad": np.divide(noise.tip * lock / math.sqrt(2), u, out=np.full(len(rows), np.inf), where=u > 0),
+        "tip_phase_rad": np.divide(
+            noise.tip * lock / math.sqrt(2), u, out=np.full(len(rows), np.inf), where=u > 0
+        ),
         "current_rms": noise.current / np.sqrt(n),
         "power_w": 0.5 * (0.5 * v_drive) * noise.current * lock,
-        "thrust_loadcell_n": loadcell_stiffness * noise.loadcell * np.sqrt(1 / n + 1 / nb) + noise.loadcell_drift,
+        "thrust_loadcell_n": loadcell_stiffness * noise.loadcell * np.sqrt(1 / n + 1 / nb)
+        + noise.loadcell_drift,
     }
     cols = {
         "frequency_hz": f,
@@ -366,4 +386,14 @@ def _floats(path: str | os.PathLike[str], rows: list[dict[str, str]], column: st
     return np.array(out)
 
 
-__all__ = ["CHANNELS", "DataError", "Noise", "Trials", "from_bags", "from_csv", "from_estimates", "make_trials", "BagError"]
+__all__ = [
+    "CHANNELS",
+    "BagError",
+    "DataError",
+    "Noise",
+    "Trials",
+    "from_bags",
+    "from_csv",
+    "from_estimates",
+    "make_trials",
+]

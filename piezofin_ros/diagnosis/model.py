@@ -240,7 +240,16 @@ class AmplifierLimit(Effect):
     name = "amplifier_limit"
     title = "amplifier current limit (the drive clips at high f x V)"
     params = (
-        Param("inv_i_max", "1/mA", 0.0, 0.0, 50.0, 1.0, "1 / peak current the amplifier delivers", (0.5, 2.0, 8.0, 30.0)),
+        Param(
+            "inv_i_max",
+            "1/mA",
+            0.0,
+            0.0,
+            50.0,
+            1.0,
+            "1 / peak current the amplifier delivers",
+            (0.5, 2.0, 8.0, 30.0),
+        ),
     )
     stages = ("drive",)
 
@@ -255,7 +264,9 @@ class AmplifierLimit(Effect):
         # C dv/dt of the clipped sine: mean square (V w)^2 (2 alpha + sin 2 alpha) / (2 pi), of which
         # the fundamental carries (fundamental V w)^2 / 2; the rest is harmonic current.
         ms = (2 * alpha + np.sin(2 * alpha)) / (2 * math.pi) - 0.5 * fundamental**2
-        k.current_harmonics_a2 = k.current_harmonics_a2 + (op.fin.C_eq * op.omega * v) ** 2 * np.maximum(ms, 0.0)
+        k.current_harmonics_a2 = k.current_harmonics_a2 + (op.fin.C_eq * op.omega * v) ** 2 * np.maximum(
+            ms, 0.0
+        )
 
 
 class LoadcellOffset(Effect):
@@ -353,7 +364,9 @@ class Augmented:
             for name, vals in zip(self.effects, self.values, strict=True)
         }
 
-    def predict(self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, drive_pp: ArrayLike | None = None) -> Prediction:
+    def predict(
+        self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, drive_pp: ArrayLike | None = None
+    ) -> Prediction:
         """Steady state at nominal (commanded) voltages ``voltage_pp``.  With ``drive_pp`` (the measured
         fundamental of the drive, Vpp) the fin is driven by that instead of by the model's drive."""
         return predict(
@@ -456,13 +469,17 @@ def predict(
             new = solve(k)
             ok = (new > 0) & (amp > 0)
             # under-relaxed in log A: softening branches overshoot otherwise
-            nxt = np.where(ok, np.exp(0.5 * np.log(np.where(ok, new, 1)) + 0.5 * np.log(np.where(ok, amp, 1))), new)
+            nxt = np.where(
+                ok, np.exp(0.5 * np.log(np.where(ok, new, 1)) + 0.5 * np.log(np.where(ok, amp, 1))), new
+            )
             done = np.all(np.abs(nxt - amp) <= 1e-9 * np.maximum(amp, 1e-30))
             amp = nxt
             if done:
                 break
         k = knobs(phi * amp)
-    kk = Knobs(**{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__})
+    kk = Knobs(
+        **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
+    )
     a = fin.omega_n**2 * kk.stiffness - (1 + fin.mu * kk.mass) * w * w
     d = 2 * fin.zeta * fin.omega_n * w * kk.damping + DRAG_HARMONIC * fin.gamma * kk.drag * w * w * amp
     v_amp = 0.5 * drive(kk)

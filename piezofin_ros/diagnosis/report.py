@@ -35,15 +35,27 @@ def text(d: Diagnosis) -> str:
     for s in d.stages:
         m = s.summary(t)
         worst = m.get("worst")
-        at = f"{worst['frequency_hz']:.2f} Hz, {worst['voltage_pp']:.0f} Vpp ({worst['gap']:+.3g} {m['unit']})" if worst else "-"
+        at = (
+            f"{worst['frequency_hz']:.2f} Hz, {worst['voltage_pp']:.0f} Vpp ({worst['gap']:+.3g} {m['unit']})"
+            if worst
+            else "-"
+        )
         chi = f"{m['chi2'] / m['trials']:.1f}" if m["trials"] else "-"
         lines.append(f"| {s.stage} | {s.quantity} | {m['trials']} | {chi} | {m['verdict']} | {at} |")
     if d.resonances:
         lines += ["", "Resonance (largest tip velocity per volt):", ""]
         for r in d.resonances:
             edge = "" if r.interior else " (at the edge of the sweep: a bound, not a peak)"
-            lines.append(f"- {r.voltage_pp:.0f} Vpp: measured {r.measured_hz:.2f} Hz, model {r.model_hz:.2f} Hz{edge}")
-    lines += ["", "## Which: candidate effects, fitted and judged on held-out trials", "", f"Split: {d.holdout_text}.", ""]
+            lines.append(
+                f"- {r.voltage_pp:.0f} Vpp: measured {r.measured_hz:.2f} Hz, model {r.model_hz:.2f} Hz{edge}"
+            )
+    lines += [
+        "",
+        "## Which: candidate effects, fitted and judged on held-out trials",
+        "",
+        f"Split: {d.holdout_text}.",
+        "",
+    ]
     if d.verdict == "no gap":
         lines.append("**No gap**: every stage agrees with the model within the measurement noise.")
     elif d.verdict == "unexplained":
@@ -51,21 +63,26 @@ def text(d: Diagnosis) -> str:
     else:
         assert d.chosen is not None
         params = "; ".join(
-            f"{name}: " + ", ".join(f"{k} = {v:.4g}" for k, v in ps.items()) for name, ps in d.final_model.parameters().items()
+            f"{name}: " + ", ".join(f"{k} = {v:.4g}" for k, v in ps.items())
+            for name, ps in d.final_model.parameters().items()
         )
         titles = "; ".join(effect_class(n).title for n in d.chosen.effects)
         lines.append(f"**Explained by {d.chosen.label}** ({titles}). Refitted on all trials: {params}.")
         if d.ambiguous:
             lines += ["", "Cannot be told apart on this data (criterion within 6 of the chosen):"]
             for c in d.ambiguous:
-                lines.append(f"- {c.label} (held-out chi2 {c.chi2_test:.1f} against {d.chosen.chi2_test:.1f})")
+                lines.append(
+                    f"- {c.label} (held-out chi2 {c.chi2_test:.1f} against {d.chosen.chi2_test:.1f})"
+                )
             for e in d.experiments:
                 lines.append(
-                    f"- To separate {e.a} from {e.b}: measure {CHANNELS[e.channel][2]} at {e.frequency_hz:.2f} Hz, "
+                    f"- To separate {e.a} from {e.b}: measure {CHANNELS[e.channel][2]} at {e.frequency_hz:.2f} Hz, "  # noqa: E501
                     f"{e.voltage_pp:.0f} Vpp, where they differ by {e.difference_sigma:.1f} sigma."
                 )
     lines += ["", "| rank | candidate | parameters | held-out chi2 | criterion |", "|---:|---|---|---:|---:|"]
-    lines.append(f"| - | nominal model | - | {d.nominal.chi2_test:.1f} / {d.nominal.n_test} | {d.nominal.criterion:.1f} |")
+    lines.append(
+        f"| - | nominal model | - | {d.nominal.chi2_test:.1f} / {d.nominal.n_test} | {d.nominal.criterion:.1f} |"  # noqa: E501
+    )
     for j, c in enumerate(d.candidates[:10]):
         ps = "; ".join(", ".join(f"{k}={v:.3g}" for k, v in p.items()) for p in c.model.parameters().values())
         lines.append(f"| {j + 1} | {c.label} | {ps} | {c.chi2_test:.1f} / {c.n_test} | {c.criterion:.1f} |")
@@ -74,10 +91,16 @@ def text(d: Diagnosis) -> str:
     lines += [f"After adding {who}; shrink of the normalised gap: {d.shrink:.0%}.", ""]
     lines += ["| channel | RMS gap before | after | relative before | after |", "|---|---:|---:|---:|---:|"]
     for g in d.gaps:
-        rel = "-" if math.isnan(g.rel_before_percent) else f"{g.rel_before_percent:.1f} % | {g.rel_after_percent:.1f} %"
+        rel = (
+            "-"
+            if math.isnan(g.rel_before_percent)
+            else f"{g.rel_before_percent:.1f} % | {g.rel_after_percent:.1f} %"
+        )
         if rel == "-":
             rel = "- | -"
-        lines.append(f"| {CHANNELS[g.channel][2]} | {g.rms_before:.4g} {g.unit} | {g.rms_after:.4g} {g.unit} | {rel} |")
+        lines.append(
+            f"| {CHANNELS[g.channel][2]} | {g.rms_before:.4g} {g.unit} | {g.rms_after:.4g} {g.unit} | {rel} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -105,13 +128,21 @@ def plots(d: Diagnosis, out_dir: Path) -> list[Path]:
             vv = np.full_like(grid, v)
             ax.plot(grid, np.asarray(getattr(nominal.predict(grid, vv), name)) * scale, "--", color=col, lw=1)
             if d.chosen is not None:
-                ax.plot(grid, np.asarray(getattr(final.predict(grid, vv), name)) * scale, "-", color=col, lw=1.5)
+                ax.plot(
+                    grid, np.asarray(getattr(final.predict(grid, vv), name)) * scale, "-", color=col, lw=1.5
+                )
             for held, face in ((False, col), (True, "white")):
                 s2 = sel & (d.holdout == held)
                 if np.any(s2):
                     ax.errorbar(
-                        t.frequency_hz[s2], t.channel(name)[s2] * scale, yerr=t.sigma[name][s2] * scale, fmt="o", ms=4,
-                        color=col, mfc=face, label=f"{v:.0f} Vpp" + (" (held out)" if held else ""),
+                        t.frequency_hz[s2],
+                        t.channel(name)[s2] * scale,
+                        yerr=t.sigma[name][s2] * scale,
+                        fmt="o",
+                        ms=4,
+                        color=col,
+                        mfc=face,
+                        label=f"{v:.0f} Vpp" + (" (held out)" if held else ""),
                     )
         ax.set_xlabel("frequency [Hz]")
         ax.set_ylabel(f"{label} [{unit}]")

@@ -120,9 +120,13 @@ class StageGap:
         if not self.significant:
             out["verdict"] = "none (inside the noise)"
         elif self.relative:
-            out["verdict"] = f"gap: median {np.median(rel) * 100:+.1f} %, RMS {np.sqrt(np.mean(rel**2)) * 100:.1f} %"
+            out["verdict"] = (
+                f"gap: median {np.median(rel) * 100:+.1f} %, RMS {np.sqrt(np.mean(rel**2)) * 100:.1f} %"
+            )
         else:
-            out["verdict"] = f"gap: median {np.median(units):+.1f} {self.unit}, RMS {np.sqrt(np.mean(units**2)):.1f} {self.unit}"
+            out["verdict"] = (
+                f"gap: median {np.median(units):+.1f} {self.unit}, RMS {np.sqrt(np.mean(units**2)):.1f} {self.unit}"  # noqa: E501
+            )
         return out
 
 
@@ -136,14 +140,35 @@ def stage_gaps(trials: Trials, model: Augmented) -> list[StageGap]:
     out: list[StageGap] = []
     pred = model.predict(f, trials.voltage_pp, drive_pp=measured)
     if measured is not None:
-        out.append(StageGap("drive", "drive voltage (Vpp)", "V", 1.0, measured, pred.voltage_pp_drive, s["voltage_pp_drive"]))
+        out.append(
+            StageGap(
+                "drive",
+                "drive voltage (Vpp)",
+                "V",
+                1.0,
+                measured,
+                pred.voltage_pp_drive,
+                s["voltage_pp_drive"],
+            )
+        )
         v_in = measured
     else:
         v_in = pred.voltage_pp_drive
     u, ph = trials.tip_velocity_rms, trials.tip_phase_rad
-    out.append(StageGap("tip", "RMS tip velocity", "mm/s", 1e3, u, pred.tip_velocity_rms, s["tip_velocity_rms"]))
     out.append(
-        StageGap("tip", "tip-velocity phase", "deg", 180 / math.pi, ph, pred.tip_phase_rad, s["tip_phase_rad"], relative=False)
+        StageGap("tip", "RMS tip velocity", "mm/s", 1e3, u, pred.tip_velocity_rms, s["tip_velocity_rms"])
+    )
+    out.append(
+        StageGap(
+            "tip",
+            "tip-velocity phase",
+            "deg",
+            180 / math.pi,
+            ph,
+            pred.tip_phase_rad,
+            s["tip_phase_rad"],
+            relative=False,
+        )
     )
     amp_v = 0.5 * v_in
     u1 = math.sqrt(2) * u  # fundamental amplitude of the tip velocity
@@ -152,15 +177,30 @@ def stage_gaps(trials: Trials, model: Augmented) -> list[StageGap]:
     su, sph = s["tip_velocity_rms"], s["tip_phase_rad"]
     sig_pm = 0.5 * amp_v * g * math.sqrt(2) * np.hypot(su * np.cos(ph), u * np.sin(ph) * sph)
     out.append(
-        StageGap("current", "power from the motion, Eq. (10)", "mW", 1e3, trials.power_w, p_motion, np.hypot(sig_pm, s["power_w"]))
+        StageGap(
+            "current",
+            "power from the motion, Eq. (10)",
+            "mW",
+            1e3,
+            trials.power_w,
+            p_motion,
+            np.hypot(sig_pm, s["power_w"]),
+        )
     )
     i1 = 1j * w * fin.C_eq * amp_v + g * u1 * np.exp(1j * ph)
     i_pred = np.abs(i1) / math.sqrt(2)
-    out.append(StageGap("current", "RMS current, Eq. (10)", "uA", 1e6, trials.current_rms, i_pred, s["current_rms"]))
+    out.append(
+        StageGap("current", "RMS current, Eq. (10)", "uA", 1e6, trials.current_rms, i_pred, s["current_rms"])
+    )
     t_pred = 0.5 * fin.m_v * u**2
     out.append(
         StageGap(
-            "thrust", "load-cell thrust vs Lighthill", "mN", 1e3, trials.thrust_loadcell_n, t_pred,
+            "thrust",
+            "load-cell thrust vs Lighthill",
+            "mN",
+            1e3,
+            trials.thrust_loadcell_n,
+            t_pred,
             np.hypot(s["thrust_loadcell_n"], 2 * t_pred * su / np.where(u > 0, u, np.nan)),
         )
     )
@@ -171,7 +211,15 @@ def stage_gaps(trials: Trials, model: Augmented) -> list[StageGap]:
     rel_u = su / np.where(u > 0, u, np.nan)
     sig_mech = p_mech * rel_u * (2 + kd * amp / (c0 + kd * amp))
     out.append(
-        StageGap("power budget", "power vs dissipation at the measured motion", "mW", 1e3, trials.power_w, p_mech, np.hypot(sig_mech, s["power_w"]))
+        StageGap(
+            "power budget",
+            "power vs dissipation at the measured motion",
+            "mW",
+            1e3,
+            trials.power_w,
+            p_mech,
+            np.hypot(sig_mech, s["power_w"]),
+        )
     )
     return out
 
@@ -203,7 +251,7 @@ def _peak(f: FloatArray, y: FloatArray) -> tuple[float, bool]:
 
 def resonances(trials: Trials, model: Augmented, fine: int = 400) -> list[Resonance]:
     """Per voltage, the frequency of the largest measured ``u / V`` and the model's (on a fine grid)."""
-    out = []
+    out: list[Resonance] = []
     if not trials.has("tip_velocity_rms"):
         return out
     for v in trials.voltages:

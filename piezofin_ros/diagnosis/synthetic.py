@@ -126,7 +126,12 @@ def _rk4_effects(
                     drag = gam[j]
                     if drag_n != 0.0:
                         drag = drag * max(kc, 1e-3) ** (-drag_n)
-                    force = theta[j] * v - (c_lin + c_abs * abs(xx) + drag * abs(yy)) * yy - wn2[j] * xx - k3 * xx**3
+                    force = (
+                        theta[j] * v
+                        - (c_lin + c_abs * abs(xx) + drag * abs(yy)) * yy
+                        - wn2[j] * xx
+                        - k3 * xx**3
+                    )
                     ax[stage] = yy
                     ay[stage] = force / mass
                 x += h / 6.0 * (ax[0] + 2.0 * ax[1] + 2.0 * ax[2] + ax[3])
@@ -224,7 +229,6 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     n = f.size
     e = case.effects
     a_ref = _reference_amplitude(fin, case.voltages_pp)
-    x_ref = fin.phi_tip * a_ref
     kc_per_eta = 2 * math.pi * fin.phi_tip / fin.b
     wn2 = np.full(n, fin.omega_n**2)
     mass0 = np.full(n, 1.0 + fin.mu)
@@ -244,8 +248,7 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     if "nonlinear_damping" in e:
         c_abs = e["nonlinear_damping"] * c_lin / a_ref
     if "added_mass_offset" in e:
-        mass0 = 1.0 + fin.mu * e["added_mass_offset"]
-        mass0 = np.full(n, mass0)
+        mass0 = np.full(n, 1.0 + fin.mu * e["added_mass_offset"])
         mv *= e["added_mass_offset"]
     if "added_mass_kc" in e:
         mu_kc = fin.mu * e["added_mass_kc"] / (kc_per_eta * a_ref)
@@ -269,11 +272,28 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     deta = np.empty((n, n_out))
     v = np.empty((n, n_out))
     _rk4_effects(
-        f, 0.5 * vpp, v_clip, mass0, mu_kc, wn2, k3, c_lin, c_abs, gam, drag_n, theta, kc_per_eta,
-        h, substeps, n_out, eta, deta, v,
+        f,
+        0.5 * vpp,
+        v_clip,
+        mass0,
+        mu_kc,
+        wn2,
+        k3,
+        c_lin,
+        c_abs,
+        gam,
+        drag_n,
+        theta,
+        kc_per_eta,
+        h,
+        substeps,
+        n_out,
+        eta,
+        deta,
+        v,
     )
     t = np.arange(n_out) / rate
-    vdot = np.gradient(v, t, axis=1)
+    vdot = np.asarray(np.gradient(v, t, axis=1))
     current = fin.C_eq * vdot + theta[:, None] * deta
     if "dielectric_loss" in e:
         current = current + e["dielectric_loss"] * fin.C_eq * w[:, None] * v
@@ -285,7 +305,17 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     U = e.get("swim_speed", 0.0)
     thrust_t = 0.5 * mv_t * (tip**2 - U**2 * (fin.phi_tip_slope * eta) ** 2)
     cfg = EstimatorConfig()
-    cols: dict[str, list[float]] = {k: [] for k in ("voltage_pp_drive", "tip_velocity_rms", "tip_phase_rad", "current_rms", "power_w", "thrust_loadcell_n")}
+    cols: dict[str, list[float]] = {
+        k: []
+        for k in (
+            "voltage_pp_drive",
+            "tip_velocity_rms",
+            "tip_phase_rad",
+            "current_rms",
+            "power_w",
+            "thrust_loadcell_n",
+        )
+    }
     windows = []
     for j in range(n):
         periods = math.floor((duration - cfg.settle_s) * f[j])
@@ -320,7 +350,9 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
         "tip_phase_rad": rig.vibrometer_noise_m_s * lock / math.sqrt(2) / u,
         "current_rms": rig.current_noise_a / np.sqrt(nwin),
         "power_w": 0.25 * vd * rig.current_noise_a * lock,
-        "thrust_loadcell_n": rig.loadcell_stiffness * rig.displacement_noise_m * np.sqrt(1 / nwin + 1 / (2 * cfg.baseline_s * rate)),
+        "thrust_loadcell_n": rig.loadcell_stiffness
+        * rig.displacement_noise_m
+        * np.sqrt(1 / nwin + 1 / (2 * cfg.baseline_s * rate)),
     }
     columns = {"frequency_hz": f, "voltage_pp": vpp, **{k: np.asarray(x) for k, x in cols.items()}}
     label = "+".join(f"{k}={x:.3g}" for k, x in e.items()) or "nominal"
