@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from .bagio import BagError, block_of, decode, read_messages
 from .blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
-from .estimation import Estimate, EstimatorConfig, StreamEstimator
+from .estimation import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
 from .fin import Fin
 
 
@@ -29,9 +29,14 @@ class Replay:
             return float("inf")
         worst = 0.0
         for a, b in zip(self.replayed, self.recorded, strict=True):
-            for x, y in zip(a.as_dict().values(), b.as_dict().values(), strict=True):
+            for name, x in a.as_dict().items():
+                y = getattr(b, name)
                 if x != x and y != y:  # both NaN
                     continue
+                if y != y and name in OPTIONAL_FIELDS:  # recorded before the field existed
+                    continue
+                if x != x or y != y:
+                    return float("inf")
                 scale = max(abs(x), abs(y), 1e-300)
                 worst = max(worst, abs(x - y) / scale)
         return worst
