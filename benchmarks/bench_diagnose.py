@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from piezofin_ros.diagnosis.attribute import diagnose
-from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, random_case, simulate_case
+from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, draw_strength, random_case, simulate_case
 from piezofin_ros.fin import load_fin
 
 
@@ -35,7 +35,7 @@ def cases(per_effect: int, outside: int, double: int, clean: int, seed: int) -> 
     for name in IN_LIBRARY:
         for _ in range(per_effect):
             c = random_case(rng, "single")
-            out.append(("single", Case(c.fin, {name: _strength(name, rng)}, c.seed)))
+            out.append(("single", Case(c.fin, {name: draw_strength(name, rng)}, c.seed)))
     out += [("outside", random_case(rng, "outside")) for _ in range(outside)]
     out += [("double", random_case(rng, "double")) for _ in range(double)]
     out += [
@@ -43,12 +43,6 @@ def cases(per_effect: int, outside: int, double: int, clean: int, seed: int) -> 
         for _ in range(clean)
     ]
     return out
-
-
-def _strength(name: str, rng: np.random.Generator) -> float:
-    from piezofin_ros.diagnosis.synthetic import draw_strength
-
-    return draw_strength(name, rng)
 
 
 def run(item: tuple[str, Case]) -> dict[str, object]:

@@ -148,14 +148,19 @@ def _add_sweep_args(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _voltages(values: Sequence[float]) -> np.ndarray:
+    vpp = np.asarray(values, dtype=float)
+    if np.any(~np.isfinite(vpp)) or np.any(vpp < 0):
+        raise UsageError("--vpp: voltages must be finite and >= 0 V")
+    return vpp
+
+
 def run_sweep(args: argparse.Namespace) -> int:
     if args.model:
         return _sweep_augmented(args)
     fin = _load(args.fin, args.c_d)
     freqs = parse_frequencies(args.freq)
-    vpp = np.asarray(args.vpp, dtype=float)
-    if np.any(~np.isfinite(vpp)) or np.any(vpp < 0):
-        raise UsageError("--vpp: voltages must be finite and >= 0 V")
+    vpp = _voltages(args.vpp)
     if not 1 <= args.harmonics <= 10:
         raise UsageError("--harmonics: expected 1..10")
     if not np.isfinite(args.U):
@@ -185,9 +190,7 @@ def _sweep_augmented(args: argparse.Namespace) -> int:
     except (OSError, ModelError, FinConfigError, ValueError) as exc:
         raise UsageError(f"--model: {exc}") from None
     freqs = parse_frequencies(args.freq)
-    vpp = np.asarray(args.vpp, dtype=float)
-    if np.any(~np.isfinite(vpp)) or np.any(vpp < 0):
-        raise UsageError("--vpp: voltages must be finite and >= 0 V")
+    vpp = _voltages(args.vpp)
     f, v = (x.ravel() for x in np.meshgrid(freqs, vpp, indexing="ij"))
     p = model.predict(f, v)
     records = [

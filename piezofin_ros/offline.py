@@ -42,11 +42,16 @@ class Replay:
         return worst
 
 
+def topic_prefix(namespace: str) -> str:
+    """``"/fin"`` for ``"fin"``, ``"/fin/"`` or ``"/fin"``; ``""`` for the root namespace."""
+    return "/" + namespace.strip("/") if namespace.strip("/") else ""
+
+
 def replay_estimates(
     path: str | os.PathLike[str], fin: Fin, namespace: str = "/fin", config: EstimatorConfig | None = None
 ) -> Replay:
     """Run the estimator over one fin's topics in a bag (raises :class:`BagError` on an unreadable file)."""
-    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    ns = topic_prefix(namespace)
     topics = {f"{ns}/{t}": t for t in ("drive", "tip_velocity", "loadcell", "swim_speed", "estimate")}
     est = StreamEstimator(fin, config)
     replayed: list[Estimate] = []

@@ -39,7 +39,7 @@ from scipy import optimize, stats
 
 from ..fin import Fin
 from .data import CHANNELS, Trials
-from .model import LIBRARY, Augmented, effect_class
+from .model import LIBRARY, Augmented, ParamSpace, effect_class
 from .stages import Resonance, StageGap, resonances, stage_gaps
 
 FloatArray = NDArray[Any]
@@ -97,25 +97,13 @@ def fit(
     fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[float, ...]] | None = None
 ) -> Augmented:
     """Least-squares parameters of ``names`` on ``train`` (bounded, two starts, weak prior)."""
-    classes = [effect_class(n) for n in names]
-    params = [q for c in classes for q in c.params]
-    lo = np.array([q.lower for q in params])
-    hi = np.array([q.upper for q in params])
-    scale = np.array([q.scale for q in params])
-    neutral = np.array([q.neutral for q in params])
-    sizes = [len(c.params) for c in classes]
-
-    def model_of(x: FloatArray) -> Augmented:
-        vals, j = [], 0
-        for s in sizes:
-            vals.append(tuple(float(v) for v in x[j : j + s]))
-            j += s
-        return Augmented(fin, tuple(names), tuple(vals))
+    space = ParamSpace(fin, tuple(names))
+    params = space.params
+    zlo, zhi = space.z_bounds
 
     def fun(z: FloatArray) -> FloatArray:
-        x = np.clip(neutral + z * scale, lo, hi)
         try:
-            r = _stack(residuals(model_of(x), train))
+            r = _stack(residuals(space.model(z), train))
         except (ValueError, FloatingPointError):
             return np.full(n_res, 1e6)
         if r.size != n_res or not np.all(np.isfinite(r)):
@@ -123,13 +111,12 @@ def fit(
         return np.concatenate([r, z / 10.0])
 
     n_res = _stack(residuals(Augmented(fin), train)).size
-    zlo, zhi = (lo - neutral) / scale, (hi - neutral) / scale
     starts = []
     if start:
         x0 = np.concatenate([np.asarray(start.get(n, effect_class(n).neutral()), float) for n in names])
-        starts.append((x0 - neutral) / scale)
-    if all(q.starts for q in params) and len(params) == 1:
-        starts += [np.array([(x - neutral[0]) / scale[0]]) for x in params[0].starts]
+        starts.append(space.to_z(x0))
+    if len(params) == 1 and params[0].starts:
+        starts += list(space.to_z(params[0].starts)[:, None])
     else:
         starts += [np.full(len(params), 0.5), np.full(len(params), -0.5)]
     best, best_cost = None, math.inf
@@ -142,7 +129,7 @@ def fit(
         if sol.cost < best_cost:
             best, best_cost = sol, sol.cost
     assert best is not None
-    return model_of(np.clip(neutral + best.x * scale, lo, hi))
+    return space.model(best.x)
 
 
 def split(trials: Trials) -> tuple[NDArray[np.bool_], str]:

@@ -22,9 +22,9 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from ..bagio import BagError, block_of, read_messages
+from ..bagio import block_of, read_messages
 from ..blocks import (
     COMMAND_FIELDS,
     DRIVE_CHANNELS,
@@ -35,7 +35,7 @@ from ..blocks import (
 )
 from ..estimation import Estimate, EstimatorConfig
 from ..fin import Fin
-from ..offline import replay_estimates
+from ..offline import replay_estimates, topic_prefix
 
 FloatArray = NDArray[Any]
 
@@ -168,6 +168,49 @@ def make_trials(
     return Trials(**cols, sigma=sigma, source=source)
 
 
+@dataclass(frozen=True)
+class Noise:
+    """1-sigma white noise of each signal (V, A, m/s, m) and the load cell's residual drift (N)."""
+
+    voltage: float
+    current: float
+    tip: float
+    loadcell: float
+    loadcell_drift: float = 0.0
+
+
+def loadcell_sigma(noise: Noise, stiffness: float, n_on: ArrayLike, n_baseline: ArrayLike) -> FloatArray:
+    """Thrust sigma (N) of a mean over ``n_on`` samples minus a baseline over ``n_baseline``."""
+    on, base = np.asarray(n_on, float), np.asarray(n_baseline, float)
+    return np.asarray(stiffness * noise.loadcell * np.sqrt(1 / on + 1 / base) + noise.loadcell_drift)
+
+
+def window_sigmas(
+    noise: Noise,
+    n_samples: ArrayLike,
+    n_baseline: ArrayLike,
+    voltage_pp_drive: ArrayLike,
+    tip_velocity_rms: ArrayLike,
+    loadcell_stiffness: float,
+) -> dict[str, FloatArray]:
+    """Noise-only sigma of each channel for lock-in windows of ``n_samples`` samples.
+
+    A phasor component of a window of ``N`` samples carries ``s sqrt(2/N)`` of a white noise ``s``.
+    """
+    n = np.asarray(n_samples, float)
+    vd, u = np.asarray(voltage_pp_drive, float), np.asarray(tip_velocity_rms, float)
+    lock = np.sqrt(2.0 / n)
+    tip = noise.tip * lock / math.sqrt(2)
+    return {
+        "voltage_pp_drive": 2 * noise.voltage * lock,
+        "tip_velocity_rms": tip,
+        "tip_phase_rad": np.divide(tip, u, out=np.full(n.shape, np.inf), where=u > 0),
+        "current_rms": noise.current / np.sqrt(n),
+        "power_w": 0.25 * vd * noise.current * lock,
+        "thrust_loadcell_n": loadcell_sigma(noise, loadcell_stiffness, n, n_baseline),
+    }
+
+
 def from_estimates(
     estimates: Iterable[Estimate],
     noise: Noise,
@@ -197,19 +240,8 @@ def from_estimates(
             nominal[j] = before[-1][2]
     n = np.array([max((e.t_end - e.t_start) * sample_rate_hz, 1.0) for e in rows])
     u = np.array([e.tip_velocity_rms for e in rows])
-    lock = np.sqrt(2.0 / n)  # sigma of a phasor component over the noise sigma
     nb = baseline_s * sample_rate_hz * np.array([max(e.loadcell_baselines, 1.0) for e in rows])
-    sig = {
-        "voltage_pp_drive": 2 * noise.voltage * lock,
-        "tip_velocity_rms": noise.tip * lock / math.sqrt(2),
-        "tip_phase_rad": np.divide(
-            noise.tip * lock / math.sqrt(2), u, out=np.full(len(rows), np.inf), where=u > 0
-        ),
-        "current_rms": noise.current / np.sqrt(n),
-        "power_w": 0.5 * (0.5 * v_drive) * noise.current * lock,
-        "thrust_loadcell_n": loadcell_stiffness * noise.loadcell * np.sqrt(1 / n + 1 / nb)
-        + noise.loadcell_drift,
-    }
+    sig = window_sigmas(noise, n, nb, v_drive, u, loadcell_stiffness)
     cols = {
         "frequency_hz": f,
         "voltage_pp": nominal,
@@ -223,17 +255,6 @@ def from_estimates(
     return make_trials(cols, sig, source)
 
 
-@dataclass(frozen=True)
-class Noise:
-    """1-sigma white noise of each signal (V, A, m/s, m) and the load cell's residual drift (N)."""
-
-    voltage: float
-    current: float
-    tip: float
-    loadcell: float
-    loadcell_drift: float = 0.0
-
-
 def _merge(a: Trials, b: Trials) -> Trials:
     cols = {
         f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)])
@@ -244,49 +265,58 @@ def _merge(a: Trials, b: Trials) -> Trials:
     return Trials(**cols, sigma=sigma, source=f"{a.source}, {b.source}")
 
 
-def measure_noise(path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0) -> Noise:
-    """Noise of each signal where the drive is off (``|v| < threshold`` for at least 2 s)."""
-    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
-    topics = {f"{ns}/drive": "drive", f"{ns}/tip_velocity": "tip", f"{ns}/loadcell": "loadcell"}
+def scan_bag(
+    path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0
+) -> tuple[Noise, list[tuple[float, float, float]]]:
+    """One pass over a fin's raw topics: the noise of each signal where the drive is off (more than
+    2 s after and 0.5 s before any ``|v| >= threshold``), and the commands ``(t, f, Vpp)`` that
+    switched the drive on."""
+    ns = topic_prefix(namespace)
+    kinds = {"drive": "drive", "tip_velocity": "tip", "loadcell": "loadcell", "cmd": "cmd"}
+    topics = {f"{ns}/{topic}": kind for topic, kind in kinds.items()}
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("t", "v", "i", "tt", "u", "tl", "d")}
+    commands = []
     for m in read_messages(path, topics):
+        kind = topics[m.topic]
         try:
-            b = block_of(m.type_name, m.data)
-            kind = topics[m.topic]
-            if kind == "drive":
-                s = check_samples(b, DRIVE_CHANNELS)
+            if kind == "cmd":
+                cmd = block_of(m.type_name, m.data, expect=COMMAND_FIELDS)
+                freq, vpp, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
+                if math.isfinite(freq) and math.isfinite(vpp) and on > 0:
+                    commands.append((m.log_time_ns * 1e-9, freq, vpp))
+            elif kind == "drive":
+                s = check_samples(block_of(m.type_name, m.data), DRIVE_CHANNELS)
                 parts["t"].append(s["t_s"])
                 parts["v"].append(s["voltage_V"])
                 parts["i"].append(s["current_A"])
             elif kind == "tip":
-                s = check_samples(b, TIP_CHANNELS)
+                s = check_samples(block_of(m.type_name, m.data), TIP_CHANNELS)
                 parts["tt"].append(s["t_s"])
                 parts["u"].append(s["tip_velocity_m_s"])
             else:
-                s = check_samples(b, LOADCELL_CHANNELS)
+                s = check_samples(block_of(m.type_name, m.data), LOADCELL_CHANNELS)
                 parts["tl"].append(s["t_s"])
                 parts["d"].append(s["displacement_m"])
-        except (BlockFormatError, KeyError, ValueError):
-            continue  # the estimator's replay reports these
+        except (BlockFormatError, KeyError, ValueError, IndexError):
+            continue  # the estimator's replay reports malformed data; fin_sim rejects such commands too
     cat = {k: np.concatenate(v) if v else np.empty(0) for k, v in parts.items()}
     t, v = cat["t"], cat["v"]
     if t.size < 100:
         raise DataError(f"{path}: too few drive samples on {ns}/drive to measure the noise")
-    on = np.abs(v) >= threshold_v
-    # off = at least 1 s away from any on-sample, on both sides
-    t_on = t[on]
+    t_on = t[np.abs(v) >= threshold_v]
+    quiet_mask = np.ones(t.size, bool)
     if t_on.size:
         pos = np.searchsorted(t_on, t)
         prev = np.where(pos > 0, t - t_on[np.maximum(pos - 1, 0)], np.inf)
         nxt = np.where(pos < t_on.size, t_on[np.minimum(pos, t_on.size - 1)] - t, np.inf)
-        quiet_t = t[(prev > 2.0) & (nxt > 0.5)]
-    else:
-        quiet_t = t
+        quiet_mask = (prev > 2.0) & (nxt > 0.5)
+    quiet_t = t[quiet_mask]
     if quiet_t.size < 100:
         raise DataError(f"{path}: no stretch with the drive off to measure the noise (need > 0.1 s)")
     lo, hi = quiet_t.min(), quiet_t.max()
 
     def quiet(tt: FloatArray, x: FloatArray) -> FloatArray:
+        """Samples of another channel that fall on a quiet drive sample."""
         if tt.size == 0:
             return np.empty(0)
         idx = np.clip(np.searchsorted(quiet_t, tt), 0, quiet_t.size - 1)
@@ -296,16 +326,16 @@ def measure_noise(path: str | os.PathLike[str], namespace: str, threshold_v: flo
     def std(x: FloatArray) -> float:
         return float(np.std(x)) if x.size > 10 else math.nan
 
-    sel = np.isin(t, quiet_t)
     lc = quiet(cat["tl"], cat["d"])
-    # the load cell drifts: the white part from first differences, the drift from the slope
+    # the load cell drifts: its white noise from first differences, which a slow drift does not reach
     lc_white = float(np.std(np.diff(lc)) / math.sqrt(2)) if lc.size > 10 else math.nan
-    return Noise(
-        voltage=std(v[sel]),
-        current=std(cat["i"][sel]),
+    noise = Noise(
+        voltage=std(v[quiet_mask]),
+        current=std(cat["i"][quiet_mask]),
         tip=std(quiet(cat["tt"], cat["u"])),
         loadcell=lc_white,
     )
+    return noise, commands
 
 
 def from_bags(
@@ -319,27 +349,12 @@ def from_bags(
             progress(f"reading {path} ({j + 1}/{len(paths)})")
         replay = replay_estimates(path, fin, namespace)
         skipped += [f"{path}: {s}" for s in replay.skipped]
-        noise = measure_noise(path, namespace)
-        commands = _commands(path, namespace)
+        noise, commands = scan_bag(path, namespace)
         tables.append(from_estimates(replay.replayed, noise, commands=commands, source=str(path)))
     out = tables[0]
     for t in tables[1:]:
         out = _merge(out, t)
     return out, skipped
-
-
-def _commands(path: str | os.PathLike[str], namespace: str) -> list[tuple[float, float, float]]:
-    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
-    out = []
-    for m in read_messages(path, {f"{ns}/cmd"}):
-        try:
-            cmd = block_of(m.type_name, m.data, expect=COMMAND_FIELDS)
-            f, v, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
-        except (BlockFormatError, KeyError, ValueError, IndexError):
-            continue  # a malformed command is not a command (fin_sim rejected it too)
-        if math.isfinite(f) and math.isfinite(v) and on > 0:
-            out.append((m.log_time_ns * 1e-9, f, v))
-    return out
 
 
 def from_csv(path: str | os.PathLike[str], relative_sigma: float = 0.02, model_floor: float = 0.01) -> Trials:
@@ -388,7 +403,6 @@ def _floats(path: str | os.PathLike[str], rows: list[dict[str, str]], column: st
 
 __all__ = [
     "CHANNELS",
-    "BagError",
     "DataError",
     "Noise",
     "Trials",

@@ -101,8 +101,6 @@ class Effect:
     title: ClassVar[str] = ""
     params: ClassVar[tuple[Param, ...]] = ()
     amplitude_dependent: ClassVar[bool] = False
-    #: Stages of the diagnosis where this effect shows (documentation and reports).
-    stages: ClassVar[tuple[str, ...]] = ()
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         raise NotImplementedError
@@ -119,7 +117,6 @@ class ResonanceOffset(Effect):
     name = "resonance_offset"
     title = "stiffness off (in-water resonance shifted, linear)"
     params = (Param("scale", "-", 1.0, 0.3, 2.0, 0.1, "natural frequency x scale"),)
-    stages = ("tip",)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.stiffness = k.stiffness * p[0] ** 2
@@ -130,7 +127,6 @@ class Duffing(Effect):
     title = "geometric stiffness nonlinearity (Duffing, amplitude-dependent)"
     params = (Param("beta", "-", 0.0, -5000.0, 5000.0, 20.0, "wn^2 x (1 + beta (X/L)^2)"),)
     amplitude_dependent = True
-    stages = ("tip",)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         x = op.tip_amplitude / op.fin.L
@@ -141,7 +137,6 @@ class Electroelastic(Effect):
     name = "electroelastic_softening"
     title = "electroelastic softening (stiffness falls with the field)"
     params = (Param("softening", "-", 0.0, -0.5, 0.9, 0.1, "wn x (1 - s Vpp/800)"),)
-    stages = ("tip",)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.stiffness = k.stiffness * np.maximum(1.0 - p[0] * op.voltage_pp / V_REF, 0.05) ** 2
@@ -152,7 +147,6 @@ class NonlinearDamping(Effect):
     title = "internal dissipative nonlinearity (damping grows with amplitude)"
     params = (Param("q", "-", 0.0, -1.0, 2000.0, 10.0, "zeta x (1 + q X/L)"),)
     amplitude_dependent = True
-    stages = ("tip", "power budget")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.damping = k.damping * np.maximum(1.0 + p[0] * op.tip_amplitude / op.fin.L, 0.01)
@@ -162,7 +156,6 @@ class AddedMassOffset(Effect):
     name = "added_mass_offset"
     title = "inertia coefficient c_m off the curve of Eq. (21)"
     params = (Param("scale", "-", 1.0, 0.1, 4.0, 0.2, "c_m x scale"),)
-    stages = ("tip", "thrust")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.mass = k.mass * p[0]
@@ -173,7 +166,6 @@ class AddedMassKC(Effect):
     title = "amplitude-dependent added mass (Keulegan-Carpenter)"
     params = (Param("a", "-", 0.0, -0.8, 5.0, 0.2, "c_m x (1 + a KC)"),)
     amplitude_dependent = True
-    stages = ("tip", "thrust")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.mass = k.mass * np.maximum(1.0 + p[0] * op.kc, 0.05)
@@ -183,7 +175,6 @@ class DragOffset(Effect):
     name = "drag_offset"
     title = "drag coefficient c_d off the assumed value"
     params = (Param("scale", "-", 1.0, 0.0, 20.0, 0.5, "c_d x scale"),)
-    stages = ("tip", "power budget")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.drag = k.drag * p[0]
@@ -194,7 +185,6 @@ class DragKC(Effect):
     title = "amplitude-dependent drag coefficient (c_d ~ KC^-n, Graham)"
     params = (Param("n", "-", 0.0, -2.0, 2.0, 0.2, "c_d x KC^-n"),)
     amplitude_dependent = True
-    stages = ("tip", "power budget")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.drag = k.drag * np.maximum(op.kc, 1e-3) ** (-p[0])
@@ -204,7 +194,6 @@ class DielectricLoss(Effect):
     name = "dielectric_loss"
     title = "dielectric loss of the piezoceramic (tan delta)"
     params = (Param("tan_delta", "-", 0.0, 0.0, 0.5, 0.02, "P += tan(delta) C_eq w V^2 / 2"),)
-    stages = ("current", "power budget")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.loss_conductance = k.loss_conductance + p[0] * op.fin.C_eq * op.omega
@@ -214,7 +203,6 @@ class Leakage(Effect):
     name = "leakage"
     title = "resistive leakage of the drive (frequency-independent loss)"
     params = (Param("conductance", "uS", 0.0, 0.0, 50.0, 1.0, "P += G V^2 / 2"),)
-    stages = ("current", "power budget")
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.loss_conductance = k.loss_conductance + p[0] * 1e-6
@@ -224,7 +212,6 @@ class SwimSpeed(Effect):
     name = "swim_speed"
     title = "flow past the fin (U != 0 in Eq. 19)"
     params = (Param("U", "m/s", 0.0, 0.0, 2.0, 0.05, "free-stream speed"),)
-    stages = ("thrust",)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.swim_speed = p[0]
@@ -251,7 +238,6 @@ class AmplifierLimit(Effect):
             (0.5, 2.0, 8.0, 30.0),
         ),
     )
-    stages = ("drive",)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         v = 0.5 * op.voltage_pp
@@ -273,7 +259,6 @@ class LoadcellOffset(Effect):
     name = "loadcell_offset"
     title = "thrust transducer drift not cancelled by the baselines (offset)"
     params = (Param("bias", "mN", 0.0, -50.0, 50.0, 0.2, "added to the load-cell thrust"),)
-    stages = ("thrust",)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.thrust_bias_n = k.thrust_bias_n + p[0] * 1e-3
@@ -283,7 +268,6 @@ class LoadcellGain(Effect):
     name = "loadcell_gain"
     title = "thrust transducer calibration (gain)"
     params = (Param("gain", "-", 1.0, 0.1, 5.0, 0.2, "load-cell thrust x gain"),)
-    stages = ("thrust",)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.thrust_gain = k.thrust_gain * p[0]
@@ -415,6 +399,51 @@ class Augmented:
             raise ModelError(f"{source}: {exc}") from None
 
 
+@dataclass(frozen=True)
+class ParamSpace:
+    """The stacked parameters of several effects, as one vector for an optimiser.
+
+    The optimiser works in scaled units ``z = (x - neutral) / scale``; :meth:`model` builds the
+    :class:`Augmented` model of a scaled vector (clipped into the bounds).
+    """
+
+    fin: Fin
+    names: tuple[str, ...]
+
+    @property
+    def params(self) -> list[Param]:
+        return [q for n in self.names for q in effect_class(n).params]
+
+    def _column(self, attr: str) -> NDArray[np.float64]:
+        return np.array([getattr(q, attr) for q in self.params], dtype=float)
+
+    @property
+    def neutral(self) -> NDArray[np.float64]:
+        return self._column("neutral")
+
+    @property
+    def scale(self) -> NDArray[np.float64]:
+        return self._column("scale")
+
+    @property
+    def z_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        n, s = self.neutral, self.scale
+        return (self._column("lower") - n) / s, (self._column("upper") - n) / s
+
+    def to_z(self, x: ArrayLike) -> NDArray[np.float64]:
+        return (np.asarray(x, float) - self.neutral) / self.scale
+
+    def model(self, z: ArrayLike) -> Augmented:
+        lo, hi = self.z_bounds
+        x = self.neutral + np.clip(np.asarray(z, float), lo, hi) * self.scale
+        vals, j = [], 0
+        for n in self.names:
+            size = len(effect_class(n).params)
+            vals.append(tuple(float(v) for v in x[j : j + size]))
+            j += size
+        return Augmented(self.fin, self.names, tuple(vals))
+
+
 def effect_class(name: str, source: str = "") -> type[Effect]:
     try:
         return LIBRARY[name]
@@ -453,12 +482,15 @@ def predict(
     def drive(k: Knobs) -> FloatArray:
         return vpp * k.voltage if measured is None else measured
 
-    def solve(k: Knobs) -> FloatArray:
+    def coefficients(k: Knobs) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``a, c0, k, force`` of the quartic (steady.py) with the knobs applied."""
         a = fin.omega_n**2 * k.stiffness - (1 + fin.mu * k.mass) * w * w
         c0 = 2 * fin.zeta * fin.omega_n * w * k.damping
-        kk = DRAG_HARMONIC * fin.gamma * k.drag * w * w
-        force = fin.theta * k.coupling * 0.5 * drive(k)
-        return solve_amplitude(a, c0, kk, force)
+        kd = DRAG_HARMONIC * fin.gamma * k.drag * w * w
+        return a, c0, kd, fin.theta * k.coupling * 0.5 * drive(k)
+
+    def solve(k: Knobs) -> FloatArray:
+        return solve_amplitude(*coefficients(k))
 
     x = np.zeros_like(f)
     k = knobs(x)
@@ -480,10 +512,9 @@ def predict(
     kk = Knobs(
         **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
     )
-    a = fin.omega_n**2 * kk.stiffness - (1 + fin.mu * kk.mass) * w * w
-    d = 2 * fin.zeta * fin.omega_n * w * kk.damping + DRAG_HARMONIC * fin.gamma * kk.drag * w * w * amp
+    a, c0, kd, force = coefficients(kk)
+    d = c0 + kd * amp
     v_amp = 0.5 * drive(kk)
-    force = fin.theta * kk.coupling * v_amp
     den = a * a + d * d
     with np.errstate(invalid="ignore", divide="ignore"):
         h0 = np.where(den > 0, force * a / den, 0.0)

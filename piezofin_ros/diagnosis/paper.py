@@ -21,7 +21,7 @@ import numpy as np
 from scipy import optimize
 
 from ..fin import Fin
-from .model import LIBRARY, Augmented, effect_class
+from .model import LIBRARY, Augmented, ParamSpace
 
 
 @dataclass(frozen=True)
@@ -74,39 +74,24 @@ class FactFit:
 
 
 def fit_facts(fin: Fin, names: tuple[str, ...], facts: tuple[Fact, ...] = PAPER_FACTS) -> FactFit:
-    params = [q for n in names for q in effect_class(n).params]
-    lo = np.array([q.lower for q in params])
-    hi = np.array([q.upper for q in params])
-    neutral = np.array([q.neutral for q in params])
-    scale = np.array([q.scale for q in params])
-    sizes = [len(effect_class(n).params) for n in names]
-
-    def model(x: np.ndarray) -> Augmented:
-        vals, j = [], 0
-        for s in sizes:
-            vals.append(tuple(float(v) for v in x[j : j + s]))
-            j += s
-        return Augmented(fin, names, tuple(vals))
+    space = ParamSpace(fin, names)
+    zlo, zhi = space.z_bounds
 
     def res(z: np.ndarray) -> np.ndarray:
-        x = np.clip(neutral + z * scale, lo, hi)
         try:
-            q = quantities(model(x), facts[0].voltage_pp)
+            q = quantities(space.model(z), facts[0].voltage_pp)
         except ValueError:
             return np.full(len(facts), 1e3)
-        # the resonance moves on a 0.1 Hz grid: smooth it with the tip-velocity peak is enough here
         return np.array([(q[f.name] - f.value) / f.sigma for f in facts])
 
     best = None
     for start in (0.5, 2.0, -0.5, 5.0):
-        z0 = np.clip(np.full(len(params), start), (lo - neutral) / scale, (hi - neutral) / scale)
-        sol = optimize.least_squares(
-            res, z0, bounds=((lo - neutral) / scale, (hi - neutral) / scale), diff_step=0.05, max_nfev=80
-        )
+        z0 = np.clip(np.full(len(space.params), start), zlo, zhi)
+        sol = optimize.least_squares(res, z0, bounds=(zlo, zhi), diff_step=0.05, max_nfev=80)
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
-    m = model(np.clip(neutral + best.x * scale, lo, hi))
+    m = space.model(best.x)
     return FactFit(names, m.parameters(), quantities(m, facts[0].voltage_pp), float(2 * best.cost))
 
 

@@ -87,8 +87,7 @@ def text(d: Diagnosis) -> str:
         ps = "; ".join(", ".join(f"{k}={v:.3g}" for k, v in p.items()) for p in c.model.parameters().values())
         lines.append(f"| {j + 1} | {c.label} | {ps} | {c.chi2_test:.1f} / {c.n_test} | {c.criterion:.1f} |")
     lines += ["", "## How far: held-out gap before and after", ""]
-    who = d.chosen.label if d.chosen else f"{d.candidates[0].label} (least bad, not an explanation)"
-    lines += [f"After adding {who}; shrink of the normalised gap: {d.shrink:.0%}.", ""]
+    lines += [f"After adding {who_short(d)}; shrink of the normalised gap: {d.shrink:.0%}.", ""]
     lines += ["| channel | RMS gap before | after | relative before | after |", "|---|---:|---:|---:|---:|"]
     for g in d.gaps:
         rel = (
@@ -192,7 +191,8 @@ def plots(d: Diagnosis, out_dir: Path) -> list[Path]:
 
 
 def who_short(d: Diagnosis) -> str:
-    return d.chosen.label if d.chosen else f"{d.candidates[0].label} (least bad)"
+    """The effect(s) the held-out comparison uses: the chosen ones, else the least bad candidate."""
+    return d.chosen.label if d.chosen else f"{d.candidates[0].label} (least bad, not an explanation)"
 
 
 def write(d: Diagnosis, out_dir: str | Path, summary: dict[str, Any]) -> list[Path]:

@@ -30,7 +30,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
-from ..fin import Fin
 from ..steady import DRAG_HARMONIC
 from .data import Trials
 from .model import Augmented
@@ -264,8 +263,3 @@ def resonances(trials: Trials, model: Augmented, fine: int = 400) -> list[Resona
         pred = model.predict(grid, np.full(fine, v))
         out.append(Resonance(float(v), fm, float(grid[np.argmax(pred.tip_velocity_rms)]), interior))
     return out
-
-
-def nominal_thrust_per_watt(fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> FloatArray:
-    """The nominal model's thrust per watt, N/W (for the paper's gap)."""
-    return Augmented(fin).predict(frequency_hz, voltage_pp).thrust_per_watt

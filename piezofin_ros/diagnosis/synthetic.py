@@ -30,7 +30,7 @@ from ..estimation import EstimatorConfig, analyse_window
 from ..fin import Fin, load_fin, preset_names
 from ..rig import RigConfig
 from ..steady import harmonic_balance
-from .data import Trials, make_trials
+from .data import Noise, Trials, loadcell_sigma, make_trials, window_sigmas
 
 FloatArray = NDArray[Any]
 
@@ -76,27 +76,23 @@ def _rk4_effects(
     v_out: FloatArray,
 ) -> None:
     n = f_hz.shape[0]
+    xs = np.empty(4)  # RK4 stage states and slopes, reused across steps
+    ys = np.empty(4)
+    ax = np.empty(4)
+    ay = np.empty(4)
     for j in range(n):
         w = 2.0 * np.pi * f_hz[j]
         x = 0.0
         y = 0.0
         t = 0.0
         for k in range(n_out):
-            vs = v_amp[j] * np.sin(w * t)
-            if vs > v_clip[j]:
-                vs = v_clip[j]
-            elif vs < -v_clip[j]:
-                vs = -v_clip[j]
+            vs = min(max(v_amp[j] * np.sin(w * t), -v_clip[j]), v_clip[j])  # the amplifier clips
             eta_out[j, k] = x
             deta_out[j, k] = y
             v_out[j, k] = vs
             if k == n_out - 1:
                 break
             for _ in range(substeps):
-                xs = np.empty(4)
-                ys = np.empty(4)
-                ax = np.empty(4)
-                ay = np.empty(4)
                 for stage in range(4):
                     if stage == 0:
                         xs[0] = x
@@ -116,11 +112,7 @@ def _rk4_effects(
                         tt = t + h
                     xx = xs[stage]
                     yy = ys[stage]
-                    v = v_amp[j] * np.sin(w * tt)
-                    if v > v_clip[j]:
-                        v = v_clip[j]
-                    elif v < -v_clip[j]:
-                        v = -v_clip[j]
+                    v = min(max(v_amp[j] * np.sin(w * tt), -v_clip[j]), v_clip[j])
                     kc = kc_per_eta * np.sqrt(xx * xx + (yy / w) ** 2)
                     mass = mass0[j] + mu_kc * kc
                     drag = gam[j]
@@ -305,6 +297,10 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     U = e.get("swim_speed", 0.0)
     thrust_t = 0.5 * mv_t * (tip**2 - U**2 * (fin.phi_tip_slope * eta) ** 2)
     cfg = EstimatorConfig()
+    levels = Noise(
+        rig.voltage_noise_v, rig.current_noise_a, rig.vibrometer_noise_m_s, rig.displacement_noise_m
+    )
+    n_base = 2 * cfg.baseline_s * rate  # pre and post baselines
     cols: dict[str, list[float]] = {
         k: []
         for k in (
@@ -332,28 +328,14 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
         if "wake_modulation" in e:
             thrust *= 1 + e["wake_modulation"] * math.sin(2 * math.pi * f[j] / 4.0)
         thrust = thrust * e.get("loadcell_gain", 1.0) + e.get("loadcell_offset", 0.0) * 1e-3
-        k_lc = rig.loadcell_stiffness
-        sig_t = k_lc * rig.displacement_noise_m * math.sqrt(1 / nsel + 1 / (2 * cfg.baseline_s * rate))
+        sig_t = float(loadcell_sigma(levels, rig.loadcell_stiffness, nsel, n_base))
         cols["voltage_pp_drive"].append(r["voltage_pp"])
-        cols["tip_velocity_rms"].append(r["tip_velocity_rms"])
-        cols["tip_phase_rad"].append(r["tip_phase_rad"])
-        cols["current_rms"].append(r["current_rms"])
-        cols["power_w"].append(r["power_w"])
+        for name in ("tip_velocity_rms", "tip_phase_rad", "current_rms", "power_w"):
+            cols[name].append(r[name])
         cols["thrust_loadcell_n"].append(thrust + sig_t * rng.standard_normal())
-    nwin = np.asarray(windows, float)
-    lock = np.sqrt(2 / nwin)
-    u = np.asarray(cols["tip_velocity_rms"])
-    vd = np.asarray(cols["voltage_pp_drive"])
-    noise = {
-        "voltage_pp_drive": 2 * rig.voltage_noise_v * lock,
-        "tip_velocity_rms": rig.vibrometer_noise_m_s * lock / math.sqrt(2),
-        "tip_phase_rad": rig.vibrometer_noise_m_s * lock / math.sqrt(2) / u,
-        "current_rms": rig.current_noise_a / np.sqrt(nwin),
-        "power_w": 0.25 * vd * rig.current_noise_a * lock,
-        "thrust_loadcell_n": rig.loadcell_stiffness
-        * rig.displacement_noise_m
-        * np.sqrt(1 / nwin + 1 / (2 * cfg.baseline_s * rate)),
-    }
+    noise = window_sigmas(
+        levels, windows, n_base, cols["voltage_pp_drive"], cols["tip_velocity_rms"], rig.loadcell_stiffness
+    )
     columns = {"frequency_hz": f, "voltage_pp": vpp, **{k: np.asarray(x) for k, x in cols.items()}}
     label = "+".join(f"{k}={x:.3g}" for k, x in e.items()) or "nominal"
     return Generated(case, make_trials(columns, noise, f"synthetic {case.fin} {label} seed {case.seed}"))
