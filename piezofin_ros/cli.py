@@ -181,13 +181,11 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 
 def _sweep_augmented(args: argparse.Namespace) -> int:
-    from .diagnosis.model import Augmented, ModelError
-    from .fin import safe_load_yaml
+    from .diagnosis.model import ModelError, load_augmented
 
     try:
-        with open(args.model) as fh:
-            model = Augmented.from_mapping(safe_load_yaml(fh.read()), source=args.model)
-    except (OSError, ModelError, FinConfigError, ValueError) as exc:
+        model = load_augmented(args.model)
+    except ModelError as exc:
         raise UsageError(f"--model: {exc}") from None
     freqs = parse_frequencies(args.freq)
     vpp = _voltages(args.vpp)

@@ -28,18 +28,23 @@ a probe at ``f (1 +- probe_step)`` keeps the fit informed.  A measurement more t
 ``change_sigma`` off the fit's prediction means the fin has changed (drift, temperature, a new
 load): the older measurements are dropped and the fit starts again from the latest, so a
 drifting fin is followed without a restart.
+
+With ``model`` (an :class:`~piezofin_ros.diagnosis.model.Augmented` model saved by ``piezofin
+diagnose``) the map starts from the diagnosed model instead of the paper's: its fin and effects,
+with the same five corrections applied on top as effects of the same library.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
+from .diagnosis.model import LIBRARY, Augmented, predict
 from .fin import Fin
 from .plants import Noise, Plant, PlantResponse
 from .rig import HARD_VOLTAGE_PP_MAX
@@ -92,6 +97,8 @@ class Correction:
     loss_tan_delta: float = 0.0
     thrust_gain: float = 1.0
 
+    base: Augmented | None = None  # a diagnosed model (fin + effects) the correction applies on top of
+
     def plant(self, fin: Fin) -> Plant:
         return Plant(
             fin.replace(c_d=fin.c_d * self.drag_scale),
@@ -101,8 +108,21 @@ class Correction:
         )
 
     def response(self, fin: Fin, f: Any, v: Any) -> PlantResponse:
-        r = self.plant(fin).steady(f, v)
-        return PlantResponse(r.thrust_n * self.thrust_gain, r.power_w, r.tip_velocity_rms)
+        if self.base is None:
+            r = self.plant(fin).steady(f, v)
+            return PlantResponse(r.thrust_n * self.thrust_gain, r.power_w, r.tip_velocity_rms)
+        # The diagnosed model's effects, then the correction as the same library's effects (the
+        # load-cell effects of the base describe the rig, not the fin: the thrust is Lighthill's).
+        lib = LIBRARY
+        effects = [
+            *self.base.instances(),
+            (lib["resonance_offset"](), (self.resonance_scale,)),
+            (lib["electroelastic_softening"](), (self.softening,)),
+            (lib["drag_offset"](), (self.drag_scale,)),
+            (lib["dielectric_loss"](), (self.loss_tan_delta,)),
+        ]
+        p = predict(self.base.fin, effects, f, v)
+        return PlantResponse(p.thrust_n * self.thrust_gain, p.power_w, p.tip_velocity_rms)
 
 
 # (vector -> Correction) with log parameters where a scale is positive; priors (mean, sigma).
@@ -112,8 +132,8 @@ _LOWER = np.array([math.log(0.3), 0.0, math.log(0.1), 0.0, math.log(0.2)])
 _UPPER = np.array([math.log(2.0), 0.8, math.log(10.0), 2.0, math.log(5.0)])
 
 
-def _correction(x: FloatArray) -> Correction:
-    return Correction(math.exp(x[0]), float(x[1]), math.exp(x[2]), float(x[3]), math.exp(x[4]))
+def _correction(x: FloatArray, base: Augmented | None = None) -> Correction:
+    return Correction(math.exp(x[0]), float(x[1]), math.exp(x[2]), float(x[3]), math.exp(x[4]), base)
 
 
 @dataclass(frozen=True)
@@ -210,10 +230,14 @@ class Optimiser:
     correction: Correction = field(default_factory=Correction)
     choice: Choice | None = None
     converged: bool = False
+    model: Augmented | None = None  # a diagnosed model: its fin and effects replace ``fin``
     _held: int = 0
     _probe_sign: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.model is not None:
+            self.fin = self.model.fin
+            self.correction = replace(self.correction, base=self.model)
         self.choice = best_point(
             self.fin, self.correction, self.limits, self._target(), self.voltage_pp, self.min_thrust_n
         )
@@ -265,7 +289,7 @@ class Optimiser:
     def _fit(self) -> Correction:
         obs = self.observations
         if not obs:
-            return Correction()
+            return Correction(base=self.model)
         f = np.array([o.frequency_hz for o in obs])
         v = np.array([o.voltage_pp for o in obs])
         lt = np.log([o.thrust_n for o in obs])
@@ -273,7 +297,7 @@ class Optimiser:
         sig_t, sig_p = self._sigmas(np.exp(lt), np.exp(lp))
 
         def residuals(x: FloatArray) -> FloatArray:
-            r = _correction(x).response(self.fin, f, v)
+            r = _correction(x, self.model).response(self.fin, f, v)
             with np.errstate(divide="ignore"):
                 rt = (lt - np.log(np.maximum(r.thrust_n, 1e-300))) / sig_t
                 rp = (lp - np.log(np.maximum(r.power_w, 1e-300))) / sig_p
@@ -294,7 +318,7 @@ class Optimiser:
             if best is None or res.cost < best.cost:
                 best = res
         assert best is not None
-        return _correction(best.x)
+        return _correction(best.x, self.model)
 
     def _update(self) -> None:
         self.correction = self._fit()

@@ -8,7 +8,13 @@ ROS.  It reproduces the paper's set-up (Sec. 3):
   crossing.  Commands are checked by :func:`check_command` (rejected or clamped, with the
   reason); a watchdog ramps the drive to zero when commands stop.
 * **Fin**: the time-domain engine's RK4 step (:mod:`piezofin_ros.timedomain`), advanced
-  incrementally with its state carried across blocks.
+  incrementally with its state carried across blocks.  With a ``model`` (a diagnosed
+  :class:`~piezofin_ros.diagnosis.model.Augmented` model's ``knobs_at``) the coefficients of
+  Eqs. (9)-(10) and of the load cell are those of the model's steady state at the commanded
+  operating point (:mod:`piezofin_ros.knobs`): amplitude-dependent effects are linearised there
+  (describing function), so the stream's steady state is the model's (within the 2 % of the
+  single-harmonic balance) while transients follow the linearisation; an amplifier limit clips
+  the drive for real, and its harmonics drive the fin too.
 * **Instruments**: white Gaussian noise on the amplifier's voltage and current monitors, the
   laser Doppler vibrometer and the optical displacement sensor (:class:`RigConfig`).
 * **Thrust transducer**: the fin hangs on an aluminium cantilever (254 x 25.4 x 6.35 mm,
@@ -20,14 +26,16 @@ ROS.  It reproduces the paper's set-up (Sec. 3):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
+from scipy import optimize, signal
 
 from .fin import Fin
+from .knobs import Knobs
 from .timedomain import default_step, integrate_nodes
 
 FloatArray = NDArray[Any]
@@ -145,8 +153,9 @@ class Drive:
             )
         return None
 
-    def render(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """``v(t)`` and ``dv/dt(t)`` at times ``t`` (>= ``self.t``), then advance to ``t[-1]``."""
+    def render(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``v(t)``, ``dv/dt(t)`` and the amplitude ``a(t)`` at times ``t`` (>= ``self.t``), then
+        advance to ``t[-1]``."""
         t = np.asarray(t, dtype=float)
         slew = 0.5 * self.limits.slew_vpp_per_s
         gap = self.target - self.amplitude
@@ -162,12 +171,26 @@ class Drive:
         self.t = float(t[-1])
         self.amplitude = float(amp[-1]) if abs(float(amp[-1]) - self.target) > 1e-12 else self.target
         self.phase = float(math.fmod(ph[-1], 2.0 * math.pi))
-        return v, dv
+        return v, dv, amp
 
     @property
     def voltage_pp(self) -> float:
         """Present peak-to-peak amplitude, V."""
         return 2.0 * self.amplitude
+
+
+def clip_ratio(fundamental: float) -> float:
+    """Clip level ``r = c / V`` of a sine of amplitude ``V`` clipped at ``+-c`` whose fundamental is
+    ``fundamental`` times the sine's: inverts ``(2 / pi) (asin r + r sqrt(1 - r^2))``."""
+    if fundamental >= 1.0:
+        return 1.0
+    if fundamental <= 0.0:
+        return 0.0
+
+    def excess(r: float) -> float:
+        return (2 / math.pi) * (math.asin(r) + r * math.sqrt(1 - r * r)) - fundamental
+
+    return float(optimize.brentq(excess, 0.0, 1.0, xtol=1e-12))
 
 
 @dataclass(frozen=True)
@@ -270,8 +293,12 @@ class SimulatedRig:
         seed: int = 0,
         t0: float = 0.0,
         protocol: Protocol | None = None,
+        model: Callable[[float, float], Knobs] | None = None,
     ) -> None:
         self.fin = fin
+        self.model = model
+        self._knobs = Knobs()
+        self._knobs_at: tuple[float, float] | None = None
         self.protocol = protocol
         self.trial: _Trial | None = None
         self._last_trial_command: DriveCommand | None = None
@@ -337,6 +364,17 @@ class SimulatedRig:
         self.trial = self._last_trial_command = None
         self.drive.apply(OFF, self.t)
 
+    def _update_knobs(self) -> Knobs:
+        """The model's knobs at the commanded operating point (kept while the drive ramps down)."""
+        d = self.drive
+        if self.model is None or d.target <= 0.0:
+            return self._knobs
+        point = (d.frequency_hz, 2.0 * d.target)
+        if point != self._knobs_at:
+            self._knobs = self.model(*point)
+            self._knobs_at = point
+        return self._knobs
+
     def step(self, n: int) -> RigBlock:
         """Advance by ``n`` samples and return them."""
         cfg, fin = self.config, self.fin
@@ -345,13 +383,20 @@ class SimulatedRig:
         reason = self.drive.watchdog(self.t)
         if reason:
             events.append(reason)
+        kn = self._update_knobs()
         dt = 1.0 / cfg.sample_rate_hz
-        substeps = max(1, math.ceil(dt / default_step(fin, self.drive.frequency_hz)))
+        h_max = default_step(fin, self.drive.frequency_hz) / math.sqrt(max(float(kn.stiffness), 1.0))
+        substeps = max(1, math.ceil(dt / h_max))
         h = dt / substeps
         k0 = self._k
         nodes = self._t0 + (k0 + np.arange(2 * substeps * n + 1) / (2 * substeps)) * dt
-        v_nodes, dv_nodes = self.drive.render(nodes)
-        eta, deta = integrate_nodes(fin, v_nodes[None, :], h, substeps, self._state)
+        v_nodes, dv_nodes, amp_nodes = self.drive.render(nodes)
+        if float(kn.voltage) < 1.0:  # the amplifier clips: same fundamental as the model's drive
+            r = clip_ratio(float(kn.voltage))
+            inside = np.abs(v_nodes) < r * amp_nodes
+            v_nodes = np.clip(v_nodes, -r * amp_nodes, r * amp_nodes)
+            dv_nodes = np.where(inside, dv_nodes, 0.0)
+        eta, deta = integrate_nodes(fin, v_nodes[None, :], h, substeps, self._state, kn)
         self._state = np.array([[eta[0, -1], deta[0, -1]]])
         self._k += n
         t = self._t0 + (k0 + np.arange(1, n + 1)) * dt
@@ -359,10 +404,15 @@ class SimulatedRig:
         dv = dv_nodes[2 * substeps :: 2 * substeps]
         eta_s, deta_s = eta[0, 1:], deta[0, 1:]
         tip = fin.phi_tip * deta_s
-        current = fin.C_eq * dv + fin.theta * deta_s
-        U = cfg.swim_speed_m_s
-        thrust = 0.5 * fin.m_v * (tip**2 - U**2 * (fin.phi_tip_slope * eta_s) ** 2)
-        force_filtered, self._lc_zi = signal.lfilter(self._lc_b, self._lc_a, thrust, zi=self._lc_zi)
+        current = fin.C_eq * dv + float(kn.loss_conductance) * v + fin.theta * float(kn.coupling) * deta_s
+        U = float(kn.swim_speed) or cfg.swim_speed_m_s
+        thrust = 0.5 * fin.m_v * float(kn.mass) * (tip**2 - U**2 * (fin.phi_tip_slope * eta_s) ** 2)
+        reading = float(kn.thrust_gain) * thrust
+        if kn.thrust_bias_n and self._knobs_at:
+            # the offset the baselines miss comes with the burst: scaled by the drive's envelope
+            on = np.minimum(amp_nodes[2 * substeps :: 2 * substeps] / (0.5 * self._knobs_at[1]), 1.0)
+            reading = reading + float(kn.thrust_bias_n) * on
+        force_filtered, self._lc_zi = signal.lfilter(self._lc_b, self._lc_a, reading, zi=self._lc_zi)
         x = force_filtered / cfg.loadcell_stiffness + cfg.loadcell_drift_m_per_s * (t - self._t0)
         rng = self._rng
         return RigBlock(

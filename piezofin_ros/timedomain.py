@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from ._compile import njit
 from .fin import Fin
+from .knobs import Knobs
 from .waveforms import Waveform
 
 FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
@@ -157,14 +158,21 @@ class Trajectory:
 
 
 def integrate_nodes(
-    fin: Fin, v_nodes: FloatArray, h: float, substeps: int, state0: FloatArray
+    fin: Fin,
+    v_nodes: FloatArray,
+    h: float,
+    substeps: int,
+    state0: FloatArray,
+    knobs: Knobs | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """RK4 of Eq. (9) from ``state0`` (``(n, 2)``) over voltages given at every half step.
 
     ``v_nodes`` is ``(n, 2 * substeps * (n_out - 1) + 1)``; returns ``eta`` and ``deta/dt`` at the
     ``n_out`` output samples (the first is ``state0``).  Shared by :func:`simulate_batch` and the
-    streaming rig, which calls it block by block with the state carried over.
+    streaming rig, which calls it block by block with the state carried over.  ``knobs`` scale the
+    coefficients (stiffness, added mass, damping, drag, coupling; see :mod:`piezofin_ros.knobs`).
     """
+    k = knobs or Knobs()
     n, n_nodes = v_nodes.shape
     n_out = (n_nodes - 1) // (2 * substeps) + 1
     eta = np.empty((n, n_out))
@@ -173,11 +181,11 @@ def integrate_nodes(
         v_nodes,
         h,
         substeps,
-        1.0 / (1.0 + fin.mu),
-        2.0 * fin.zeta * fin.omega_n,
-        fin.gamma,
-        fin.omega_n**2,
-        fin.theta,
+        1.0 / (1.0 + fin.mu * float(k.mass)),
+        2.0 * fin.zeta * fin.omega_n * float(k.damping),
+        fin.gamma * float(k.drag),
+        fin.omega_n**2 * float(k.stiffness),
+        fin.theta * float(k.coupling),
         np.ascontiguousarray(state0, dtype=float),
         eta,
         deta,

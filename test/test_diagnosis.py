@@ -15,10 +15,11 @@ from numpy.testing import assert_allclose
 
 from piezofin_ros.diagnosis.attribute import diagnose, summary_json
 from piezofin_ros.diagnosis.data import DataError, from_csv
-from piezofin_ros.diagnosis.model import LIBRARY, Augmented, ModelError
+from piezofin_ros.diagnosis.model import LIBRARY, Augmented, ModelError, load_augmented
 from piezofin_ros.diagnosis.stages import stage_gaps
 from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, simulate_case
 from piezofin_ros.fin import load_fin
+from piezofin_ros.rig import RigConfig, SimulatedRig
 from piezofin_ros.steady import harmonic_balance
 
 FIN = load_fin("M8528-P1")
@@ -79,6 +80,75 @@ def test_augmented_model_round_trips_through_safe_yaml(tmp_path: Path) -> None:
         )
     with pytest.raises(ModelError, match="must be a number"):
         Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"dielectric_loss": {"tan_delta": "x"}}})
+
+
+def test_load_augmented_names_the_file_and_the_problem(tmp_path: Path) -> None:
+    good = tmp_path / "model.yaml"
+    good.write_text(yaml.safe_dump(Augmented.of(FIN, {"drag_offset": [2.0]}).to_mapping()))
+    assert load_augmented(str(good)).parameters() == {"drag_offset": {"scale": 2.0}}
+    cases = {
+        "missing.yaml": (None, "cannot read"),
+        "broken.yaml": ("fin: [1, 2", "not valid YAML"),
+        "code.yaml": ("!!python/object/apply:os.system ['true']", "not valid YAML"),
+        "nofin.yaml": ("effects: {}", "needs a 'fin'"),
+        "badfin.yaml": ("fin: {L: -1}", "badfin.yaml"),
+    }
+    for name, (text, why) in cases.items():
+        path = tmp_path / name
+        if text is not None:
+            path.write_text(text)
+        with pytest.raises(ModelError, match=why) as info:
+            load_augmented(str(path))
+        assert name in str(info.value)
+
+
+def _fundamental_rms(t: np.ndarray, y: np.ndarray, f: float) -> float:
+    return float(abs(2 * np.mean(y * np.exp(-2j * math.pi * f * t))) / math.sqrt(2))
+
+
+@pytest.mark.parametrize(
+    ("effects", "f"),
+    [
+        ({"drag_offset": [2.0]}, 6.0),
+        ({"electroelastic_softening": [0.3], "leakage": [3.0]}, 6.0),
+        ({"stiffness_nonlinearity": [-50.0]}, 9.0),
+        ({"added_mass_kc": [0.5], "loadcell_gain": [1.5], "loadcell_offset": [1.0]}, 4.0),
+        ({"amplifier_limit": [8.0]}, 9.0),
+    ],
+)
+def test_the_rig_streams_what_the_augmented_model_predicts(effects: dict, f: float) -> None:
+    """fin_sim's rig with a diagnosed model: its steady state is the model's (within the
+    single-harmonic balance's own 2 % against the time domain), with the amplifier clipping for real."""
+    model = Augmented.of(FIN, effects)
+    quiet = RigConfig(
+        voltage_noise_v=0,
+        current_noise_a=0,
+        vibrometer_noise_m_s=0,
+        displacement_noise_m=0,
+        loadcell_drift_m_per_s=0,
+    )
+    rig = SimulatedRig(FIN, quiet, model=model.knobs_at)
+    blocks = []
+    for _ in range(16):
+        rig.command(f, 800.0, 1.0)  # a heartbeat, as the controller sends
+        blocks.append(rig.step(500))
+    t, v, i, u, x = (
+        np.concatenate([getattr(b, a) for b in blocks])
+        for a in ("t", "voltage", "current", "tip_velocity", "displacement")
+    )
+    sel = (t >= 4.0) & (t < 4.0 + math.floor(3.9 * f) / f)  # whole periods after settling
+    t, v, i, u, x = t[sel], v[sel], i[sel], u[sel], x[sel]
+    p = model.predict(f, 800.0)
+    assert _fundamental_rms(t, u, f) == pytest.approx(float(p.tip_velocity_rms), rel=0.02)
+    assert float(np.sqrt(np.mean(i**2))) == pytest.approx(float(p.current_rms), rel=0.02)
+    assert float(np.mean(v * i)) == pytest.approx(float(p.power_w), rel=0.025)
+    lc = float(np.mean(x)) * quiet.loadcell_stiffness
+    assert lc == pytest.approx(float(p.thrust_loadcell_n), rel=0.025)
+    if "amplifier_limit" in effects:
+        assert np.max(np.abs(v)) < 0.99 * 400.0  # clipped, not scaled: the drive's peak is cut
+        assert 2 * _fundamental_rms(t, v, f) * math.sqrt(2) == pytest.approx(
+            float(p.voltage_pp_drive), rel=0.01
+        )
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
@@ -209,6 +210,43 @@ def test_parameters_have_ranges_and_reasons() -> None:
             FinSim(context=g.context, node_name="nofin", parameter_overrides=params(fin="M0000-X"))
         )
         assert bad_fin.trigger_configure() == TransitionCallbackReturn.FAILURE
+
+
+def test_fin_sim_and_controller_load_a_diagnosed_model(tmp_path: Any) -> None:
+    """`-p model:=augmented_model.yaml`: fin_sim streams the diagnosed model, the optimiser starts
+    from it; a bad model fails at start naming the parameter and the file."""
+    from piezofin_ros.diagnosis.model import Augmented
+    from piezofin_ros.fin import load_fin
+
+    fin = load_fin("M8528-P1")
+    model = Augmented.of(fin, {"drag_offset": [3.0]})
+    path = tmp_path / "augmented_model.yaml"
+    path.write_text(yaml.safe_dump(model.to_mapping()))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("fin: {}\neffects: {warp_drive: {}}\n")
+    with graph() as g:
+        sim = g.add(FinSim(context=g.context, parameter_overrides=params(autostart=False, model=str(path))))
+        assert sim.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        rig = sim.rig
+        assert rig is not None and rig.model is not None
+        for _ in range(12):
+            rig.command(9.0, 800.0, 1.0)
+            block = rig.step(500)
+        tip = float(np.sqrt(np.mean(block.tip_velocity**2)))
+        assert tip == pytest.approx(float(model.predict(9.0, 800.0).tip_velocity_rms), rel=0.03)
+        assert tip < 0.7 * float(harmonic_balance(fin, 9.0, 800.0).tip_velocity_rms)  # 3x drag shows
+        broken = g.add(
+            FinSim(context=g.context, node_name="broken", parameter_overrides=params(model=str(bad)))
+        )
+        assert broken.trigger_configure() == TransitionCallbackReturn.FAILURE
+        ctl = g.add(
+            Controller(context=g.context, parameter_overrides=params(mode="optimise", model=str(path)))
+        )
+        assert ctl.loop is not None and ctl.loop.optimiser.model is not None
+        with pytest.raises(StartupError, match=r"parameter model: .*bad\.yaml"):
+            Controller(
+                context=g.context, node_name="c3", parameter_overrides=params(mode="optimise", model=str(bad))
+            )
 
 
 def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:

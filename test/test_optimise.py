@@ -141,3 +141,21 @@ def test_loop_holds_then_ramps_down_when_estimates_stop(m8528: Fin) -> None:
     assert v == 0.0 and on == 0.0 and loop.state == "stopped"
     loop.add_estimate(t, estimate(t, 5.0, 0.0, 1e-3, 1e-3))
     assert loop.state == "driving"  # estimates back: resumes
+
+
+def test_a_diagnosed_model_is_the_optimisers_starting_map(m8528: Fin) -> None:
+    """With the fin's diagnosed effects (the softening and loss the plant has), the first choice is
+    already near the plant's optimum; an empty augmented model is the paper's map."""
+    from piezofin_ros.diagnosis.model import Augmented
+
+    plant = Plant(m8528, softening=0.4, loss_tan_delta=0.1)
+    empty = Optimiser(m8528, LIMITS, model=Augmented.of(m8528)).choice
+    nominal = Optimiser(m8528, LIMITS).choice
+    assert empty is not None and nominal is not None
+    assert empty.frequency_hz == pytest.approx(nominal.frequency_hz, rel=1e-3)
+    diagnosed = Augmented.of(m8528, {"electroelastic_softening": [0.4], "dielectric_loss": [0.1]})
+    first = Optimiser(m8528, LIMITS, model=diagnosed).choice
+    assert first is not None
+    _, _, best = true_optimum(plant, LIMITS, None)
+    assert score(plant, first.frequency_hz, first.voltage_pp, None) / best > 0.97
+    assert score(plant, nominal.frequency_hz, nominal.voltage_pp, None) / best < 0.95  # what it saves

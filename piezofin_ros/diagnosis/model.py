@@ -33,9 +33,11 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from ..fin import Fin
+from ..fin import Fin, FinConfigError, safe_load_yaml
+from ..knobs import Knobs
 from ..steady import DRAG_HARMONIC, solve_amplitude
 
 FloatArray = NDArray[Any]
@@ -44,23 +46,6 @@ V_REF = 800.0  # Vpp: voltage-dependent effects are quoted at this drive
 
 class ModelError(ValueError):
     """An augmented model is malformed (unknown effect, wrong parameter, out of range)."""
-
-
-@dataclass
-class Knobs:
-    """Multiplicative (and additive) modifications of the model's coefficients, per operating point."""
-
-    stiffness: FloatArray | float = 1.0  # x wn^2
-    mass: FloatArray | float = 1.0  # x mu and x m_v (the same added mass, Eq. 20)
-    damping: FloatArray | float = 1.0  # x 2 zeta wn w
-    drag: FloatArray | float = 1.0  # x gamma
-    coupling: FloatArray | float = 1.0  # x theta
-    voltage: FloatArray | float = 1.0  # effective / nominal drive voltage (amplifier)
-    loss_conductance: FloatArray | float = 0.0  # S, in-phase current not converted to motion
-    thrust_gain: FloatArray | float = 1.0  # load cell reading / true thrust
-    thrust_bias_n: FloatArray | float = 0.0  # N, load cell offset
-    swim_speed: FloatArray | float = 0.0  # m/s, U of Eq. (19)
-    current_harmonics_a2: FloatArray | float = 0.0  # A^2, mean square of the current's higher harmonics
 
 
 @dataclass(frozen=True)
@@ -355,11 +340,21 @@ class Augmented:
         fundamental of the drive, Vpp) the fin is driven by that instead of by the model's drive."""
         return predict(
             self.fin,
-            [(effect_class(n)(), v) for n, v in zip(self.effects, self.values, strict=True)],
+            self.instances(),
             frequency_hz,
             voltage_pp,
             drive_pp=drive_pp,
         )
+
+    def instances(self) -> list[tuple[Effect, tuple[float, ...]]]:
+        return [(effect_class(n)(), v) for n, v in zip(self.effects, self.values, strict=True)]
+
+    def knobs_at(self, frequency_hz: float, voltage_pp: float) -> Knobs:
+        """The knobs (floats) at this operating point's steady state: the linearisation that the
+        streaming rig integrates, so that its steady state is this model's (see :mod:`..rig`)."""
+        f, v = np.array([float(frequency_hz)]), np.array([float(voltage_pp)])
+        k, _ = steady_knobs(self.fin, self.instances(), f, v)
+        return Knobs(**{n: float(np.asarray(getattr(k, n))[0]) for n in Knobs.__dataclass_fields__})
 
     # --- persistence (safe YAML; loaded by fin_sim, the controller and sweep) ---------------
     def to_mapping(self) -> dict[str, Any]:
@@ -397,6 +392,29 @@ class Augmented:
             return cls(fin, tuple(names), tuple(values), dict(data.get("notes") or {}))
         except ModelError as exc:
             raise ModelError(f"{source}: {exc}") from None
+
+
+def load_augmented(path: str) -> Augmented:
+    """Read an augmented model (``augmented_model.yaml`` from ``diagnose --report``) as safe YAML.
+
+    Raises :class:`ModelError` naming the file and the problem (missing, unreadable, not YAML,
+    unknown effect or parameter, value out of range, bad fin).
+    """
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot read the model ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise ModelError(f"{path}: not a text (YAML) file") from None
+    try:
+        data = safe_load_yaml(text)
+    except yaml.YAMLError as exc:
+        raise ModelError(f"{path}: not valid YAML ({exc})") from None
+    try:
+        return Augmented.from_mapping(data, source=path)
+    except FinConfigError as exc:
+        raise ModelError(str(exc) if path in str(exc) else f"{path}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -452,22 +470,18 @@ def effect_class(name: str, source: str = "") -> type[Effect]:
         raise ModelError(f"{where}unknown effect {name!r}; known: {', '.join(LIBRARY)}") from None
 
 
-def predict(
+def steady_knobs(
     fin: Fin,
-    effects: Iterable[tuple[Effect, Sequence[float]]],
-    frequency_hz: ArrayLike,
-    voltage_pp: ArrayLike,
-    *,
-    drive_pp: ArrayLike | None = None,
+    effects: Sequence[tuple[Effect, Sequence[float]]],
+    f: FloatArray,
+    vpp: FloatArray,
+    measured: FloatArray | None = None,
     iterations: int = 40,
-) -> Prediction:
-    """Steady state of ``fin`` with ``effects`` (instances with parameter values), vectorised.
+) -> tuple[Knobs, FloatArray]:
+    """The knobs (arrays shaped like ``f``) at the steady state, and its modal amplitude ``A``.
 
-    ``voltage_pp`` is the nominal drive; ``drive_pp``, if given, the measured one that moves the fin.
+    ``f`` and ``vpp`` are broadcast arrays; ``measured``, if given, the drive that moves the fin.
     """
-    f, vpp = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
-    measured = None if drive_pp is None else np.broadcast_to(np.asarray(drive_pp, float), f.shape)
-    effects = list(effects)
     w = 2 * math.pi * f
     phi = fin.phi_tip
     amp_dep = any(e.amplitude_dependent for e, _ in effects)
@@ -479,18 +493,8 @@ def predict(
             e.apply(k, op, p)
         return k
 
-    def drive(k: Knobs) -> FloatArray:
-        return vpp * k.voltage if measured is None else measured
-
-    def coefficients(k: Knobs) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """``a, c0, k, force`` of the quartic (steady.py) with the knobs applied."""
-        a = fin.omega_n**2 * k.stiffness - (1 + fin.mu * k.mass) * w * w
-        c0 = 2 * fin.zeta * fin.omega_n * w * k.damping
-        kd = DRAG_HARMONIC * fin.gamma * k.drag * w * w
-        return a, c0, kd, fin.theta * k.coupling * 0.5 * drive(k)
-
     def solve(k: Knobs) -> FloatArray:
-        return solve_amplitude(*coefficients(k))
+        return solve_amplitude(*_coefficients(fin, w, k, vpp, measured))
 
     x = np.zeros_like(f)
     k = knobs(x)
@@ -512,9 +516,44 @@ def predict(
     kk = Knobs(
         **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
     )
-    a, c0, kd, force = coefficients(kk)
+    return kk, amp
+
+
+def _drive(k: Knobs, vpp: FloatArray, measured: FloatArray | None) -> FloatArray:
+    return vpp * k.voltage if measured is None else measured
+
+
+def _coefficients(
+    fin: Fin, w: FloatArray, k: Knobs, vpp: FloatArray, measured: FloatArray | None
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``a, c0, k, force`` of the quartic (steady.py) with the knobs applied."""
+    a = fin.omega_n**2 * k.stiffness - (1 + fin.mu * k.mass) * w * w
+    c0 = 2 * fin.zeta * fin.omega_n * w * k.damping
+    kd = DRAG_HARMONIC * fin.gamma * k.drag * w * w
+    return a, c0, kd, fin.theta * k.coupling * 0.5 * _drive(k, vpp, measured)
+
+
+def predict(
+    fin: Fin,
+    effects: Iterable[tuple[Effect, Sequence[float]]],
+    frequency_hz: ArrayLike,
+    voltage_pp: ArrayLike,
+    *,
+    drive_pp: ArrayLike | None = None,
+    iterations: int = 40,
+) -> Prediction:
+    """Steady state of ``fin`` with ``effects`` (instances with parameter values), vectorised.
+
+    ``voltage_pp`` is the nominal drive; ``drive_pp``, if given, the measured one that moves the fin.
+    """
+    f, vpp = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
+    measured = None if drive_pp is None else np.broadcast_to(np.asarray(drive_pp, float), f.shape)
+    w = 2 * math.pi * f
+    phi = fin.phi_tip
+    kk, amp = steady_knobs(fin, list(effects), f, vpp, measured, iterations)
+    a, c0, kd, force = _coefficients(fin, w, kk, vpp, measured)
     d = c0 + kd * amp
-    v_amp = 0.5 * drive(kk)
+    v_amp = 0.5 * _drive(kk, vpp, measured)
     den = a * a + d * d
     with np.errstate(invalid="ignore", divide="ignore"):
         h0 = np.where(den > 0, force * a / den, 0.0)

@@ -20,6 +20,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..blocks import Block, BlockFormatError
+from ..diagnosis.model import ModelError, load_augmented
 from ..estimation import Estimate
 from ..fin import FinConfigError, load_fin
 from ..optimise import DriveLoop, Limits, Optimiser
@@ -77,6 +78,12 @@ class Controller(Node):
             self, "max_missing", 2, 1, 1000, "missing estimates in a row that stop the run"
         )
         fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path (the optimiser's model)")
+        model_path = str_param(
+            self,
+            "model",
+            "",
+            "optimise: augmented model YAML from `piezofin diagnose --report` (replaces fin)",
+        )
         demand = float_param(self, "demand_n", 0.0, 0.0, 10.0, "optimise: thrust demand, N (0: none)")
         self.voltage_pp = float_param(
             self, "voltage_pp", 800.0, 1.0, HARD_VOLTAGE_PP_MAX, "optimise, no demand: the drive voltage, Vpp"
@@ -107,12 +114,21 @@ class Controller(Node):
         self.finished = False
         if mode == "optimise":
             try:
+                model = load_augmented(model_path) if model_path else None
+            except ModelError as exc:
+                raise StartupError(f"parameter model: {exc}") from None
+            try:
                 limits = Limits(f_min, self.frequency_max, 50.0, self.voltage_limit)
+                fin = model.fin if model is not None else load_fin(fin_name)
                 optimiser = Optimiser(
-                    load_fin(fin_name), limits, self.voltage_pp, demand or None, min_thrust_n=self.min_thrust
+                    fin, limits, self.voltage_pp, demand or None, min_thrust_n=self.min_thrust, model=model
                 )
             except (ValueError, FinConfigError) as exc:
                 raise StartupError(f"optimiser: {exc}") from None
+            if model is not None:
+                self.get_logger().info(
+                    f"optimiser starts from the augmented model {model_path} ({', '.join(model.effects)})"
+                )
             self.loop = DriveLoop(optimiser, self.source, slew, timeout)
             self._start_t: float | None = None
             self._last_status_t = -math.inf

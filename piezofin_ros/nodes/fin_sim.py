@@ -9,6 +9,9 @@ timer tick advances the simulation by one block (``block_s``); the timer period 
 With ``publish_clock`` the node publishes ``/clock`` (the time of its last sample) and the rest
 of the graph follows with ``use_sim_time``.  Sample times are ``t0 + k / sample_rate_hz`` with
 ``t0`` the node clock at configure: never the wall clock inside a callback.
+With ``model`` (an ``augmented_model.yaml`` written by ``piezofin diagnose --report``) the rig
+simulates that model: its fin, plus the fitted effects linearised at each commanded operating point
+(see :class:`~piezofin_ros.rig.SimulatedRig`), so the node streams what the diagnosed model predicts.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from ..blocks import COMMAND_FIELDS, Block, BlockFormatError
+from ..diagnosis.model import ModelError, load_augmented
 from ..fin import Fin, FinConfigError, load_fin
 from ..rig import HARD_VOLTAGE_PP_MAX, DriveLimits, Protocol, RigConfig, SimulatedRig
 from ._common import (
@@ -78,6 +82,12 @@ class FinSim(LifecycleNode):
     ) -> None:
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         self._fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path")
+        self._model_path = str_param(
+            self,
+            "model",
+            "",
+            "augmented model YAML from `piezofin diagnose --report` (its fin and effects; replaces fin)",
+        )
         self._seed = int_param(self, "seed", 0, 0, 2**31 - 1, "noise seed")
         self._block_s = float_param(
             self, "block_s", 0.05, 0.0005, 1.0, "simulated time per published block, s"
@@ -113,16 +123,31 @@ class FinSim(LifecycleNode):
 
     # ------------------------------------------------------------------------------ lifecycle
     def on_configure(self, state: State) -> TransitionCallbackReturn:
+        model = None
         try:
-            self._fin = load_fin(self._fin_name)
-        except FinConfigError as exc:
-            self.get_logger().error(f"cannot configure: {exc}")
+            if self._model_path:
+                model = load_augmented(self._model_path)
+                self._fin = model.fin
+            else:
+                self._fin = load_fin(self._fin_name)
+        except (FinConfigError, ModelError) as exc:
+            key = "model" if self._model_path else "fin"
+            self.get_logger().error(f"cannot configure (parameter {key}): {exc}")
             return TransitionCallbackReturn.FAILURE
         t0 = self._start_time or self.get_clock().now().nanoseconds * 1e-9
         protocol = Protocol(self._protocol_off, self._protocol_on) if self._protocol else None
         self._rig = SimulatedRig(
-            self._fin, self._rig_config, self._limits, seed=self._seed, t0=t0, protocol=protocol
+            self._fin,
+            self._rig_config,
+            self._limits,
+            seed=self._seed,
+            t0=t0,
+            protocol=protocol,
+            model=None if model is None else model.knobs_at,
         )
+        if model is not None:
+            effects = ", ".join(f"{k} {v}" for k, v in model.parameters().items()) or "no effect"
+            self.get_logger().info(f"augmented model {self._model_path}: {effects}")
         self._n_block = max(1, round(self._block_s * self._rig_config.sample_rate_hz))
         self._pubs = {
             name: self.create_lifecycle_publisher(Float64MultiArray, name, QOS_DATA)
