@@ -15,21 +15,25 @@ the ``rosbags`` type store, so tests can check the writer against an independent
 
 from __future__ import annotations
 
+import itertools
+import logging
 import math
 import os
-from collections.abc import Iterable, Iterator
+import struct
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from .blocks import Block, from_layout
 
 _TYPESTORE: Any = None
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def typestore() -> Any:
@@ -146,6 +150,7 @@ class BagWriter:
             self._last_flush_ns = log_time_ns
         elif log_time_ns - self._last_flush_ns >= self._flush_ns:
             self._writer.flush()
+            self._file.flush()  # into the OS: a SIGKILL now loses nothing written so far
             self._last_flush_ns = log_time_ns
 
     def close(self) -> None:
@@ -167,25 +172,218 @@ class BagMessage:
     data: bytes
 
 
-def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
-    """Serialised messages of a bag in log-time order (optionally only ``topics``).
+@dataclass(frozen=True)
+class Damage:
+    """Where and why a bag stops being readable (or a chunk of it is skipped)."""
 
-    Raises :class:`BagError` naming the file on anything that is not a readable MCAP.
+    path: Path
+    offset: int  # byte offset of the damaged record
+    size: int  # file size, bytes
+    reason: str
+    messages_before: int  # messages read before this point
+    fatal: bool  # True: nothing after ``offset`` could be read
+
+    def __str__(self) -> str:
+        what = "the rest is unreadable" if self.fatal else "this chunk was skipped, reading went on"
+        return (
+            f"{self.path}: damaged at byte {self.offset} of {self.size} ({self.reason}); {what}; "
+            f"{self.messages_before} messages read before it"
+        )
+
+
+_LOG = logging.getLogger("piezofin_ros.bagio")
+
+
+def _warn(damage: Damage) -> None:
+    _LOG.warning("warning: %s", damage)
+
+
+def read_messages(
+    path: str | os.PathLike[str],
+    topics: Iterable[str] | None = None,
+    on_damage: Callable[[Damage], None] | None = _warn,
+) -> Iterator[BagMessage]:
+    """Serialised messages of a bag in file (recording) order, optionally only ``topics``.
+
+    The file is read record by record, so a damaged bag gives everything before the damage: a
+    file whose writer was killed (no summary, a cut chunk), a chunk that fails its CRC or does not
+    decompress (skipped, reading goes on), a cut or garbled record (reading stops).  Each damage is
+    passed to ``on_damage`` (default: a logged warning).  Raises :class:`BagError` naming the file
+    when it is missing, not an MCAP file, or damaged before its first message.
     """
     path = Path(path)
     wanted = set(topics) if topics is not None else None
     try:
-        with open(path, "rb") as f:
-            reader = make_reader(f)
-            for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
-                type_name = schema.name if schema is not None else ""
-                yield BagMessage(channel.topic, type_name, message.log_time, message.data)
+        f = open(path, "rb")  # noqa: SIM115 (closed below; a generator cannot use `with` across yields safely)
     except FileNotFoundError:
         raise BagError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise BagError(f"{path}: is a directory; give the .mcap file inside it") from None
-    except (McapError, ValueError, EOFError, OSError, KeyError, IndexError, AssertionError) as exc:
-        raise BagError(f"{path}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+    except OSError as exc:
+        raise BagError(f"{path}: cannot open ({exc.strerror or exc})") from None
+    with f:
+        size = os.fstat(f.fileno()).st_size
+        if size == 0:
+            raise BagError(f"{path}: not a readable MCAP file (empty)")
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise BagError(f"{path}: not a readable MCAP file (no MCAP magic at the start)")
+        f.seek(0)
+        reader = StreamReader(f, emit_chunks=True, record_size_limit=size)
+        schemas: dict[int, str] = {}
+        channels: dict[int, tuple[str, int]] = {}
+        n = 0
+        offset = 0
+
+        def damaged(reason: str, fatal: bool) -> None:
+            d = Damage(path, offset, size, reason, n, fatal)
+            if fatal and n == 0:
+                raise BagError(f"{path}: not a readable MCAP file ({reason} at byte {offset})")
+            if on_damage is not None:
+                on_damage(d)
+
+        def take(record: Any) -> BagMessage | None:
+            if isinstance(record, Schema):
+                schemas[record.id] = record.name
+            elif isinstance(record, Channel):
+                channels[record.id] = (record.topic, record.schema_id)
+            elif isinstance(record, Message):
+                ch = channels.get(record.channel_id)
+                if ch is not None and (wanted is None or ch[0] in wanted):
+                    return BagMessage(ch[0], schemas.get(ch[1], ""), record.log_time, record.data)
+            return None
+
+        records = iter(reader.records)
+        while True:
+            offset = _position(reader, f)
+            try:
+                record = next(records)
+            except StopIteration:
+                break
+            except Exception as exc:  # any corruption ends the readable part, never the caller
+                damaged(_why(exc), fatal=True)
+                break
+            if isinstance(record, Chunk):
+                usize = record.uncompressed_size
+                if usize > _MAX_CHUNK or usize > 1000 * len(record.data) + 4096:
+                    damaged(f"chunk: implausible size {usize} bytes", fatal=False)
+                    continue
+                try:
+                    inner = breakup_chunk(record, validate_crc=True)
+                except Exception as exc:  # CRC, zstd, lz4, framing: skip this chunk
+                    damaged(f"chunk: {_why(exc)}", fatal=False)
+                    continue
+                for r in inner:
+                    m = take(r)
+                    if m is not None:
+                        n += 1
+                        yield m
+            else:
+                m = take(record)
+                if m is not None:
+                    n += 1
+                    yield m
+
+
+_MAX_CHUNK = 1 << 30  # bytes: larger uncompressed chunks are corruption, not data
+
+
+def _position(reader: Any, f: BinaryIO) -> int:
+    stream = getattr(reader, "_stream", None)
+    count = getattr(stream, "count", None)
+    return int(count) if isinstance(count, int) else f.tell()
+
+
+def _why(exc: BaseException) -> str:
+    name = type(exc).__name__
+    if isinstance(exc, (EOFError, struct.error)) or name in ("EndOfFile", "RecordLengthLimitExceeded"):
+        return "the file ends or is garbled here, as when its writer is stopped before closing it"
+    return f"{name}: {exc}" if str(exc) else name
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What :func:`recover` saved."""
+
+    source: Path
+    output: Path
+    messages: int
+    counts: dict[str, int]
+    first_ns: int | None
+    last_ns: int | None
+    bytes_read: int  # up to the first fatal damage (the whole file if none)
+    size: int
+    damages: tuple[Damage, ...]
+
+    @property
+    def complete(self) -> bool:
+        return not self.damages
+
+    def summary(self) -> str:
+        span = (
+            f", log time {self.first_ns * 1e-9:.3f} .. {self.last_ns * 1e-9:.3f} s"
+            if self.first_ns is not None and self.last_ns is not None
+            else ""
+        )
+        lines = [
+            f"{self.output}: {self.messages} messages on {len(self.counts)} topics{span}",
+            f"read {self.bytes_read} of {self.size} bytes of {self.source} "
+            f"({100.0 * self.bytes_read / max(self.size, 1):.1f} %)",
+        ]
+        lines += [f"  {t}: {c}" for t, c in sorted(self.counts.items())]
+        lines += [f"damage: {d}" for d in self.damages] or ["no damage: the source was complete"]
+        return "\n".join(lines)
+
+
+def recover(source: str | os.PathLike[str], output: str | os.PathLike[str] | None = None) -> Recovery:
+    """Copy every readable message of ``source`` (e.g. a bag whose recorder was killed) into a
+    complete, indexed MCAP at ``output`` (default ``<source>.recovered.mcap``, never overwritten).
+
+    Raises :class:`BagError` when nothing can be read or the output exists.
+    """
+    src = Path(source)
+    out = Path(output) if output is not None else src.with_name(src.stem + ".recovered.mcap")
+    if out.exists():
+        raise BagError(f"{out}: exists; recover never overwrites a file")
+    damages: list[Damage] = []
+    size = src.stat().st_size if src.is_file() else 0
+    messages = read_messages(src, on_damage=damages.append)
+    first = next(messages, None)  # BagError here: nothing to recover, no output written
+    counts: dict[str, int] = {}
+    first_ns = last_ns = None
+    with open(out, "xb") as fh:
+        writer = Writer(fh, compression=CompressionType.ZSTD)
+        writer.start(profile="ros2", library="piezofin_ros recover")
+        schema_ids: dict[str, int] = {}
+        channel_ids: dict[str, int] = {}
+        sequence: dict[str, int] = {}
+        for m in itertools.chain([first] if first is not None else [], messages):
+            if m.topic not in channel_ids:
+                if m.type_name not in schema_ids:
+                    try:
+                        definition = message_definition(m.type_name).encode()
+                    except ValueError:
+                        definition = b""
+                    schema_ids[m.type_name] = writer.register_schema(m.type_name, "ros2msg", definition)
+                channel_ids[m.topic] = writer.register_channel(m.topic, "cdr", schema_ids[m.type_name])
+                sequence[m.topic] = 0
+            writer.add_message(channel_ids[m.topic], m.log_time_ns, m.data, m.log_time_ns, sequence[m.topic])
+            sequence[m.topic] += 1
+            counts[m.topic] = counts.get(m.topic, 0) + 1
+            first_ns = m.log_time_ns if first_ns is None else min(first_ns, m.log_time_ns)
+            last_ns = m.log_time_ns if last_ns is None else max(last_ns, m.log_time_ns)
+        writer.finish()
+    fatal = [d for d in damages if d.fatal]
+    return Recovery(
+        src,
+        out,
+        sum(counts.values()),
+        counts,
+        first_ns,
+        last_ns,
+        fatal[0].offset if fatal else size,
+        size,
+        tuple(damages),
+    )
 
 
 def decode(type_name: str, data: bytes) -> Any:

@@ -236,7 +236,28 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
     est.add_argument("--json", action="store_true", help="print the estimates as JSON")
     est.set_defaults(func=run_estimate)
+    bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
+    bag_sub = bag.add_subparsers(dest="bag_command", required=True)
+    rec = bag_sub.add_parser(
+        "recover", help="copy every readable message of a damaged or unclosed bag into a complete one"
+    )
+    rec.add_argument("bag", help="the damaged .mcap (e.g. from a recorder that was killed)")
+    rec.add_argument("-o", "--output", help="the new file (default <bag>.recovered.mcap; never overwritten)")
+    rec.set_defaults(func=run_bag_recover)
     return parser
+
+
+def run_bag_recover(args: argparse.Namespace) -> int:
+    from .bagio import BagError, recover
+
+    try:
+        report = recover(args.bag, args.output)
+    except BagError as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"{args.output or args.bag}: {exc.strerror or exc}") from None
+    print(report.summary())
+    return 0
 
 
 def run_estimate(args: argparse.Namespace) -> int:

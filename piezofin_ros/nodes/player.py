@@ -47,12 +47,14 @@ class Player(Node):
             raise StartupError("parameter bag: give the .mcap file to play (-p bag:=run.mcap)")
         self._selected = set(topics) if topics else None
         try:
-            first = next(read_messages(self.bag_path, self._selected), None)
+            first = next(read_messages(self.bag_path, self._selected, on_damage=None), None)
         except BagError as exc:
             raise StartupError(str(exc)) from None
         if first is None:
             raise StartupError(f"{self.bag_path}: no message to play" + (f" on {topics}" if topics else ""))
-        self._messages: Iterator[BagMessage] = read_messages(self.bag_path, self._selected)
+        self._messages: Iterator[BagMessage] = read_messages(
+            self.bag_path, self._selected, on_damage=lambda d: self.get_logger().warning(str(d))
+        )
         self._next: BagMessage | None = None
         self._pubs: dict[str, Any] = {}
         self._skipped: set[str] = set()
