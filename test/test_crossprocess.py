@@ -191,3 +191,115 @@ def test_bringup_optimise_mode_converges(tmp_path: Path) -> None:
     assert "converged:" in line and "demand 4.00 mN" in line
     thrust = float(line.split("thrust ")[1].split(" mN")[0])
     assert 4.0 <= thrust <= 4.2  # meets the demand without overshooting it
+
+
+@pytest.mark.slow
+def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Path) -> None:
+    """SIGKILL mid-run: `piezofin bag recover` gets every block up to the last flushed chunk, and
+    the loss (what a live subscriber saw but the file does not hold) is under flush_s + one block."""
+    bag = tmp_path / "killed.mcap"
+    flush_s = 0.5
+    sim = start("fin_sim", "-r", "__ns:=/kill", "-p", "seed:=3")
+    rec = start("recorder", "-p", f"path:={bag}", "-p", "namespaces:=[kill]", "-p", f"flush_s:={flush_s}")
+    seen: list[tuple[float, float]] = []  # (wall time of arrival, last sample time) per drive block
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("watcher", namespace="kill", context=g.context))
+            node.create_subscription(
+                Float64MultiArray,
+                "drive",
+                lambda m: seen.append((time.time(), float(msg_block(m)["t_s"][-1]))),
+                QOS_DATA,
+            )
+            g.spin_until(lambda: len(seen) > 40, timeout=30.0, what="drive blocks")
+            g.spin_for(4.0)
+            rec.send_signal(signal.SIGKILL)
+            killed_at = time.time()
+            rec.wait(timeout=10)
+            g.spin_for(0.5)
+    finally:
+        for p in (sim, rec):
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                p.communicate(timeout=30)
+    assert rec.returncode == -signal.SIGKILL
+    run = subprocess.run(
+        [str(BIN / "piezofin"), "bag", "recover", str(bag)], capture_output=True, text=True, timeout=60
+    )
+    assert run.returncode == 0, run.stderr
+    from piezofin_ros.bagio import block_of, read_messages
+
+    out = tmp_path / "killed.recovered.mcap"
+    got = [float(block_of(m.type_name, m.data)["t_s"][-1]) for m in read_messages(out, ["/kill/drive"])]
+    assert got and np.all(np.diff(got) > 0)
+    before_kill = [t for wall, t in seen if wall < killed_at]
+    kept = set(got)
+    recorded_span = [t for t in before_kill if t >= got[0]]  # the recorder subscribed at got[0]
+    assert [t for t in recorded_span if t <= got[-1]] == [t for t in recorded_span if t in kept]  # no hole
+    lost_s = before_kill[-1] - got[-1]
+    assert 0.0 <= lost_s <= flush_s + 0.2, (lost_s, run.stdout)
+    assert len(got) / len(recorded_span) > 0.85
+    print(f"SIGKILL: recovered {len(got)}/{len(recorded_span)} drive blocks, lost the last {lost_s:.3f} s")
+
+
+@pytest.mark.slow
+def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
+    """The controller drives 800 Vpp and is SIGKILLed: fin_sim's watchdog (0.5 s) ramps the drive to
+    zero; the drive is below 2 % of its amplitude within timeout + ramp + one block of the kill."""
+    timeout_s, slew = 0.5, 4000.0
+    sim = start(
+        "fin_sim",
+        "-r",
+        "__ns:=/wd",
+        "-p",
+        f"limits.command_timeout_s:={timeout_s}",
+        "-p",
+        "rig.voltage_noise_v:=0.0",
+    )
+    ctl = start(
+        "controller",
+        "-r",
+        "__ns:=/wd",
+        "-p",
+        "mode:=continuous",
+        "-p",
+        "frequencies:=[6.0]",
+        "-p",
+        "voltages:=[800.0]",
+        "-p",
+        "on_s:=600.0",
+    )
+    drive: list[Block] = []
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("watcher", namespace="wd", context=g.context))
+            node.create_subscription(
+                Float64MultiArray, "drive", lambda m: drive.append(msg_block(m)), QOS_DATA
+            )
+
+            def peak() -> float:
+                return float(np.max(np.abs(drive[-1]["voltage_V"]))) if drive else 0.0
+
+            g.spin_until(lambda: peak() > 390.0, timeout=60.0, what="the controller driving 800 Vpp")
+            g.spin_for(1.0)
+            ctl.send_signal(signal.SIGKILL)
+            killed_at = time.time()  # fin_sim's sample times follow its clock: the wall clock here
+            ctl.wait(timeout=10)
+            g.spin_for(2.5)
+    finally:
+        for p in (sim, ctl):
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                p.communicate(timeout=30)
+    t = np.concatenate([b["t_s"] for b in drive])
+    v = np.concatenate([b["voltage_V"] for b in drive])
+    assert np.max(np.abs(v)) <= 400.0 + 1e-9  # never beyond the limit
+    loud = t[np.abs(v) > 8.0]  # 2 % of 400 V
+    assert loud[-1] > killed_at - 0.2  # it was driving up to the kill
+    quiet_after = loud[-1] - killed_at
+    bound = timeout_s + 800.0 / slew + 0.1 + 0.2  # watchdog + ramp + a block + scheduling
+    assert quiet_after < bound, quiet_after
+    print(
+        f"watchdog: drive below 2 % {quiet_after:.3f} s after the controller was killed (bound {bound:.2f} s)"
+    )
+    assert np.all(np.abs(v[t > loud[-1]]) <= 8.0)
