@@ -16,6 +16,7 @@ simulates that model: its fin, plus the fitted effects linearised at each comman
 
 from __future__ import annotations
 
+import collections
 import math
 import sys
 
@@ -119,6 +120,9 @@ class FinSim(LifecycleNode):
         self._pubs: dict[str, object] = {}
         self.published = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}
         self.command_log: list[str] = []
+        self.command_counts: collections.Counter[str] = collections.Counter()
+        self._last_reason_log_ns = -(2**62)
+        self._unlogged = 0
         self.create_subscription(Float64MultiArray, TOPIC_CMD, self._on_command, QOS_COMMAND)
 
     # ------------------------------------------------------------------------------ lifecycle
@@ -213,12 +217,26 @@ class FinSim(LifecycleNode):
         _, reason = self._rig.command(f, v, on)
         if reason:
             self._log_command(reason)
+        else:
+            self.command_counts["accepted"] += 1
 
     def _log_command(self, reason: str) -> None:
+        """Keep and log the reason; bursts are logged once a second with the count of the rest."""
+        self.command_counts[reason.split(":", 1)[0]] += 1
         self.command_log.append(reason)
         if len(self.command_log) > 1000:
             del self.command_log[:500]
-        self.get_logger().warning(reason, throttle_duration_sec=1.0)
+        now = self.get_clock().now().nanoseconds
+        if now - self._last_reason_log_ns >= 1_000_000_000:
+            extra = (
+                self._unlogged
+                and f" (and {self._unlogged} more rejected, clamped or ignored since the last line)"
+            )
+            self.get_logger().warning(reason + (extra or ""))
+            self._last_reason_log_ns = now
+            self._unlogged = 0
+        else:
+            self._unlogged += 1
 
     def _tick(self) -> None:
         if self._timer is None:
@@ -265,7 +283,8 @@ class FinSim(LifecycleNode):
             self.destroy_timer(self._timer)
             self._timer = None
         counts = ", ".join(f"{k} {v}" for k, v in self.published.items())
-        self.get_logger().info(f"published samples: {counts}")
+        commands = ", ".join(f"{k} {v}" for k, v in sorted(self.command_counts.items())) or "none"
+        self.get_logger().info(f"published samples: {counts}; commands: {commands}")
 
 
 def main(args: list[str] | None = None) -> int:
