@@ -303,3 +303,19 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
         f"watchdog: drive below 2 % {quiet_after:.3f} s after the controller was killed (bound {bound:.2f} s)"
     )
     assert np.all(np.abs(v[t > loud[-1]]) <= 8.0)
+
+
+@pytest.mark.slow
+def test_short_soak_has_no_drops_and_flat_memory(tmp_path: Path) -> None:
+    """`benchmarks/bench_soak.py` for 40 s: four processes at the default rate; no sample dropped
+    live or in the bag, resident memory flat after warm-up, running estimates within a block or two."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_soak import soak
+
+    r = soak(40.0, 15.0, tmp_path, progress=False)
+    print(r.table())
+    assert min(r.samples.values()) > 30_000
+    assert r.drops_live == {"drive": 0, "tip_velocity": 0, "loadcell": 0}
+    assert r.drops_in_bag == 0 and r.samples_in_bag > 30_000
+    assert max(r.rss_growth.values()) < 0.05
+    assert r.estimates >= 5 and r.latency_s["p99"] < 0.5
