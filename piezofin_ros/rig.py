@@ -371,7 +371,12 @@ class SimulatedRig:
             return self._knobs
         point = (d.frequency_hz, 2.0 * d.target)
         if point != self._knobs_at:
-            self._knobs = self.model(*point)
+            knobs = self.model(*point)
+            values = [float(getattr(knobs, n)) for n in Knobs.__dataclass_fields__]
+            if all(math.isfinite(x) for x in values):
+                self._knobs = knobs
+            else:  # keep the last good coefficients rather than integrate NaN
+                self._events.append(f"model: no finite steady state at {point[0]:g} Hz, {point[1]:g} Vpp")
             self._knobs_at = point
         return self._knobs
 
@@ -384,6 +389,8 @@ class SimulatedRig:
         if reason:
             events.append(reason)
         kn = self._update_knobs()
+        events += self._events
+        self._events.clear()
         dt = 1.0 / cfg.sample_rate_hz
         h_max = default_step(fin, self.drive.frequency_hz) / math.sqrt(max(float(kn.stiffness), 1.0))
         substeps = max(1, math.ceil(dt / h_max))
