@@ -40,6 +40,14 @@ def start(exe: str, *ros_args: str) -> subprocess.Popen[str]:
     )
 
 
+def stop(*procs: subprocess.Popen[str]) -> None:
+    """SIGINT to each process still running, then wait for it (as Ctrl-C would)."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+            p.communicate(timeout=30)
+
+
 @pytest.mark.slow
 def test_no_drops_at_the_default_rate_for_10_s() -> None:
     """fin_sim at 1 kHz in real time, 12 s: every published sample arrives, in order, once.
@@ -120,10 +128,7 @@ def test_recorder_leaves_a_complete_indexed_bag_on_signal(tmp_path: Path, sig: s
         rec.send_signal(sig)
         out, _ = rec.communicate(timeout=30)
     finally:
-        for p in (sim, rec):
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                p.communicate(timeout=30)
+        stop(sim, rec)
     assert rec.returncode == 0, out
     assert "closed" in out
     with open(bag, "rb") as f:
@@ -218,10 +223,7 @@ def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Pat
             rec.wait(timeout=10)
             g.spin_for(0.5)
     finally:
-        for p in (sim, rec):
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                p.communicate(timeout=30)
+        stop(sim, rec)
     assert rec.returncode == -signal.SIGKILL
     run = subprocess.run(
         [str(BIN / "piezofin"), "bag", "recover", str(bag)], capture_output=True, text=True, timeout=60
@@ -287,10 +289,7 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
             ctl.wait(timeout=10)
             g.spin_for(2.5)
     finally:
-        for p in (sim, ctl):
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                p.communicate(timeout=30)
+        stop(sim, ctl)
     t = np.concatenate([b["t_s"] for b in drive])
     v = np.concatenate([b["voltage_V"] for b in drive])
     assert np.max(np.abs(v)) <= 400.0 + 1e-9  # never beyond the limit
