@@ -29,8 +29,11 @@ velocity:
   current is ``i - C_eq dv/dt = theta deta/dt``, so ``U_k^self = (phi(L)/theta)(I_k - j k w C_eq V_k)``.
   A fish with no vibrometer and no load cell gets the same Lighthill thrust from this;
 * **load-cell** thrust as the paper measures it: mean deflection during the window minus the
-  average of the pre and post baselines (each ``baseline_s`` long, with the drive off), times
-  the transducer stiffness.  A linear drift cancels.
+  baseline (pre and post, each ``baseline_s`` long, with the drive off), times the transducer
+  stiffness.  The baseline is the line through the two baselines' means, read at the window's mean
+  time, so a linear drift cancels even though the window (after ``settle_s``) is not centred
+  between them; the paper's plain average would leave ``drift x offset`` (2 nm/s x 1.5 s x
+  6.8 kN/m = 20 uN on the simulated rig).  With the pre baseline only, its mean is used.
 
 Windows
 -------
@@ -218,6 +221,15 @@ def analyse_window(
                 tip_phase_rad=float(np.angle(Uk[0] / V[0])) if abs(V[0]) > 0 else math.nan,
             )
     return out
+
+
+def _baseline_at(baselines: list[tuple[float, float]], t: float) -> float:
+    """The load cell's zero at time ``t`` from (mean time, mean deflection) of its baselines:
+    the line through two of them (a linear drift cancels), or the value of one."""
+    if len(baselines) == 1 or baselines[-1][0] <= baselines[0][0]:
+        return float(np.mean([x for _, x in baselines]))
+    (t0, x0), (t1, x1) = baselines[0], baselines[-1]
+    return x0 + (x1 - x0) * (t - t0) / (t1 - t0)
 
 
 class _Channel:
@@ -509,21 +521,20 @@ class StreamEstimator:
             harmonics=self.config.harmonics,
         )
         thrust_lc, n_base = math.nan, 0
-        baselines = []
+        baselines: list[tuple[float, float]] = []  # (mean time, mean deflection)
         for win in (p.pre, p.post):
             if win is None:
                 continue
-            _, x = self.loadcell.slice(*win)
-            x = x[np.isfinite(x)]
-            if x.size >= 10:
-                baselines.append(float(np.mean(x)))
-        _, x_on = self.loadcell.slice(p.t_start, p.t_end)
-        x_on = x_on[np.isfinite(x_on)]
-        if baselines and x_on.size >= 10:
+            tb, x = self.loadcell.slice(*win)
+            ok = np.isfinite(x)
+            if np.count_nonzero(ok) >= 10:
+                baselines.append((float(np.mean(tb[ok])), float(np.mean(x[ok]))))
+        t_on, x_on = self.loadcell.slice(p.t_start, p.t_end)
+        ok = np.isfinite(x_on)
+        if baselines and np.count_nonzero(ok) >= 10:
             n_base = len(baselines)
-            thrust_lc = (
-                float(np.mean(x_on)) - float(np.mean(baselines))
-            ) * self.config.loadcell_stiffness_n_per_m
+            base = _baseline_at(baselines, float(np.mean(t_on[ok])))
+            thrust_lc = (float(np.mean(x_on[ok])) - base) * self.config.loadcell_stiffness_n_per_m
         return Estimate(
             t_start=p.t_start,
             t_end=p.t_end,

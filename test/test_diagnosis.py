@@ -17,7 +17,7 @@ from piezofin_ros.diagnosis.attribute import diagnose, summary_json
 from piezofin_ros.diagnosis.data import DataError, from_csv
 from piezofin_ros.diagnosis.model import LIBRARY, Augmented, ModelError, load_augmented
 from piezofin_ros.diagnosis.stages import stage_gaps
-from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, simulate_case
+from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, simulate_case, swim_speed_m_s
 from piezofin_ros.fin import load_fin
 from piezofin_ros.rig import RigConfig, SimulatedRig
 from piezofin_ros.steady import harmonic_balance
@@ -197,6 +197,7 @@ SUBSET = [
     Case("M8507-P1", {"dielectric_loss": 0.05}, 103),
     Case("M8528-P1", {"drag_offset": 2.5}, 104),
     Case("M8514-P1", {"loadcell_offset": -1.0}, 105),
+    Case("M8507-P1", {"swim_speed": 0.35}, 106),
 ]
 
 
@@ -208,6 +209,18 @@ def test_blind_attribution_of_single_effects(case: Case) -> None:
     assert d.named == tuple(case.effects)
     assert d.shrink >= 0.8
     assert d.chosen is not None and d.chosen.chi2_test < 0.05 * d.nominal.chi2_test
+
+
+def test_swim_speed_is_fitted_in_m_per_s_and_unseen_below_its_threshold() -> None:
+    """U^2 w_x^2 against w_t^2 is (U / (2 pi f phi/phi'))^2: the generator's reduced speed. At 0.3
+    of the resonance's scale U is named and fitted; at 0.08 it hides in the load-cell noise."""
+    fin = load_fin("M8528-P1")
+    seen = diagnose(simulate_case(Case("M8528-P1", {"swim_speed": 0.3}, 21)).trials, fin)
+    assert seen.named == ("swim_speed",) and seen.chosen is not None
+    fitted = seen.chosen.model.parameters()["swim_speed"]["U"]
+    assert fitted == pytest.approx(swim_speed_m_s(fin, 0.3), rel=0.05)
+    hidden = diagnose(simulate_case(Case("M8528-P1", {"swim_speed": 0.08}, 21)).trials, fin)
+    assert hidden.verdict == "no gap"
 
 
 def test_out_of_library_effect_is_unexplained() -> None:

@@ -196,7 +196,7 @@ class Leakage(Effect):
 class SwimSpeed(Effect):
     name = "swim_speed"
     title = "flow past the fin (U != 0 in Eq. 19)"
-    params = (Param("U", "m/s", 0.0, 0.0, 2.0, 0.05, "free-stream speed"),)
+    params = (Param("U", "m/s", 0.0, 0.0, 5.0, 0.05, "free-stream speed"),)
 
     def apply(self, k: Knobs, op: OperatingPoint, p: Sequence[float]) -> None:
         k.swim_speed = p[0]
