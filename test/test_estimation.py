@@ -87,12 +87,13 @@ def test_a_linear_load_cell_drift_cancels(m8528: Fin) -> None:
     """The window starts after the transient, so it is not centred between the baselines: the
     paper's plain average of pre and post would leave drift x 1.5 s x stiffness (0.5 mN here)."""
     cfg = RigConfig(loadcell_drift_m_per_s=5e-8)
-    estimates, rig = run_protocol(m8528, [(2.0, 400.0), (9.9, 800.0)], cfg)
+    estimates, _ = run_protocol(m8528, [(2.0, 400.0), (9.9, 800.0)], cfg)
     finals = [e for e in estimates if e.final]
     assert len(finals) == 2
     for e in finals:
         n_on = (e.t_end - e.t_start) * cfg.sample_rate_hz
-        sigma_t = cfg.loadcell_stiffness * cfg.displacement_noise_m * math.sqrt(1 / n_on + 1 / (5 * cfg.sample_rate_hz))
+        n_base = 5.0 * cfg.sample_rate_hz
+        sigma_t = cfg.loadcell_stiffness * cfg.displacement_noise_m * math.sqrt(1 / n_on + 1 / n_base)
         assert abs(e.thrust_loadcell_n - e.thrust_n) <= 5 * sigma_t + 3e-3 * e.thrust_n, (e, sigma_t)
     leak = 5e-8 * 1.0 * cfg.loadcell_stiffness  # what even 1 s of asymmetry would leave
     assert leak > 20 * sigma_t

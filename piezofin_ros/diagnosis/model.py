@@ -28,7 +28,7 @@ the nominal model is the augmented model with no effect.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -481,28 +481,30 @@ def steady_knobs(
     """The knobs (arrays shaped like ``f``) at the steady state, and its modal amplitude ``A``.
 
     ``f`` and ``vpp`` are broadcast arrays; ``measured``, if given, the drive that moves the fin.
+    With amplitude-dependent effects ``A`` solves ``A = A_lin(knobs(A))`` (the describing function):
+    an under-relaxed fixed-point iteration, and where it does not settle (a softening spring's
+    jump region, where several amplitudes are steady), the *lowest* root, found by a scan in log A
+    and bisection: the steady state a trial reaches when it starts from rest, as the protocol does.
     """
-    w = 2 * math.pi * f
     phi = fin.phi_tip
     amp_dep = any(e.amplitude_dependent for e, _ in effects)
 
-    def knobs(x: FloatArray) -> Knobs:
+    def knobs(ff: FloatArray, vv: FloatArray, x: FloatArray) -> Knobs:
         k = Knobs()
-        op = OperatingPoint(fin, f, vpp, x)
+        op = OperatingPoint(fin, ff, vv, x)
         for e, p in effects:
             e.apply(k, op, p)
         return k
 
-    def solve(k: Knobs) -> FloatArray:
-        return solve_amplitude(*_coefficients(fin, w, k, vpp, measured))
+    def solve(ff: FloatArray, vv: FloatArray, mm: FloatArray | None, amp: FloatArray) -> FloatArray:
+        """The linear steady amplitude with the knobs frozen at amplitude ``amp``."""
+        k = knobs(ff, vv, phi * amp)
+        return solve_amplitude(*_coefficients(fin, 2 * math.pi * ff, k, vv, mm))
 
-    x = np.zeros_like(f)
-    k = knobs(x)
-    amp = solve(k)
+    amp = solve(f, vpp, measured, np.zeros_like(f))
     if amp_dep:
         for _ in range(iterations):
-            k = knobs(phi * amp)
-            new = solve(k)
+            new = solve(f, vpp, measured, amp)
             ok = (new > 0) & (amp > 0)
             # under-relaxed in log A: softening branches overshoot otherwise
             nxt = np.where(
@@ -512,11 +514,44 @@ def steady_knobs(
             amp = nxt
             if done:
                 break
-        k = knobs(phi * amp)
+        bad = ~(np.abs(solve(f, vpp, measured, amp) - amp) <= 1e-6 * amp)
+        if np.any(bad):
+            amp = np.array(amp, dtype=float)
+            mm = None if measured is None else np.broadcast_to(measured, f.shape)[bad]
+            amp[bad] = _lowest_root(
+                lambda x, j: solve(f[bad][j], vpp[bad][j], None if mm is None else mm[j], x), amp[bad]
+            )
+    k = knobs(f, vpp, phi * amp)
     kk = Knobs(
         **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
     )
     return kk, amp
+
+
+def _lowest_root(
+    g: Callable[[FloatArray, Any], FloatArray], guess: FloatArray, span: tuple[float, float] = (1e-4, 1e3)
+) -> FloatArray:
+    """Lowest ``A > 0`` with ``g(A) = A`` per point (``g(x, j)``: ``x`` shaped like the index ``j``).
+
+    Scanned on a log grid ``span`` x ``guess`` for the first crossing of ``log g(A) - log A`` from
+    above, then bisected in log A.  Points with no crossing keep ``guess``.
+    """
+    n = guess.size
+    grid = guess[:, None] * np.geomspace(*span, 72)[None, :]
+    rows = np.repeat(np.arange(n), grid.shape[1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log(g(grid.ravel(), rows)).reshape(grid.shape) - np.log(grid)
+    down = (r[:, :-1] > 0) & (r[:, 1:] <= 0)
+    found = down.any(axis=1)
+    first = np.argmax(down, axis=1)
+    idx = np.arange(n)
+    lo, hi = np.log(grid[idx, first]), np.log(grid[idx, first + 1])
+    for _ in range(40):  # the bracket is a factor 1.2 wide: 40 halvings reach round-off
+        mid = 0.5 * (lo + hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            above = np.log(g(np.exp(mid), idx)) > mid
+        lo, hi = np.where(above, mid, lo), np.where(above, hi, mid)
+    return np.where(found, np.exp(0.5 * (lo + hi)), guess)
 
 
 def _drive(k: Knobs, vpp: FloatArray, measured: FloatArray | None) -> FloatArray:
