@@ -267,6 +267,15 @@ def test_out_of_library_effect_is_unexplained() -> None:
     assert "no candidate closes the gap" in d.notes[0]
 
 
+def test_a_gap_only_in_the_held_out_trials_is_unexplained_and_says_why() -> None:
+    """An amplifier that clips only at 800 Vpp and the highest frequencies: the 400/600 Vpp training
+    trials show nothing to learn from, and the report says so instead of naming a guess."""
+    g = simulate_case(Case("M8528-P1", {"amplifier_limit": 0.8}, 679260029))
+    d = diagnose(g.trials, FIN)
+    assert d.verdict == "unexplained" and not d.confident
+    assert "the training trials show no gap" in d.notes[1]
+
+
 def test_summary_is_json_and_model_reloads() -> None:
     g = simulate_case(Case("M8528-P1", {"resonance_offset": 0.85}, 9))
     d = diagnose(g.trials, FIN)

@@ -279,7 +279,7 @@ def diagnose(
     res = resonances(trials, nominal_model)
     test, test_text = split(trials)
     train, held = trials.subset(~test), trials.subset(test)
-    c_tr0, _ = chi2(nominal_model, train)
+    c_tr0, n_tr = chi2(nominal_model, train)
     c_te0, n_te = chi2(nominal_model, held)
     pen = math.log(max(n_te, 2))
     nominal = Candidate((), nominal_model, c_tr0, c_te0, n_te, 0, c_te0)
@@ -330,6 +330,13 @@ def diagnose(
             f"no candidate closes the gap: the best, {best.label}, leaves a held-out chi2 of "
             f"{best.chi2_test:.0f} over {best.n_test} residuals (nominal model: {c_te0:.0f})"
         )
+        if n_tr and float(stats.chi2.sf(c_tr0, n_tr)) >= 1e-3:
+            notes.append(
+                f"the training trials show no gap (nominal chi2 {c_tr0:.0f} over {n_tr} residuals; "
+                f"{test_text}): the gap is only in the held-out trials, so no effect could be learnt "
+                "from the others. Trials between the training and the held-out conditions, where the "
+                "gap starts, would let it be fitted"
+            )
     ambiguous = []
     experiments = []
     if chosen is not None:
