@@ -197,7 +197,7 @@ def draw_strength(name: str, rng: np.random.Generator) -> float:
         "dielectric_loss": u(0.02, 0.1),
         "leakage": u(0.02, 0.2),  # uS
         # U / (2 pi f_water phi/phi'): U^2 w_x^2 / w_t^2 at the linear resonance, the thrust lost there is
-        # this squared (more below it). Below ~0.17 (0.7-1 m/s on the presets) the U term hides in the
+        # this squared (more below it). Below ~0.12-0.17 (0.5-1 m/s on the presets) the U term hides in the
         # load-cell noise: these fins make < 0.04 mN below 2 Hz, where it matters most.
         "swim_speed": u(0.2, 0.4),
         "amplifier_limit": u(0.45, 0.8),  # clip at this fraction of the highest current demand
