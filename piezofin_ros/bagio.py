@@ -15,9 +15,11 @@ the ``rosbags`` type store, so tests can check the writer against an independent
 
 from __future__ import annotations
 
+import io
 import itertools
 import logging
 import math
+import mmap
 import os
 import struct
 from collections.abc import Callable, Iterable, Iterator
@@ -25,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
@@ -205,11 +208,14 @@ def read_messages(
 ) -> Iterator[BagMessage]:
     """Serialised messages of a bag in file (recording) order, optionally only ``topics``.
 
-    The file is read record by record, so a damaged bag gives everything before the damage: a
-    file whose writer was killed (no summary, a cut chunk), a chunk that fails its CRC or does not
-    decompress (skipped, reading goes on), a cut or garbled record (reading stops).  Each damage is
-    passed to ``on_damage`` (default: a logged warning).  Raises :class:`BagError` naming the file
-    when it is missing, not an MCAP file, or damaged before its first message.
+    The file is read record by record, so a damaged bag gives everything it still holds: a file
+    whose writer was killed (no summary, a cut chunk) gives everything before the cut; a chunk
+    that fails its CRC or does not decompress is skipped; after a cut, garbled, deleted or
+    duplicated byte range, reading resumes at the next chunk that passes its CRC (a chunk seen
+    before is not read twice).  Channels whose definition was lost with a chunk are taken from
+    the file's summary when it is intact.  Each damage is passed to ``on_damage`` (default: a
+    logged warning).  Raises :class:`BagError` naming the file when it is missing, not an MCAP
+    file, or has no readable message.
     """
     path = Path(path)
     wanted = set(topics) if topics is not None else None
@@ -227,19 +233,19 @@ def read_messages(
             raise BagError(f"{path}: not a readable MCAP file (empty)")
         if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise BagError(f"{path}: not a readable MCAP file (no MCAP magic at the start)")
-        f.seek(0)
-        reader = StreamReader(f, emit_chunks=True, record_size_limit=size)
         schemas: dict[int, str] = {}
         channels: dict[int, tuple[str, int]] = {}
+        summary_channels = _summary_channels(f)
+        seen_chunks: set[tuple[int, int, int, int]] = set()
         n = 0
         offset = 0
+        first_damage: str | None = None
 
         def damaged(reason: str, fatal: bool) -> None:
-            d = Damage(path, offset, size, reason, n, fatal)
-            if fatal and n == 0:
-                raise BagError(f"{path}: not a readable MCAP file ({reason} at byte {offset})")
+            nonlocal first_damage
+            first_damage = first_damage or f"{reason} at byte {offset}"
             if on_damage is not None:
-                on_damage(d)
+                on_damage(Damage(path, offset, size, reason, n, fatal))
 
         def take(record: Any) -> BagMessage | None:
             if isinstance(record, Schema):
@@ -248,49 +254,116 @@ def read_messages(
                 channels[record.id] = (record.topic, record.schema_id)
             elif isinstance(record, Message):
                 ch = channels.get(record.channel_id)
+                name = None
+                if ch is not None:
+                    name = schemas.get(ch[1], "")
+                elif record.channel_id in summary_channels:
+                    ch, name = summary_channels[record.channel_id]
                 if ch is not None and (wanted is None or ch[0] in wanted):
-                    return BagMessage(ch[0], schemas.get(ch[1], ""), record.log_time, record.data)
+                    return BagMessage(ch[0], name or "", record.log_time, record.data)
             return None
 
-        records = iter(reader.records)
-        while True:
-            offset = _position(reader, f)
-            try:
-                record = next(records)
-            except StopIteration:
-                break
-            except Exception as exc:  # any corruption ends the readable part, never the caller
-                damaged(_why(exc), fatal=True)
-                break
-            if isinstance(record, Chunk):
-                usize = record.uncompressed_size
-                if usize > _MAX_CHUNK or usize > 1000 * len(record.data) + 4096:
-                    damaged(f"chunk: implausible size {usize} bytes", fatal=False)
-                    continue
+        base: int | None = 0  # where the current reader started
+        while base is not None:
+            f.seek(base)
+            reader = StreamReader(f, skip_magic=base > 0, emit_chunks=True, record_size_limit=size)
+            records = iter(reader.records)
+            resume: int | None = None
+            while True:
+                offset = base + _position(reader)
                 try:
-                    inner = breakup_chunk(record, validate_crc=True)
-                except Exception as exc:  # CRC, zstd, lz4, framing: skip this chunk
-                    damaged(f"chunk: {_why(exc)}", fatal=False)
-                    continue
-                for r in inner:
-                    m = take(r)
+                    record = next(records)
+                except StopIteration:
+                    break
+                except Exception as exc:  # any corruption ends this stretch, never the caller
+                    resume = _next_chunk(f, offset + 1, size, seen_chunks)
+                    if resume is None:
+                        damaged(_why(exc), fatal=True)
+                    else:
+                        damaged(f"{_why(exc)}; resumed at the next intact chunk, byte {resume}", fatal=False)
+                    break
+                if isinstance(record, Chunk):
+                    key = _chunk_key(record)
+                    if key in seen_chunks:
+                        damaged("chunk: a copy of one already read (duplicated bytes), skipped", fatal=False)
+                        continue
+                    usize = record.uncompressed_size
+                    if usize > _MAX_CHUNK or usize > 1000 * len(record.data) + 4096:
+                        damaged(f"chunk: implausible size {usize} bytes", fatal=False)
+                        continue
+                    try:
+                        inner = breakup_chunk(record, validate_crc=True)
+                    except Exception as exc:  # CRC, zstd, lz4, framing: skip this chunk
+                        damaged(f"chunk: {_why(exc)}", fatal=False)
+                        continue
+                    seen_chunks.add(key)
+                    for r in inner:
+                        m = take(r)
+                        if m is not None:
+                            n += 1
+                            yield m
+                else:
+                    m = take(record)
                     if m is not None:
                         n += 1
                         yield m
-            else:
-                m = take(record)
-                if m is not None:
-                    n += 1
-                    yield m
+            base = resume
+        if n == 0 and first_damage is not None:
+            raise BagError(f"{path}: not a readable MCAP file ({first_damage})")
+
+
+def _chunk_key(chunk: Chunk) -> tuple[int, int, int, int]:
+    return (chunk.message_start_time, chunk.message_end_time, chunk.uncompressed_size, chunk.uncompressed_crc)
+
+
+def _next_chunk(f: BinaryIO, start: int, size: int, seen: set[tuple[int, int, int, int]]) -> int | None:
+    """Offset of the first record at or after ``start`` that is a chunk passing its CRC (and not one
+    already read), or None.  Chunk records begin with opcode 0x06 and a little-endian u64 length."""
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        pos = start - 1
+        while True:
+            pos = data.find(b"\x06", pos + 1)
+            if pos < 0 or pos + 9 > size:
+                return None
+            length = int.from_bytes(data[pos + 1 : pos + 9], "little")
+            if not 40 <= length <= size - pos - 9:
+                continue
+            try:
+                raw = io.BytesIO(data[pos : pos + 9 + length])
+                record = next(iter(StreamReader(raw, skip_magic=True, emit_chunks=True).records))
+                if not isinstance(record, Chunk) or not record.uncompressed_crc:
+                    continue
+                if _chunk_key(record) in seen:
+                    continue
+                if record.uncompressed_size > min(_MAX_CHUNK, 1000 * len(record.data) + 4096):
+                    continue
+                breakup_chunk(record, validate_crc=True)
+            except Exception:  # not a chunk after all: keep looking
+                continue
+            return pos
+
+
+def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str]]:
+    """Channel id -> ((topic, schema id), schema name) from the summary, if the file has an intact one."""
+    try:
+        f.seek(0)
+        summary = make_reader(f).get_summary()
+    except Exception:  # no summary (a killed writer) or a damaged one: channels come from the chunks
+        return {}
+    finally:
+        f.seek(0)
+    if summary is None:
+        return {}
+    names = {sid: s.name for sid, s in summary.schemas.items()}
+    return {cid: ((c.topic, c.schema_id), names.get(c.schema_id, "")) for cid, c in summary.channels.items()}
 
 
 _MAX_CHUNK = 1 << 30  # bytes: larger uncompressed chunks are corruption, not data
 
 
-def _position(reader: Any, f: BinaryIO) -> int:
-    stream = getattr(reader, "_stream", None)
-    count = getattr(stream, "count", None)
-    return int(count) if isinstance(count, int) else f.tell()
+def _position(reader: Any) -> int:
+    """Bytes the reader has consumed since it started."""
+    return int(reader._stream.count)
 
 
 def _why(exc: BaseException) -> str:

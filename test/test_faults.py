@@ -33,16 +33,25 @@ def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return base_bag(tmp_path_factory.mktemp("base") / "base.mcap")
 
 
-def chunk_ends(path: Path) -> list[tuple[int, int]]:
-    """``(end offset, messages inside)`` of each chunk, read independently of the suite's reader."""
+def chunk_spans(path: Path) -> list[tuple[int, int, int]]:
+    """``(start, end, messages inside)`` of each chunk record, read independently of the suite's reader."""
     out = []
     with open(path, "rb") as f:
         reader = StreamReader(f, emit_chunks=True)
-        for record in reader.records:
+        records = iter(reader.records)
+        while True:
+            start = reader._stream.count
+            record = next(records, None)
+            if record is None:
+                break
             if isinstance(record, Chunk):
                 n = sum(isinstance(r, Message) for r in breakup_chunk(record))
-                out.append((reader._stream.count, n))
+                out.append((start, reader._stream.count, n))
     return out
+
+
+def chunk_ends(path: Path) -> list[tuple[int, int]]:
+    return [(end, n) for _, end, n in chunk_spans(path)]
 
 
 def test_a_cut_bag_keeps_every_complete_chunk(base: Path, tmp_path: Path) -> None:
@@ -63,6 +72,38 @@ def test_a_cut_bag_keeps_every_complete_chunk(base: Path, tmp_path: Path) -> Non
         assert got == all_messages[: len(got)]
         if cut < ends[-1][0]:
             assert damages and damages[-1].fatal and str(path) in str(damages[-1])
+
+
+@pytest.mark.parametrize("kind", ["delete", "duplicate", "garbage"])
+def test_reading_resumes_at_the_next_intact_chunk(base: Path, tmp_path: Path, kind: str) -> None:
+    """A deleted, duplicated or garbled byte range costs the chunks it touches and nothing more:
+    reading resumes at the next chunk that passes its CRC, and a duplicated chunk is read once."""
+    data = base.read_bytes()
+    spans = chunk_spans(base)
+    everything = list(read_messages(base))
+    firsts = np.cumsum([0] + [n for _, _, n in spans])
+    rng = np.random.default_rng(11)
+    for trial in range(12):
+        k = int(rng.integers(1, len(spans) - 2))  # damage inside chunk k, away from the first and last
+        start, end, _ = spans[k]
+        i = int(rng.integers(start + 1, end - 200))
+        j = i + int(rng.integers(1, 200))
+        if kind == "delete":
+            damaged = data[:i] + data[j:]
+        elif kind == "duplicate":
+            damaged = data[:j] + data[i:j] + data[j:]
+        else:
+            damaged = data[:i] + rng.integers(0, 256, size=j - i, dtype=np.uint8).tobytes() + data[j:]
+        path = tmp_path / f"{kind}_{trial}.mcap"
+        path.write_bytes(damaged)
+        notes: list = []
+        got = list(read_messages(path, on_damage=notes.append))
+        lost = everything[firsts[k] : firsts[k + 1]]
+        expected = everything[: firsts[k]] + everything[firsts[k + 1] :]
+        if kind == "duplicate" and got == everything:
+            continue  # the copy landed where it spoils nothing the CRC checks
+        assert got == expected, (trial, i, j, len(got), len(expected))
+        assert notes and not any(n.fatal for n in notes) and len(lost) > 0
 
 
 def test_fuzzed_bags_never_crash_or_hang(tmp_path: Path) -> None:
