@@ -231,12 +231,16 @@ def read_messages(
         size = os.fstat(f.fileno()).st_size
         if size == 0:
             raise BagError(f"{path}: not a readable MCAP file (empty)")
+        seen_chunks: set[tuple[int, int, int, int]] = set()
+        base: int | None = 0  # where the current reader starts
         if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise BagError(f"{path}: not a readable MCAP file (no MCAP magic at the start)")
+            # a damaged start: an MCAP file only if a chunk further on passes its CRC
+            base = _next_chunk(f, 0, size, seen_chunks)
+            if base is None:
+                raise BagError(f"{path}: not a readable MCAP file (no MCAP magic at the start)")
         schemas: dict[int, str] = {}
         channels: dict[int, tuple[str, int]] = {}
         summary_channels = _summary_channels(f)
-        seen_chunks: set[tuple[int, int, int, int]] = set()
         n = 0
         offset = 0
         first_damage: str | None = None
@@ -263,7 +267,8 @@ def read_messages(
                     return BagMessage(ch[0], name or "", record.log_time, record.data)
             return None
 
-        base: int | None = 0  # where the current reader started
+        if base:
+            damaged(f"no MCAP magic at the start; resumed at the first intact chunk, byte {base}", False)
         while base is not None:
             f.seek(base)
             reader = StreamReader(f, skip_magic=base > 0, emit_chunks=True, record_size_limit=size)

@@ -106,6 +106,24 @@ def test_reading_resumes_at_the_next_intact_chunk(base: Path, tmp_path: Path, ki
         assert notes and not any(n.fatal for n in notes) and len(lost) > 0
 
 
+def test_a_bag_with_a_broken_start_keeps_its_chunks(base: Path, tmp_path: Path) -> None:
+    """Magic and header overwritten: still an MCAP file, as its chunks pass their CRCs; random bytes
+    of the same size are refused, naming the file."""
+    data = base.read_bytes()
+    spans = chunk_spans(base)
+    everything = list(read_messages(base))
+    broken = tmp_path / "broken_start.mcap"
+    broken.write_bytes(bytes(40) + data[40:])
+    assert spans[0][0] > 40
+    notes: list = []
+    assert list(read_messages(broken, on_damage=notes.append)) == everything
+    assert "no MCAP magic" in notes[0].reason and not notes[0].fatal
+    noise = tmp_path / "noise.mcap"
+    noise.write_bytes(np.random.default_rng(5).integers(0, 256, size=len(data), dtype=np.uint8).tobytes())
+    with pytest.raises(BagError, match=r"noise\.mcap: not a readable MCAP file"):
+        list(read_messages(noise))
+
+
 def test_fuzzed_bags_never_crash_or_hang(tmp_path: Path) -> None:
     """1000 mutated bags; each read in full, then given to one of the estimator's replay, the
     diagnosis's scan or the whole diagnosis data path (in turn)."""
