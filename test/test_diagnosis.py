@@ -13,7 +13,7 @@ import pytest
 import yaml
 from numpy.testing import assert_allclose
 
-from piezofin_ros.diagnosis.attribute import diagnose, summary_json
+from piezofin_ros.diagnosis.attribute import diagnose, largest_move, summary_json
 from piezofin_ros.diagnosis.data import DataError, from_csv
 from piezofin_ros.diagnosis.model import (
     LIBRARY,
@@ -258,6 +258,26 @@ def test_swim_speed_is_fitted_in_m_per_s_and_unseen_below_its_threshold() -> Non
     assert fitted == pytest.approx(swim_speed_m_s(fin, 0.3), rel=0.05)
     hidden = diagnose(simulate_case(Case("M8528-P1", {"swim_speed": 0.08}, 21)).trials, fin)
     assert hidden.verdict == "no gap"
+
+
+def test_two_hidden_effects_are_both_named() -> None:
+    hidden = {"dielectric_loss": 0.076, "stiffness_nonlinearity": 0.22}
+    g = simulate_case(Case("M8528-P1", hidden, 1346491434))
+    d = diagnose(g.trials, FIN)
+    assert d.verdict == "explained"
+    assert set(d.named) == {"dielectric_loss", "stiffness_nonlinearity"}
+    assert d.shrink >= 0.9
+    assert all(largest_move(d.chosen.model, e, g.trials) > 3.0 for e in d.named)  # type: ignore[union-attr]
+
+
+def test_a_tiny_partner_that_only_mends_a_form_is_not_named() -> None:
+    """A 20 % softening Duffing spring: its describing function leaves chi2/n 5.9 at 800 Vpp, and a
+    0.1 % linear stiffness offset halves that, moving no prediction by 3 sigma. One cause, named alone."""
+    g = simulate_case(Case("M8528-P1", {"stiffness_nonlinearity": -0.1975}, 58644893))
+    d = diagnose(g.trials, FIN)
+    assert d.verdict == "explained" and d.named == ("stiffness_nonlinearity",)
+    assert "not a second cause" in d.notes[0] and "resonance_offset" in d.notes[0]
+    assert d.shrink >= 0.8
 
 
 def test_out_of_library_effect_is_unexplained() -> None:

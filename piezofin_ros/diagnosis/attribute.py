@@ -20,6 +20,10 @@ Procedure (:func:`diagnose`)
      at least ``close_fraction`` (95 %) of the held-out ``chi^2`` and leaves a reduced ``chi^2``
      below ``max_reduced_chi2`` (3): "explained", naming it;
    * otherwise "unexplained", with the best candidate quoted only as the least bad;
+   * a pair is named only if each member is material: taking it out (the other kept as fitted) must
+     move some trial's prediction by more than ``material_sigma`` (3) of its noise; a member that
+     does not is a correction to its partner's form (a describing function's error at large
+     amplitude), not a second cause, and the partner alone is named, with a note;
    * candidates whose criterion is within ``ambiguity`` (6, a likelihood ratio of 20) of the best
      "cannot be told apart on this data", and the report proposes the operating point where
      their fitted predictions differ most in units of the expected noise.
@@ -232,6 +236,30 @@ def separating_experiment(
     return Experiment(float(ff[best[1]]), float(vv[best[1]]), best[2], best[0], a.label, b.label)
 
 
+def largest_move(model: Augmented, effect: str, trials: Trials) -> float:
+    """The largest change of any prediction, in units of its noise, when ``effect`` is taken out of
+    ``model`` (the other effects kept as fitted)."""
+    rest = Augmented(
+        model.fin,
+        tuple(e for e in model.effects if e != effect),
+        tuple(v for e, v in zip(model.effects, model.values, strict=True) if e != effect),
+    )
+    full, without = predicted_channels(model, trials), predicted_channels(rest, trials)
+    moves = [0.0]
+    for name in FIT_CHANNELS:
+        d = without[name] - full[name]
+        if name == "tip_phase_rad":
+            d = _wrap(d)
+        z = np.abs(d) / trials.sigma[name]
+        if np.any(np.isfinite(z)):
+            moves.append(float(np.nanmax(z)))
+    return max(moves)
+
+
+def _params_text(model: Augmented, effect: str) -> str:
+    return ", ".join(f"{k} = {v:.3g}" for k, v in model.parameters()[effect].items())
+
+
 @dataclass(frozen=True)
 class Diagnosis:
     fin: Fin
@@ -269,6 +297,7 @@ def diagnose(
     ambiguity: float = 6.0,
     close_fraction: float = 0.95,
     max_reduced_chi2: float = 3.0,
+    material_sigma: float = 3.0,
     progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     """Where, which and how far; see the module docstring."""
@@ -320,6 +349,22 @@ def diagnose(
     fitting = [c for c in singles if adequate(c)] or [c for c in cands if len(c.effects) == 2 and adequate(c)]
     best = fitting[0] if fitting else cands[0]
     notes: list[str] = []
+    if fitting and len(best.effects) == 2:
+        # A pair names two causes only if each is material: without it (the other kept as fitted),
+        # some trial's prediction must move by more than `material_sigma` of its noise.  Otherwise the
+        # small member is a correction to the other's form (e.g. a describing function's error at
+        # large amplitude), not a second cause.
+        moves = {e: largest_move(best.model, e, trials) for e in best.effects}
+        minor = [e for e in best.effects if moves[e] < material_sigma]
+        if len(minor) == 1:
+            (keep,) = [e for e in best.effects if e != minor[0]]
+            pair, best = best, by_name[keep]
+            notes.append(
+                f"{minor[0]} ({_params_text(pair.model, minor[0])}) lowers the held-out chi2 of {keep} from "
+                f"{best.chi2_test:.0f} to {pair.chi2_test:.0f} but moves no prediction by more than "
+                f"{moves[minor[0]]:.1f} sigma: a correction to the form of {keep}, not a second cause, so it "
+                "is not named"
+            )
     if not has_gap and float(stats.chi2.sf(c_te0, n_te)) >= 1e-3:
         verdict, chosen = "no gap", None
     elif fitting:

@@ -68,6 +68,7 @@ def text(d: Diagnosis) -> str:
         )
         titles = "; ".join(effect_class(n).title for n in d.chosen.effects)
         lines.append(f"**Explained by {d.chosen.label}** ({titles}). Refitted on all trials: {params}.")
+        lines += [f"\nNote: {n}." for n in d.notes]
         if d.ambiguous:
             lines += ["", "Cannot be told apart on this data (criterion within 6 of the chosen):"]
             for c in d.ambiguous:
