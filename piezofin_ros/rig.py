@@ -73,6 +73,24 @@ class DriveLimits:
             )
 
 
+def loosened(new: DriveLimits, old: DriveLimits) -> list[str]:
+    """The limits ``new`` relaxes against ``old`` (empty: every limit as tight or tighter).
+
+    Tighter means: a lower voltage cap, a slower slew, a shorter watchdog, a narrower band.
+    """
+    out = []
+    for name, looser in (
+        ("voltage_pp_max", new.voltage_pp_max > old.voltage_pp_max),
+        ("slew_vpp_per_s", new.slew_vpp_per_s > old.slew_vpp_per_s),
+        ("command_timeout_s", new.command_timeout_s > old.command_timeout_s),
+        ("frequency_min_hz", new.frequency_min_hz < old.frequency_min_hz),
+        ("frequency_max_hz", new.frequency_max_hz > old.frequency_max_hz),
+    ):
+        if looser:
+            out.append(f"{name} {getattr(old, name):g} -> {getattr(new, name):g}")
+    return out
+
+
 @dataclass(frozen=True)
 class DriveCommand:
     """A checked actuation command: sine at ``frequency_hz`` and ``voltage_pp`` (V), or off."""
@@ -343,6 +361,28 @@ class SimulatedRig:
             self._last_trial_command = cmd
             self.drive.apply(OFF, self.t)
         return True, reason
+
+    def tighten(self, limits: DriveLimits) -> str:
+        """Apply tighter limits now (an operator lowering the cap on a running fin); returns what
+        happened.  A drive above the new cap ramps down to it at the (new) slew rate; a drive or a
+        protocol trial outside the new band ramps to zero.  Raises ``ValueError`` naming every limit
+        that would be relaxed: loosening needs a restart, with the new value checked at start."""
+        looser = loosened(limits, self.drive.limits)
+        if looser:
+            raise ValueError("only tighter limits are taken while running: " + ", ".join(looser))
+        d = self.drive
+        d.limits = limits
+        in_band = limits.frequency_min_hz <= d.frequency_hz <= limits.frequency_max_hz
+        trial_in_band = self.trial is None or (
+            limits.frequency_min_hz <= self.trial.command.frequency_hz <= limits.frequency_max_hz
+        )
+        if (d.target > 0.0 and not in_band) or not trial_in_band:
+            self.stop()
+            return f"limits tightened; {d.frequency_hz:g} Hz is outside the new band: ramping to zero"
+        if d.target > 0.5 * limits.voltage_pp_max:
+            d.target = 0.5 * limits.voltage_pp_max
+            return f"limits tightened; the drive ramps down to {limits.voltage_pp_max:g} Vpp"
+        return "limits tightened"
 
     def _sequence(self) -> None:
         """Protocol mode: switch the drive at the trial's times (at block boundaries)."""

@@ -190,7 +190,7 @@ def test_parameters_have_ranges_and_reasons() -> None:
         result = sim.set_parameters([Parameter("rig.sample_rate_hz", value=5.0)])[0]
         assert not result.successful
         assert result.reason
-        result = sim.set_parameters([Parameter("limits.voltage_pp_max", value=500.0)])[0]
+        result = sim.set_parameters([Parameter("block_s", value=0.1)])[0]
         assert not result.successful
         assert "fixed at start" in result.reason
         with pytest.raises((InvalidParameterValueException, StartupError), match=r"limits\.voltage_pp_max"):
@@ -292,6 +292,63 @@ def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
         v = np.concatenate([msg_block(m)["voltage_V"] for m in drive])
         assert np.max(np.abs(v)) <= 400.0 + 5 * 0.2 * 6  # never beyond 800 Vpp (noise aside)
         assert np.all(np.abs(v[-20:]) < 2.0)  # deactivate ramped it to zero
+
+
+def test_drive_limits_can_be_tightened_live_over_the_parameter_service() -> None:
+    """An operator lowers the cap on a running fin (`ros2 param set /fin_sim limits.voltage_pp_max 400`):
+    the drive ramps down to it at once; relaxing a limit is refused with the reason; a band that
+    leaves the running frequency out ramps the drive to zero."""
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from piezofin_ros.nodes._common import msg_block
+
+    with graph() as g:
+        sim = g.add(FinSim(context=g.context, parameter_overrides=params(realtime_factor=10.0)))
+        operator = g.add(__import__("rclpy").create_node("operator", context=g.context))
+        drive: list[Any] = []
+        operator.create_subscription(Float64MultiArray, "drive", drive.append, QOS_DATA)
+        cmd = operator.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+        client = AsyncParameterClient(operator, "fin_sim")
+        g.spin_until(client.services_are_ready, timeout=10.0, what="fin_sim's parameter services")
+
+        def command(f: float, v: float) -> None:
+            cmd.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": 1.0})))
+
+        def set_limit(name: str, value: float) -> Any:
+            future = client.set_parameters([Parameter(f"limits.{name}", value=value)])
+            g.spin_until(future.done, timeout=10.0, what=f"set {name}")
+            return future.result().results[0]
+
+        def peak_after(t: float) -> float:
+            blocks = [msg_block(m) for m in drive]
+            v = np.concatenate([b["voltage_V"][b["t_s"] > t] for b in blocks])
+            return float(np.max(np.abs(v))) if v.size else math.nan
+
+        def latest_t() -> float:
+            return float(msg_block(drive[-1])["t_s"][-1])
+
+        sim.trigger_configure()
+        sim.trigger_activate()
+        g.spin_until(lambda: cmd.get_subscription_count() >= 1 and len(drive) > 0, timeout=10.0)
+        for _ in range(10):  # 800 Vpp at 5 Hz, kept fed against the watchdog
+            command(5.0, 800.0)
+            g.spin_for(0.05)
+        assert peak_after(latest_t() - 0.25) > 390.0
+        result = set_limit("voltage_pp_max", 400.0)
+        assert result.successful, result.reason
+        t_set = latest_t()
+        for _ in range(10):
+            command(5.0, 800.0)  # still asks for 800: now clamped to 400
+            g.spin_for(0.05)
+        assert peak_after(t_set + 0.15) <= 200.0 + 2.0  # ramped within 0.1 s at 4000 Vpp/s (noise 0.2 V)
+        assert "clamped" in sim.command_log[-1]
+        refused = set_limit("voltage_pp_max", 600.0)
+        assert not refused.successful and "only tighter limits" in refused.reason
+        assert sim.get_parameter("limits.voltage_pp_max").value == 400.0
+        assert set_limit("frequency_max_hz", 4.0).successful  # 5 Hz is now out of band
+        t_band = latest_t()
+        g.spin_for(0.3)
+        assert peak_after(t_band + 0.15) < 2.0
 
 
 def test_fin_sim_protocol_mode_one_command_one_trial() -> None:

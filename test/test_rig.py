@@ -144,3 +144,25 @@ def test_protocol_mode_off_aborts(m8528: Fin) -> None:
     v = np.concatenate([rig.step(50).voltage for _ in range(10)])
     assert np.all(v[-200:] == 0.0)
     assert rig.trial is None
+
+
+def test_limits_tighten_live_and_never_relax(m8528: Fin) -> None:
+    from dataclasses import replace
+
+    from piezofin_ros.rig import Protocol
+
+    rig = SimulatedRig(m8528, QUIET, protocol=Protocol(off_s=0.5, on_s=5.0))
+    rig.command(9.0, 800.0, 1)
+    for _ in range(30):
+        rig.step(50)
+    assert rig.drive.voltage_pp == pytest.approx(800.0)
+    lim = rig.drive.limits
+    assert "ramps down to 500" in rig.tighten(replace(lim, voltage_pp_max=500.0))
+    v = np.concatenate([rig.step(50).voltage for _ in range(10)])
+    assert np.max(np.abs(v[-300:])) <= 250.0 + 1e-9  # the running trial is clamped too
+    assert np.max(np.abs(np.diff(v))) < (2 * np.pi * 9.0 * 400.0 + 2000.0) / 1000.0  # no step: sine + slew
+    with pytest.raises(ValueError, match=r"voltage_pp_max 500 -> 600.*slew_vpp_per_s"):
+        rig.tighten(replace(rig.drive.limits, voltage_pp_max=600.0, slew_vpp_per_s=1e5))
+    assert "outside the new band" in rig.tighten(replace(rig.drive.limits, frequency_max_hz=8.0))
+    v = np.concatenate([rig.step(50).voltage for _ in range(10)])
+    assert np.all(v[-200:] == 0.0) and rig.trial is None

@@ -135,19 +135,28 @@ def dataclass_params(
     return type(instance)(**{**{f.name: getattr(instance, f.name) for f in fields(instance)}, **values})
 
 
-def freeze_parameters(node: Node) -> None:
+def freeze_parameters(
+    node: Node, live_prefix: str = "", live: Callable[[list[Parameter]], str | None] | None = None
+) -> None:
     """Refuse every runtime parameter change (but ``use_sim_time``), with the reason.
 
     Every value is checked once at start, where it configures the core; changing it under a
-    running simulation, estimator or bag would leave the node half reconfigured.
+    running simulation, estimator or bag would leave the node half reconfigured.  Parameters
+    under ``live_prefix`` go to ``live`` instead, which applies them and returns ``None``, or
+    returns the reason it refuses them.
     """
 
     def callback(params: list[Parameter]) -> SetParametersResult:
+        taken = [p for p in params if live is not None and live_prefix and p.name.startswith(live_prefix)]
         for p in params:
-            if p.name != "use_sim_time":
+            if p.name != "use_sim_time" and all(p.name != q.name for q in taken):
                 return SetParametersResult(
                     successful=False, reason=f"{p.name} is fixed at start; restart the node to change it"
                 )
+        if taken and live is not None:
+            why = live(taken)
+            if why is not None:
+                return SetParametersResult(successful=False, reason=why)
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(callback)

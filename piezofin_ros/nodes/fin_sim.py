@@ -19,10 +19,12 @@ from __future__ import annotations
 import collections
 import math
 import sys
+from dataclasses import fields
 
 from rclpy.context import Context
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
+from rclpy.parameter import Parameter
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
@@ -30,7 +32,7 @@ from std_msgs.msg import Float64MultiArray
 from ..blocks import COMMAND_FIELDS, Block, BlockFormatError
 from ..diagnosis.model import ModelError, load_augmented
 from ..fin import Fin, FinConfigError, load_fin
-from ..rig import HARD_VOLTAGE_PP_MAX, DriveLimits, Protocol, RigConfig, SimulatedRig
+from ..rig import HARD_VOLTAGE_PP_MAX, DriveLimits, Protocol, RigConfig, SimulatedRig, loosened
 from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
@@ -113,7 +115,7 @@ class FinSim(LifecycleNode):
         self._limits = dataclass_params(
             self, "limits", DriveLimits(), LIMIT_RANGES, "drive limits (SI units)"
         )
-        freeze_parameters(self)
+        freeze_parameters(self, "limits.", self._on_limits)
         self._rig: SimulatedRig | None = None
         self._fin: Fin | None = None
         self._timer = None
@@ -219,6 +221,25 @@ class FinSim(LifecycleNode):
             self._log_command(reason)
         else:
             self.command_counts["accepted"] += 1
+
+    def _on_limits(self, changes: list[Parameter]) -> str | None:
+        """Drive limits may be tightened while running (an operator lowering the cap); relaxing one
+        needs a restart.  Returns the reason a change is refused, or None once it is applied."""
+        values = {f.name: getattr(self._limits, f.name) for f in fields(DriveLimits)}
+        for p in changes:
+            values[p.name.split(".", 1)[1]] = p.value
+        try:
+            new = DriveLimits(**values)
+        except (TypeError, ValueError) as exc:
+            return f"limits: {exc}"
+        looser = loosened(new, self._limits)
+        if looser:
+            return "only tighter limits are taken while running (restart to relax): " + ", ".join(looser)
+        what = self._rig.tighten(new) if self._rig is not None else "limits tightened"
+        self._limits = new
+        changed = ", ".join(f"{p.name} = {p.value:g}" for p in changes)
+        self.get_logger().warning(f"{changed}: {what}")
+        return None
 
     def _log_command(self, reason: str) -> None:
         """Keep and log the reason; bursts are logged once a second with the count of the rest."""
