@@ -146,7 +146,7 @@ def test_fuzzed_commands_never_take_the_drive_out_of_its_limits() -> None:
 
 def test_bad_node_configuration_names_the_key(tmp_path: Path) -> None:
     """Missing, mistyped and out-of-range values fail at start naming the key; runtime changes of
-    fixed parameters are refused with a reason."""
+    fixed parameters, and relaxed drive limits, are refused with a reason."""
     from piezofin_ros.nodes.controller import Controller
 
     cases = [
@@ -162,7 +162,7 @@ def test_bad_node_configuration_names_the_key(tmp_path: Path) -> None:
             with pytest.raises((StartupError, Exception), match=named):
                 cls(context=g.context, node_name=f"n{k}", parameter_overrides=params(**overrides))
         sim = g.add(FinSim(context=g.context, node_name="ok", parameter_overrides=params(autostart=False)))
-        for name, value in [("limits.voltage_pp_max", 100.0), ("seed", 3), ("model", "x.yaml")]:
+        for name, value in [("limits.voltage_pp_max", 900.0), ("seed", 3), ("model", "x.yaml")]:
             result = sim.set_parameters([Parameter(name, value=value)])[0]
             assert not result.successful and name.split(".")[-1] in result.reason + name
 
