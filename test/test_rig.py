@@ -132,14 +132,20 @@ def test_protocol_mode_runs_the_papers_trial_on_one_command(m8528: Fin) -> None:
     assert rig.trial is not None
 
 
-def test_protocol_mode_off_aborts(m8528: Fin) -> None:
+def bursting(fin: Fin) -> SimulatedRig:
+    """A protocol-mode rig 1 s into a 9 Hz, 800 Vpp trial (0.5 s off, then the burst)."""
     from piezofin_ros.rig import Protocol
 
-    rig = SimulatedRig(m8528, QUIET, protocol=Protocol(off_s=0.5, on_s=5.0))
+    rig = SimulatedRig(fin, QUIET, protocol=Protocol(off_s=0.5, on_s=5.0))
     rig.command(9.0, 800.0, 1)
     for _ in range(30):
         rig.step(50)
     assert rig.drive.voltage_pp == pytest.approx(800.0)
+    return rig
+
+
+def test_protocol_mode_off_aborts(m8528: Fin) -> None:
+    rig = bursting(m8528)
     rig.command(0.0, 0.0, 0)
     v = np.concatenate([rig.step(50).voltage for _ in range(10)])
     assert np.all(v[-200:] == 0.0)
@@ -149,13 +155,7 @@ def test_protocol_mode_off_aborts(m8528: Fin) -> None:
 def test_limits_tighten_live_and_never_relax(m8528: Fin) -> None:
     from dataclasses import replace
 
-    from piezofin_ros.rig import Protocol
-
-    rig = SimulatedRig(m8528, QUIET, protocol=Protocol(off_s=0.5, on_s=5.0))
-    rig.command(9.0, 800.0, 1)
-    for _ in range(30):
-        rig.step(50)
-    assert rig.drive.voltage_pp == pytest.approx(800.0)
+    rig = bursting(m8528)
     lim = rig.drive.limits
     assert "ramps down to 500" in rig.tighten(replace(lim, voltage_pp_max=500.0))
     v = np.concatenate([rig.step(50).voltage for _ in range(10)])
