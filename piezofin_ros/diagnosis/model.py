@@ -517,9 +517,10 @@ def steady_knobs(
         bad = ~(np.abs(solve(f, vpp, measured, amp) - amp) <= 1e-6 * amp)
         if np.any(bad):
             amp = np.array(amp, dtype=float)
-            mm = None if measured is None else np.broadcast_to(measured, f.shape)[bad]
+            fb, vb = f[bad], vpp[bad]
+            mb = None if measured is None else np.broadcast_to(measured, f.shape)[bad]
             amp[bad] = _lowest_root(
-                lambda x, j: solve(f[bad][j], vpp[bad][j], None if mm is None else mm[j], x), amp[bad]
+                lambda x, j: solve(fb[j], vb[j], None if mb is None else mb[j], x), amp[bad]
             )
     k = knobs(f, vpp, phi * amp)
     kk = Knobs(
