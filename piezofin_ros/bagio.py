@@ -22,15 +22,22 @@ import math
 import mmap
 import os
 import struct
+import zlib
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import lz4.frame
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
+from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from .blocks import Block, from_layout
@@ -100,6 +107,7 @@ class BagWriter:
         self._writer.start(profile="ros2", library="piezofin_ros")
         if metadata:
             self._writer.add_metadata("piezofin", {str(k): str(v) for k, v in metadata.items()})
+        self._file.flush()  # the header is on disk at once: a writer killed now leaves an MCAP file
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
@@ -164,6 +172,18 @@ class BagWriter:
             self._writer.finish()
         finally:
             self._file.close()
+            self._file = None
+
+    def abandon(self) -> None:
+        """Close the file without writing more (after a failed write): what reached the disk stays,
+        readable by :func:`read_messages` and :func:`recover`."""
+        if self._file is None:
+            return
+        try:
+            self._file.close()
+        except OSError:
+            pass  # the buffered tail cannot be written either
+        finally:
             self._file = None
 
 
@@ -240,6 +260,7 @@ def read_messages(
                 raise BagError(f"{path}: not a readable MCAP file (no MCAP magic at the start)")
         schemas: dict[int, str] = {}
         channels: dict[int, tuple[str, int]] = {}
+        budget = _Budget(path, size)
         summary_channels = _summary_channels(f)
         n = 0
         offset = 0
@@ -256,7 +277,7 @@ def read_messages(
                 schemas[record.id] = record.name
             elif isinstance(record, Channel):
                 channels[record.id] = (record.topic, record.schema_id)
-            elif isinstance(record, Message):
+            elif isinstance(record, (Message, _LazyMessage)):
                 ch = channels.get(record.channel_id)
                 name = None
                 if ch is not None:
@@ -264,7 +285,7 @@ def read_messages(
                 elif record.channel_id in summary_channels:
                     ch, name = summary_channels[record.channel_id]
                 if ch is not None and (wanted is None or ch[0] in wanted):
-                    return BagMessage(ch[0], name or "", record.log_time, record.data)
+                    return BagMessage(ch[0], name or "", record.log_time, bytes(record.data))
             return None
 
         if base:
@@ -292,22 +313,23 @@ def read_messages(
                     if key in seen_chunks:
                         damaged("chunk: a copy of one already read (duplicated bytes), skipped", fatal=False)
                         continue
-                    usize = record.uncompressed_size
-                    if usize > _MAX_CHUNK or usize > 1000 * len(record.data) + 4096:
-                        damaged(f"chunk: implausible size {usize} bytes", fatal=False)
-                        continue
                     try:
-                        inner = breakup_chunk(record, validate_crc=True)
-                    except Exception as exc:  # CRC, zstd, lz4, framing: skip this chunk
-                        damaged(f"chunk: {_why(exc)}", fatal=False)
+                        data = budget.expand(record)
+                    except _ChunkError as exc:  # size, CRC, zstd, lz4: skip this chunk
+                        damaged(f"chunk: {exc}", fatal=False)
                         continue
                     seen_chunks.add(key)
-                    for r in inner:
-                        m = take(r)
-                        if m is not None:
-                            n += 1
-                            yield m
+                    try:
+                        for r in _chunk_records(data, budget):
+                            m = take(r)
+                            if m is not None:
+                                n += 1
+                                yield m
+                    except _ChunkError as exc:  # framing inside a chunk that passed its CRC
+                        damaged(f"chunk: {exc}", fatal=False)
+                    del data
                 else:
+                    budget.count_record()
                     m = take(record)
                     if m is not None:
                         n += 1
@@ -340,10 +362,8 @@ def _next_chunk(f: BinaryIO, start: int, size: int, seen: set[tuple[int, int, in
                     continue
                 if _chunk_key(record) in seen:
                     continue
-                if record.uncompressed_size > min(_MAX_CHUNK, 1000 * len(record.data) + 4096):
-                    continue
-                breakup_chunk(record, validate_crc=True)
-            except Exception:  # not a chunk after all: keep looking
+                _Budget(Path(), size).expand(record)  # size, CRC, decompression: a real chunk?
+            except (_ChunkError, McapError, ValueError, struct.error, EOFError):  # not a chunk: look on
                 continue
             return pos
 
@@ -363,7 +383,110 @@ def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str]]:
     return {cid: ((c.topic, c.schema_id), names.get(c.schema_id, "")) for cid, c in summary.channels.items()}
 
 
+class _ChunkError(ValueError):
+    """A chunk that cannot be used (its size, CRC, compression or framing); it is skipped."""
+
+
+@dataclass(frozen=True)
+class _LazyMessage:
+    """A message record inside a chunk: its bytes are a view into the chunk, copied only if kept."""
+
+    channel_id: int
+    log_time: int
+    data: memoryview
+
+
 _MAX_CHUNK = 1 << 30  # bytes: larger uncompressed chunks are corruption, not data
+
+
+class _Budget:
+    """What reading one file may cost, from the file's size and not from what the file claims.
+
+    * one chunk decompresses to at most ``50 x size + 32 MiB`` (and 1 GiB): the bytes are held
+      while its records are read, so this bounds the reader's memory (records are parsed one by
+      one from the chunk, never expanded into a list);
+    * all chunks together to at most ``200 x size + 64 MiB``, and the file holds at most one
+      record per byte (a record takes at least a few compressed bytes even in a very repetitive
+      bag): beyond either, the file is a decompression bomb and :class:`BagError` names it.
+      This bounds the time: a 2 MB file holds at most 2 million records.
+    """
+
+    def __init__(self, path: Path, size: int) -> None:
+        self.path = path
+        self.chunk_limit = min(_MAX_CHUNK, 50 * size + (32 << 20))
+        self.total_limit = 200 * size + (64 << 20)
+        self.record_limit = max(size, 10_000)
+        self.expanded = 0
+        self.records = 0
+
+    def expand(self, chunk: Chunk) -> bytes:
+        """The chunk's records, decompressed (at most its claimed size) and CRC-checked."""
+        usize = chunk.uncompressed_size
+        if usize > self.chunk_limit:
+            raise _ChunkError(f"claims {usize} bytes uncompressed, above the {self.chunk_limit}-byte limit")
+        if self.expanded + usize > self.total_limit:
+            raise BagError(
+                f"{self.path}: expands beyond {self.total_limit} bytes ({self.total_limit // max(1, usize)}x "
+                "its size or more): a decompression bomb, not a bag"
+            )
+        try:
+            if chunk.compression == "zstd":
+                with zstandard.ZstdDecompressor().stream_reader(chunk.data) as reader:
+                    data = reader.read(usize + 1)
+                    while len(data) <= usize:
+                        more = reader.read(usize + 1 - len(data))
+                        if not more:
+                            break
+                        data += more
+            elif chunk.compression == "lz4":
+                data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=usize + 1)
+            elif chunk.compression == "":
+                data = chunk.data
+            else:
+                raise _ChunkError(f"unknown compression {chunk.compression!r}")
+        except (zstandard.ZstdError, RuntimeError) as exc:  # lz4 raises RuntimeError
+            raise _ChunkError(f"does not decompress ({exc})") from None
+        if len(data) != usize:
+            more = "+" if len(data) > usize else ""
+            raise _ChunkError(f"decompresses to {len(data)}{more} bytes, not {usize}")
+        if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+            raise _ChunkError("fails its CRC")
+        self.expanded += usize
+        return data
+
+    def count_record(self) -> None:
+        self.records += 1
+        if self.records > self.record_limit:
+            raise BagError(
+                f"{self.path}: holds more than {self.record_limit} records in {self.record_limit} bytes: "
+                "a decompression bomb, not a bag"
+            )
+
+
+def _chunk_records(data: bytes, budget: _Budget) -> Iterator[Schema | Channel | _LazyMessage]:
+    """The schema, channel and message records of a decompressed chunk, one at a time."""
+    view = memoryview(data)
+    pos, end = 0, len(data)
+    while pos < end:
+        if pos + 9 > end:
+            raise _ChunkError(f"a record is cut at byte {pos} of the chunk")
+        opcode = data[pos]
+        length = int.from_bytes(view[pos + 1 : pos + 9], "little")
+        body, pos = pos + 9, pos + 9 + length
+        if pos > end:
+            raise _ChunkError(f"a record of {length} bytes overruns the chunk")
+        budget.count_record()
+        if opcode == Opcode.MESSAGE:
+            if length < 22:
+                raise _ChunkError(f"a message record of {length} bytes (at least 22)")
+            channel_id, _, log_time = struct.unpack_from("<HIQ", data, body)
+            yield _LazyMessage(channel_id, log_time, view[body + 22 : pos])
+        elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+            stream = ReadDataStream(io.BytesIO(view[body:pos]))
+            try:
+                yield Schema.read(stream) if opcode == Opcode.SCHEMA else Channel.read(stream)
+            except (McapError, struct.error, UnicodeDecodeError, EOFError) as exc:
+                raise _ChunkError(f"a damaged {Opcode(opcode).name.lower()} record ({exc})") from None
 
 
 def _position(reader: Any) -> int:
@@ -425,16 +548,65 @@ def recover(source: str | os.PathLike[str], output: str | os.PathLike[str] | Non
     damages: list[Damage] = []
     size = src.stat().st_size if src.is_file() else 0
     messages = read_messages(src, on_damage=damages.append)
-    first = next(messages, None)  # BagError here: nothing to recover, no output written
+    try:
+        first = next(messages, None)  # BagError here: nothing to recover, no output written
+    except BagError:
+        end = _header_end(src)
+        if end is None or not damages or any(d.offset < end for d in damages):
+            raise
+        first = None  # an MCAP header, then the cut of a writer killed before its first chunk: empty
+    # written under a temporary name, moved to ``out`` only when complete (never a partial file)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    try:
+        counts, first_ns, last_ns = _copy_messages(itertools.chain([first] if first else [], messages), tmp)
+        os.link(tmp, out)  # fails if ``out`` appeared meanwhile: still never overwritten
+    except FileExistsError:
+        raise BagError(f"{out}: exists; recover never overwrites a file") from None
+    except OSError as exc:
+        raise BagError(f"{out}: cannot write the recovered bag ({exc.strerror or exc})") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    fatal = [d for d in damages if d.fatal]
+    return Recovery(
+        src,
+        out,
+        sum(counts.values()),
+        counts,
+        first_ns,
+        last_ns,
+        fatal[0].offset if fatal else size,
+        size,
+        tuple(damages),
+    )
+
+
+def _header_end(path: Path) -> int | None:
+    """Where the MCAP magic and a whole header record end, or None if the file does not start so."""
+    try:
+        with open(path, "rb") as fh:
+            start = fh.read(len(MCAP_MAGIC) + 9)
+            size = os.fstat(fh.fileno()).st_size
+    except OSError:
+        return None
+    if len(start) < len(MCAP_MAGIC) + 9 or not start.startswith(MCAP_MAGIC + b"\x01"):
+        return None
+    end = len(start) + int.from_bytes(start[len(MCAP_MAGIC) + 1 :], "little")
+    return end if end <= size else None
+
+
+def _copy_messages(
+    messages: Iterable[BagMessage], path: Path
+) -> tuple[dict[str, int], int | None, int | None]:
+    """Write ``messages`` to a new, complete MCAP at ``path``; returns counts and the log-time span."""
     counts: dict[str, int] = {}
     first_ns = last_ns = None
-    with open(out, "xb") as fh:
+    with open(path, "xb") as fh:
         writer = Writer(fh, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library="piezofin_ros recover")
         schema_ids: dict[str, int] = {}
         channel_ids: dict[str, int] = {}
         sequence: dict[str, int] = {}
-        for m in itertools.chain([first] if first is not None else [], messages):
+        for m in messages:
             if m.topic not in channel_ids:
                 if m.type_name not in schema_ids:
                     try:
@@ -450,23 +622,19 @@ def recover(source: str | os.PathLike[str], output: str | os.PathLike[str] | Non
             first_ns = m.log_time_ns if first_ns is None else min(first_ns, m.log_time_ns)
             last_ns = m.log_time_ns if last_ns is None else max(last_ns, m.log_time_ns)
         writer.finish()
-    fatal = [d for d in damages if d.fatal]
-    return Recovery(
-        src,
-        out,
-        sum(counts.values()),
-        counts,
-        first_ns,
-        last_ns,
-        fatal[0].offset if fatal else size,
-        size,
-        tuple(damages),
-    )
+    return counts, first_ns, last_ns
+
+
+class MessageError(ValueError):
+    """A message's bytes are not a valid CDR message of its type (the readers skip and count it)."""
 
 
 def decode(type_name: str, data: bytes) -> Any:
     """Deserialise CDR bytes with the ``rosbags`` type store (independent of rclpy)."""
-    return typestore().deserialize_cdr(data, normalise_type(type_name))
+    try:
+        return typestore().deserialize_cdr(data, normalise_type(type_name))
+    except SerdeError as exc:
+        raise MessageError(f"not a valid {type_name} message ({exc})") from None
 
 
 def block_of(type_name: str, data: bytes, expect: tuple[str, ...] | None = None) -> Block:

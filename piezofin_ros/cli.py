@@ -12,6 +12,7 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -269,7 +270,7 @@ def run_estimate(args: argparse.Namespace) -> int:
         replay = replay_estimates(args.bag, fin, args.namespace)
     except BagError as exc:
         raise UsageError(str(exc)) from None
-    for line in replay.skipped[:20]:
+    for line in replay.skipped_lines():
         print(f"skipped {line}", file=sys.stderr)
     if args.json:
         print(json.dumps([e.as_dict() for e in replay.replayed], indent=1))
@@ -315,6 +316,23 @@ def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
         help="CSV without *_sigma columns: 1-sigma relative uncertainty (0.02)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument(
+        "--force", action="store_true", help="replace an existing --json file or --report directory's files"
+    )
+
+
+def _refuse_existing(args: argparse.Namespace) -> None:
+    """Outputs are never replaced without ``--force``; checked before the work, not after it."""
+    if args.force:
+        return
+    if args.json and Path(args.json).exists():
+        raise UsageError(f"--json {args.json}: exists (give --force to replace it)")
+    if args.report and Path(args.report).exists():
+        report = Path(args.report)
+        if not report.is_dir():
+            raise UsageError(f"--report {report}: exists and is not a directory")
+        if any(report.iterdir()):
+            raise UsageError(f"--report {report}: not empty (give --force to replace its files)")
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
@@ -334,6 +352,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     if not (np.isfinite(args.relative_sigma) and 0 < args.relative_sigma < 1):
         raise UsageError("--relative-sigma: expected a number in (0, 1)")
+    _refuse_existing(args)
     if args.paper:
         from .diagnosis.paper import paper_gap, paper_text
 
@@ -358,10 +377,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
             trials = from_csv(csvs[0], relative_sigma=args.relative_sigma)
         else:
             trials, skipped = from_bags(args.data, fin, args.namespace, progress=say)
-            for line in skipped[:20]:
+            for line in skipped:
                 print(f"skipped {line}", file=sys.stderr)
-            if len(skipped) > 20:
-                print(f"... and {len(skipped) - 20} more skipped messages", file=sys.stderr)
         say(f"{len(trials)} trials; checking each stage, then fitting the candidate effects")
         d = diagnose(trials, fin, progress=say)
     except (BagError, DataError) as exc:

@@ -269,7 +269,15 @@ class SafeLoader(yaml.SafeLoader):
 
     PyYAML follows YAML 1.1, where a float needs a dot and a signed exponent, so ``1e-3``
     would load as the *string* "1e-3"; physical parameters are written that way all the time.
+    Aliases (``*name``) are refused: no configuration needs them, and nested aliases make a few
+    hundred bytes expand into a structure that takes exponential time to walk ("billion laughs").
     """
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not accepted", mark)
+        return super().compose_node(parent, index)
 
 
 SafeLoader.add_implicit_resolver(
@@ -287,8 +295,39 @@ SafeLoader.add_implicit_resolver(
 
 
 def safe_load_yaml(text: str) -> Any:
-    """Parse YAML without executing anything (safe loader, YAML 1.2 floats)."""
+    """Parse YAML without executing anything (safe loader, YAML 1.2 floats, no aliases)."""
     return yaml.load(text, Loader=SafeLoader)
+
+
+#: Largest YAML file read.  Fin, model and parameter files are a few kB; a larger file is refused
+#: before it is parsed, so no file can hold a loader (and a SIGTERM) for long.
+MAX_YAML_BYTES = 256 * 1024
+
+
+def read_yaml_file(path: str | os.PathLike[str], error: type[ValueError] = FinConfigError) -> Any:
+    """Read and parse a YAML configuration file; any problem raises ``error`` naming the file.
+
+    Bounded by :data:`MAX_YAML_BYTES`; an unsafe tag, an alias, nesting beyond the parser's
+    recursion, an integer beyond Python's digit limit or bytes that are not UTF-8 are one error.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_YAML_BYTES + 1)
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(raw) > MAX_YAML_BYTES:
+        raise error(f"{path}: larger than {MAX_YAML_BYTES // 1024} KiB, not a configuration file")
+    try:
+        return safe_load_yaml(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise error(f"{path}: not a text (UTF-8) file") from None
+    except yaml.YAMLError as exc:
+        raise error(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    except RecursionError:
+        raise error(f"{path}: nested too deeply") from None
+    except ValueError as exc:  # e.g. an integer beyond Python's digit limit
+        raise error(f"{path}: {exc}") from None
 
 
 def config_dir() -> Path:
@@ -331,14 +370,7 @@ def load_fin(name_or_path: str | os.PathLike[str]) -> Fin:
             raise FinConfigError(
                 f"unknown fin '{text}': not a file and not a preset ({', '.join(preset_names())})"
             )
-    try:
-        raw = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FinConfigError(f"{path}: cannot read fin file ({exc.strerror})") from None
-    try:
-        data = safe_load_yaml(raw)
-    except yaml.YAMLError as exc:
-        raise FinConfigError(f"{path}: not valid YAML ({exc})") from None
+    data = read_yaml_file(path)
     if isinstance(data, Mapping) and "fin" in data and isinstance(data["fin"], Mapping):
         data = data["fin"]
     return Fin.from_mapping(data, source=str(path))

@@ -15,13 +15,22 @@ from .blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormat
 from .estimation import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
 from .fin import Fin
 
+#: Skipped messages are counted; only this many lines describing them are kept.
+MAX_SKIPPED_LINES = 100
+
 
 @dataclass(frozen=True)
 class Replay:
     replayed: list[Estimate]
     recorded: list[Estimate]
     messages: int
-    skipped: list[str]  # one line per message that could not be used
+    skipped: list[str]  # one line per message that could not be used (the first MAX_SKIPPED_LINES)
+    n_skipped: int = 0  # all of them
+
+    def skipped_lines(self, most: int = 20) -> list[str]:
+        """The first ``most`` skipped lines and one line counting the rest."""
+        rest = self.n_skipped - min(most, len(self.skipped))
+        return self.skipped[:most] + ([f"... and {rest} more messages"] if rest > 0 else [])
 
     def max_relative_difference(self) -> float:
         """Largest relative difference of any finite field between replayed and recorded estimates."""
@@ -57,7 +66,7 @@ def replay_estimates(
     replayed: list[Estimate] = []
     recorded: list[Estimate] = []
     skipped: list[str] = []
-    n = 0
+    n = n_skipped = 0
     last_t = float("nan")
     for m in read_messages(path, topics):
         n += 1
@@ -80,7 +89,9 @@ def replay_estimates(
                 b = check_samples(block, LOADCELL_CHANNELS)
                 replayed += est.add_loadcell(b["t_s"], b["displacement_m"])
         except (BlockFormatError, KeyError, ValueError, AssertionError) as exc:
-            skipped.append(f"{m.topic} at {m.log_time_ns * 1e-9:.3f} s: {exc}")
+            n_skipped += 1
+            if len(skipped) < MAX_SKIPPED_LINES:  # memory bounded by what is kept, whatever the file
+                skipped.append(f"{m.topic} at {m.log_time_ns * 1e-9:.3f} s: {exc}")
     if n == 0:
         raise BagError(f"{path}: no message on {', '.join(topics)} (is the namespace right?)")
-    return Replay(replayed + est.flush(), recorded, n, skipped)
+    return Replay(replayed + est.flush(), recorded, n, skipped, n_skipped)

@@ -13,18 +13,13 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .fin import FinConfigError, safe_load_yaml
+from .fin import FinConfigError, read_yaml_file
 
 
 def load_parameter_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Parse a parameter file; raises :class:`FinConfigError` naming the file and the problem."""
     path = Path(path)
-    try:
-        doc = safe_load_yaml(path.read_text())
-    except OSError as exc:
-        raise FinConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    except ValueError as exc:
-        raise FinConfigError(f"{path}: not valid YAML ({exc})") from None
+    doc = read_yaml_file(path)
     if not isinstance(doc, dict):
         raise FinConfigError(f"{path}: expected a mapping of node names to ros__parameters")
     for key, entry in doc.items():

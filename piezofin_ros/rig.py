@@ -45,6 +45,11 @@ FloatArray = NDArray[Any]
 #: therefore limited to +-500 V, i.e. 1000 Vpp.  The paper drives at most 800 Vpp.
 HARD_VOLTAGE_PP_MAX = 1000.0
 
+#: Every stop (off, the watchdog, a lowered cap, lifecycle deactivate/shutdown) ramps the amplitude
+#: down at least this fast, whatever ``slew_vpp_per_s`` is set to: from the hard cap to zero in
+#: 0.25 s.  A slower configured slew only slows the way *up* and commanded changes, never a stop.
+STOP_SLEW_VPP_PER_S = 4000.0
+
 
 @dataclass(frozen=True)
 class DriveLimits:
@@ -52,15 +57,19 @@ class DriveLimits:
 
     frequency_min_hz: float = 0.5
     frequency_max_hz: float = 40.0
-    voltage_pp_max: float = 800.0  # V, configurable up to HARD_VOLTAGE_PP_MAX
+    voltage_pp_max: float = 800.0  # V, configurable up to HARD_VOLTAGE_PP_MAX; 0: no drive at all
     slew_vpp_per_s: float = 4000.0  # V/s of peak-to-peak amplitude (0 -> 800 Vpp in 0.2 s)
     command_timeout_s: float = 1.0  # watchdog: ramp to zero after this long without a command
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{f.name} must be a finite number > 0, got {value!r}")
+            # bool is an int in Python: `true` must not become a 1 Vpp cap or a 1 s watchdog
+            number = isinstance(value, (int, float)) and not isinstance(value, bool)
+            low_ok = value >= 0 if f.name == "voltage_pp_max" else value > 0
+            if not (number and math.isfinite(value) and low_ok):
+                bound = ">= 0" if f.name == "voltage_pp_max" else "> 0"
+                raise ValueError(f"{f.name} must be a finite number {bound}, got {value!r}")
         if self.frequency_min_hz >= self.frequency_max_hz:
             raise ValueError(
                 f"frequency_min_hz ({self.frequency_min_hz}) must be below frequency_max_hz "
@@ -139,7 +148,14 @@ class Drive:
 
     ``a`` is the amplitude (V, half the peak-to-peak voltage).  It moves toward the target at
     ``limits.slew_vpp_per_s / 2``; the frequency changes at once but the phase stays continuous,
-    so ``v`` is continuous and ``dv/dt`` exact (needed for the capacitive current).
+    so ``v`` is continuous and ``dv/dt`` exact (needed for the capacitive current).  A *stop*
+    (:meth:`stop`: off, watchdog, a lowered cap) ramps down at least at
+    :data:`STOP_SLEW_VPP_PER_S`, so no setting can make a stop slow.
+
+    The watchdog *latches*: once it has ramped the drive to zero, on-commands are refused until
+    an off command re-arms it (:attr:`tripped`).  A commander that merely resumes its stream
+    of on-commands (a paused process continued, a healed network, a stale publisher) cannot
+    restart the drive; one that deliberately stops and starts again can.
     """
 
     limits: DriveLimits = field(default_factory=DriveLimits)
@@ -149,25 +165,39 @@ class Drive:
     frequency_hz: float = 0.0
     phase: float = 0.0  # rad at time t
     last_command_t: float = -math.inf
+    stopping: bool = False  # ramping down for a stop: at least STOP_SLEW_VPP_PER_S
+    tripped: bool = False  # the watchdog cut the drive; an off command re-arms it
 
     def apply(self, command: DriveCommand, t: float) -> None:
         """Take a checked command at time ``t`` (``>= self.t``; applied from ``self.t`` on)."""
         self.last_command_t = t
         if not command.on:
-            self.target = 0.0
+            self.tripped = False  # a deliberate off re-arms a tripped watchdog
+            self.stop()
             return
+        if self.tripped:
+            return  # latched: see the class docstring (SimulatedRig.command says why)
         if self.amplitude == 0.0:
             self.phase = 0.0  # start from rest at a zero crossing
         self.frequency_hz = command.frequency_hz
+        self.stopping = False
         self.target = 0.5 * min(command.voltage_pp, self.limits.voltage_pp_max, HARD_VOLTAGE_PP_MAX)
 
+    def stop(self, cap_vpp: float = 0.0) -> None:
+        """Ramp down to ``cap_vpp`` (default zero) at the stop rate, if above it."""
+        if self.target > 0.5 * cap_vpp:
+            self.target = 0.5 * cap_vpp
+        self.stopping = True
+
     def watchdog(self, t: float) -> str | None:
-        """Ramp to zero if no command came for ``command_timeout_s``; returns the reason once."""
+        """Ramp to zero if no command came for ``command_timeout_s`` and latch; returns the reason once."""
         if self.target > 0.0 and t - self.last_command_t > self.limits.command_timeout_s:
-            self.target = 0.0
+            self.stop()
+            self.tripped = True
             return (
                 f"watchdog: no command for {t - self.last_command_t:.3g} s "
-                f"(> {self.limits.command_timeout_s:g} s), ramping the drive to zero"
+                f"(> {self.limits.command_timeout_s:g} s), ramping the drive to zero; "
+                "on-commands are refused until an off command (on = 0) re-arms it"
             )
         return None
 
@@ -175,8 +205,11 @@ class Drive:
         """``v(t)``, ``dv/dt(t)`` and the amplitude ``a(t)`` at times ``t`` (>= ``self.t``), then
         advance to ``t[-1]``."""
         t = np.asarray(t, dtype=float)
-        slew = 0.5 * self.limits.slew_vpp_per_s
         gap = self.target - self.amplitude
+        rate = self.limits.slew_vpp_per_s
+        if gap < 0 and self.stopping:
+            rate = max(rate, STOP_SLEW_VPP_PER_S)
+        slew = 0.5 * rate
         tau = t - self.t
         ramp_time = abs(gap) / slew
         amp = self.amplitude + math.copysign(slew, gap) * np.minimum(tau, ramp_time)
@@ -349,6 +382,11 @@ class SimulatedRig:
         cmd, reason = check_command(frequency_hz, voltage_pp, on, self.drive.limits)
         if cmd is None:
             return False, reason
+        if cmd.on and self.drive.tripped:
+            return False, (
+                "rejected: the watchdog tripped (commands had stopped); send off (on = 0) to re-arm it "
+                "before driving again"
+            )
         if self.protocol is None:
             self.drive.apply(cmd, self.t)
         elif not cmd.on:
@@ -364,7 +402,7 @@ class SimulatedRig:
 
     def tighten(self, limits: DriveLimits) -> str:
         """Apply tighter limits now (an operator lowering the cap on a running fin); returns what
-        happened.  A drive above the new cap ramps down to it at the (new) slew rate; a drive or a
+        happened.  A drive above the new cap ramps down to it at the stop rate; a drive or a
         protocol trial outside the new band ramps to zero.  Raises ``ValueError`` naming every limit
         that would be relaxed: loosening needs a restart, with the new value checked at start."""
         looser = loosened(limits, self.drive.limits)
@@ -380,7 +418,7 @@ class SimulatedRig:
             self.stop()
             return f"limits tightened; {d.frequency_hz:g} Hz is outside the new band: ramping to zero"
         if d.target > 0.5 * limits.voltage_pp_max:
-            d.target = 0.5 * limits.voltage_pp_max
+            d.stop(limits.voltage_pp_max)
             return f"limits tightened; the drive ramps down to {limits.voltage_pp_max:g} Vpp"
         return "limits tightened"
 
@@ -400,9 +438,14 @@ class SimulatedRig:
             self.drive.last_command_t = t
 
     def stop(self) -> None:
-        """Ramp to zero (lifecycle deactivate, shutdown) and forget any running trial."""
+        """Ramp to zero at the stop rate (lifecycle deactivate, shutdown) and forget any running
+        trial.  A tripped watchdog stays latched (see :meth:`rearm`)."""
         self.trial = self._last_trial_command = None
-        self.drive.apply(OFF, self.t)
+        self.drive.stop()
+
+    def rearm(self) -> None:
+        """Clear a tripped watchdog (lifecycle activate: an operator's deliberate action)."""
+        self.drive.tripped = False
 
     def _update_knobs(self) -> Knobs:
         """The model's knobs at the commanded operating point (kept while the drive ramps down)."""

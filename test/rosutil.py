@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -57,3 +62,45 @@ def graph() -> Iterator[Graph]:
         yield g
     finally:
         g.close()
+
+
+BIN = Path(sys.executable).parent
+
+
+def clean_env(**extra: str) -> dict[str, str]:
+    """This environment without another ROS venv's bootstrap variables (they break a child's rclpy)."""
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "LD_LIBRARY_PATH")
+    }
+    env.update(extra)
+    return env
+
+
+def start(exe: str, *ros_args: str, **popen: Any) -> subprocess.Popen[str]:
+    """An executable of the package with ``--ros-args``, as ``ros2 run`` starts it (stdout+stderr piped)."""
+    return subprocess.Popen(
+        [str(BIN / exe), "--ros-args", *ros_args],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=clean_env(),
+        **popen,
+    )
+
+
+def stop(*procs: subprocess.Popen[str]) -> list[str]:
+    """SIGINT to each process still running (as Ctrl-C would), wait for it; returns each one's output."""
+    outs = []
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+        try:
+            out, _ = p.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            out, _ = p.communicate()
+        except ValueError:  # its output was read already
+            out = ""
+        outs.append(out or "")
+    return outs

@@ -20,32 +20,9 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
-from .rosutil import graph
+from .rosutil import BIN, graph, start, stop
 
 pytestmark = pytest.mark.ros
-BIN = Path(sys.executable).parent
-
-
-def start(exe: str, *ros_args: str) -> subprocess.Popen[str]:
-    env = {
-        k: v for k, v in os.environ.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "LD_LIBRARY_PATH")
-    }
-    return subprocess.Popen(
-        [str(BIN / exe), "--ros-args", *ros_args],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=env,
-    )
-
-
-def stop(*procs: subprocess.Popen[str]) -> None:
-    """SIGINT to each process still running, then wait for it (as Ctrl-C would)."""
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-            p.communicate(timeout=30)
 
 
 @pytest.mark.slow

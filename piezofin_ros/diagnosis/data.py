@@ -348,7 +348,7 @@ def from_bags(
         if progress:
             progress(f"reading {path} ({j + 1}/{len(paths)})")
         replay = replay_estimates(path, fin, namespace)
-        skipped += [f"{path}: {s}" for s in replay.skipped]
+        skipped += [f"{path}: {s}" for s in replay.skipped_lines()]
         noise, commands = scan_bag(path, namespace)
         tables.append(from_estimates(replay.replayed, noise, commands=commands, source=str(path)))
     out = tables[0]

@@ -33,10 +33,9 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from ..fin import Fin, FinConfigError, safe_load_yaml
+from ..fin import Fin, FinConfigError, read_yaml_file
 from ..knobs import Knobs
 from ..steady import DRAG_HARMONIC, solve_amplitude
 
@@ -400,17 +399,7 @@ def load_augmented(path: str) -> Augmented:
     Raises :class:`ModelError` naming the file and the problem (missing, unreadable, not YAML,
     unknown effect or parameter, value out of range, bad fin).
     """
-    try:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
-    except OSError as exc:
-        raise ModelError(f"{path}: cannot read the model ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise ModelError(f"{path}: not a text (YAML) file") from None
-    try:
-        data = safe_load_yaml(text)
-    except yaml.YAMLError as exc:
-        raise ModelError(f"{path}: not valid YAML ({exc})") from None
+    data = read_yaml_file(path, ModelError)
     try:
         return Augmented.from_mapping(data, source=path)
     except FinConfigError as exc:

@@ -136,9 +136,13 @@ def dataclass_params(
 
 
 def freeze_parameters(
-    node: Node, live_prefix: str = "", live: Callable[[list[Parameter]], str | None] | None = None
+    node: Node,
+    live_prefix: str = "",
+    live: Callable[[list[Parameter]], str | None] | None = None,
+    *,
+    allow_sim_time: bool = True,
 ) -> None:
-    """Refuse every runtime parameter change (but ``use_sim_time``), with the reason.
+    """Refuse every runtime parameter change (but ``use_sim_time`` if ``allow_sim_time``), with the reason.
 
     Every value is checked once at start, where it configures the core; changing it under a
     running simulation, estimator or bag would leave the node half reconfigured.  Parameters
@@ -149,6 +153,11 @@ def freeze_parameters(
     def callback(params: list[Parameter]) -> SetParametersResult:
         taken = [p for p in params if live is not None and live_prefix and p.name.startswith(live_prefix)]
         for p in params:
+            if p.name == "use_sim_time" and not allow_sim_time:
+                return SetParametersResult(
+                    successful=False,
+                    reason="use_sim_time is not taken: this node keeps its own time (the steady clock)",
+                )
             if p.name != "use_sim_time" and all(p.name != q.name for q in taken):
                 return SetParametersResult(
                     successful=False, reason=f"{p.name} is fixed at start; restart the node to change it"
@@ -160,6 +169,39 @@ def freeze_parameters(
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(callback)
+
+
+# ------------------------------------------------------------------------------------ silence
+class SilenceWatch:
+    """Says so, within ``after_s`` of wall time, when something a node lives on stops arriving.
+
+    Runs on the steady clock, so it speaks even when the silence is the simulated clock itself
+    (``fin_sim`` killed: ``/clock`` stops, and with it every timer on ROS time).  One warning when
+    the silence starts (only after the first arrival), one line when it ends.
+    """
+
+    def __init__(self, node: Node, what: str, hint: str, after_s: float = 3.0) -> None:
+        from rclpy.clock import Clock, ClockType
+
+        self._node, self._what, self._hint, self._after_s = node, what, hint, after_s
+        self._clock = Clock(clock_type=ClockType.STEADY_TIME)
+        self._last_ns: int | None = None
+        self.silent = False
+        node.create_timer(min(1.0, after_s / 3), self._check, clock=self._clock)
+
+    def heard(self) -> None:
+        self._last_ns = self._clock.now().nanoseconds
+        if self.silent:
+            self.silent = False
+            self._node.get_logger().info(f"{self._what}: back")
+
+    def _check(self) -> None:
+        if self._last_ns is None or self.silent:
+            return
+        quiet_s = (self._clock.now().nanoseconds - self._last_ns) * 1e-9
+        if quiet_s >= self._after_s:
+            self.silent = True
+            self._node.get_logger().warning(f"{self._what}: nothing for {quiet_s:.1f} s; {self._hint}")
 
 
 # --------------------------------------------------------------------------------------- main
@@ -204,7 +246,8 @@ def run_node(
 
     Spins until SIGINT/SIGTERM (see :class:`StopFlag`), or until ``until(node)`` is true, then
     calls the node's ``close()``.  Configuration errors exit with status 2 and one readable
-    line; Ctrl-C and SIGTERM exit 0.
+    line; Ctrl-C and SIGTERM exit 0; a node that gave up (its ``exit_code`` attribute set, e.g.
+    the recorder on a full disk) exits with that status.
     """
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -223,6 +266,8 @@ def run_node(
         # node's services do not answer clients in other processes (measured), spin_once does.
         while context.ok() and not stop and not (until is not None and until(node)):
             executor.spin_once(timeout_sec=0.1)
+            if getattr(node, "exit_code", None) is not None:
+                break
     except (StartupError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -239,4 +284,5 @@ def run_node(
         if context.ok():
             rclpy.shutdown(context=context)
         stop.restore()
-    return 0
+    code = getattr(node, "exit_code", None)
+    return int(code) if code is not None else 0

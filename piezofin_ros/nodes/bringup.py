@@ -5,6 +5,12 @@ For each fin (namespace): ``fin_sim`` (configured and activated here), ``thrust_
 parameter file (default: the package's ``config/bringup.yaml``) and the command line.  The run
 ends when every controller has finished its trials (or on Ctrl-C / SIGTERM); then the drives
 ramp to zero, the bag is closed and a summary table (and with ``--plot`` a figure) is printed.
+
+One timer on the steady clock steps every ``fin_sim`` together (:class:`Pacer`), so all fins share
+one time, and only while every estimator and the recorder have taken what was published (at most
+``MAX_LAG_BLOCKS`` behind): when the machine cannot keep up with the requested factor, the
+simulation slows down instead of dropping samples.  The run is bounded in fin time (the plan's
+length, plus a margin) and stops, saying why, if fin time stops advancing.
 """
 
 from __future__ import annotations
@@ -55,13 +61,67 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--duration", type=float, help="optimise: simulated seconds to run")
     p.add_argument("--plot", help="write a figure of the results to this PNG")
     p.add_argument("--json", help="write the controllers' final status to this JSON file")
-    p.add_argument("--timeout", type=float, default=3600.0, help="stop after this many wall seconds")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        help="stop after this many seconds of fin time (default: the trial plan's length x 1.25 + 60 s; "
+        "optimise: --duration + 60 s)",
+    )
     args = p.parse_args(argv)
     if args.fins and len(args.fins) != len(args.namespaces):
         p.error(f"--fins gives {len(args.fins)} fins for {len(args.namespaces)} namespaces")
     if not (math.isfinite(args.realtime_factor) and 0.01 <= args.realtime_factor <= 1000):
         p.error("--realtime-factor must be within [0.01, 1000]")
+    if args.timeout is not None and not (math.isfinite(args.timeout) and args.timeout > 0):
+        p.error("--timeout must be a positive number of seconds")
     return args
+
+
+#: How far (blocks) an estimator or the recorder may fall behind before the fins wait for it:
+#: well inside the data topics' history of 200, so nothing is ever dropped.
+MAX_LAG_BLOCKS = 20
+#: Wall seconds without any fin-time progress after which the run is declared stalled.
+STALL_S = 30.0
+
+
+class Pacer:
+    """Steps every fin together from one steady-clock timer, while all consumers keep up."""
+
+    def __init__(self, suite: Suite, realtime_factor: float) -> None:
+        from rclpy.clock import Clock, ClockType
+
+        durations = {round(sim.block_s, 9) for sim in suite.fin_sims}
+        if len(durations) != 1:
+            raise StartupError(f"bringup steps all fins together: give them one block_s (got {durations})")
+        self.suite = suite
+        self.steps = 0
+        self.waits = 0  # ticks skipped because a consumer was behind
+        self._clock = Clock(clock_type=ClockType.STEADY_TIME)
+        self.last_step_ns = self._clock.now().nanoseconds
+        period = durations.pop() / realtime_factor
+        self._timer = suite.fin_sims[0].create_timer(period, self._tick, clock=self._clock)
+
+    def lag(self) -> int:
+        """Blocks the slowest consumer (estimator or recorder, any fin, any topic) is behind."""
+        worst = 0
+        rec = self.suite.recorder.received
+        for sim, est in zip(self.suite.fin_sims, self.suite.estimators, strict=True):
+            ns = sim.get_namespace().rstrip("/")
+            for topic, got in est.received.items():
+                worst = max(worst, sim.blocks_published - got, sim.blocks_published - rec[f"{ns}/{topic}"])
+        return worst
+
+    def _tick(self) -> None:
+        if self.lag() > MAX_LAG_BLOCKS:
+            self.waits += 1
+            return
+        for sim in self.suite.fin_sims:
+            sim.step()
+        self.steps += 1
+        self.last_step_ns = self._clock.now().nanoseconds
+
+    def stalled_s(self) -> float:
+        return (self._clock.now().nanoseconds - self.last_step_ns) * 1e-9
 
 
 class Suite:
@@ -87,6 +147,7 @@ class Suite:
             sim_extra = {"realtime_factor": args.realtime_factor, "publish_clock": k == 0, "start_time_s": t0}
             sim_extra["autostart"] = False
             sim = FinSim(context=context, namespace=ns, parameter_overrides=params("fin_sim", sim_extra))
+            sim.paced = True
             sim_time = {"use_sim_time": True}
             est = ThrustEstimator(
                 context=context, namespace=ns, parameter_overrides=params("thrust_estimator", sim_time)
@@ -136,6 +197,13 @@ class Suite:
     def finished(self) -> bool:
         return all(c.finished for c in self.controllers)
 
+    def fin_time_budget(self) -> float | None:
+        """Fin time the work needs, with a margin (None: an optimiser with no duration runs on)."""
+        needs = [c.planned_s() for c in self.controllers]
+        if any(n is None for n in needs):
+            return None
+        return 1.25 * max(n for n in needs if n is not None) + 60.0
+
     def close(self) -> None:
         """Ramp the drives down, flush the estimators, close the bag (in that order)."""
         for sim in self.fin_sims:
@@ -156,16 +224,37 @@ def main(argv: list[str] | None = None) -> int:
     suite = None
     executor = EventsExecutor(context=context)
     wall0 = time.monotonic()
+    exit_code = 0
     try:
         suite = Suite(context, args)
         for node in suite.nodes:
             executor.add_node(node)
+        pacer = Pacer(suite, args.realtime_factor)
         suite.activate(executor)
+        budget = args.timeout if args.timeout is not None else suite.fin_time_budget()
         print(f"bringup: {', '.join(args.namespaces)} -> {suite.bag_path}", file=sys.stderr, flush=True)
         last = -1.0
         while context.ok() and not suite.finished and not stop:
             executor.spin_once(timeout_sec=0.1)
             elapsed = time.monotonic() - wall0
+            fin_s = suite.fin_sims[0].rig.elapsed if suite.fin_sims[0].rig is not None else 0.0
+            if budget is not None and fin_s > budget:
+                late = [c.get_namespace() for c in suite.controllers if not c.finished]
+                print(
+                    f"bringup: stopping after {fin_s:.0f} s of fin time, past the {budget:.0f} s the work "
+                    f"needs; not finished: {', '.join(late)}",
+                    file=sys.stderr,
+                )
+                exit_code = 1
+                break
+            if pacer.stalled_s() > STALL_S:
+                print(
+                    f"bringup: stopping: fin time has not advanced for {pacer.stalled_s():.0f} s "
+                    f"(a consumer is {pacer.lag()} blocks behind)",
+                    file=sys.stderr,
+                )
+                exit_code = 1
+                break
             if elapsed - last >= 5.0:
                 last = elapsed
                 if any(c.loop is not None for c in suite.controllers):
@@ -175,9 +264,6 @@ def main(argv: list[str] | None = None) -> int:
                     done = sum(c.runner.index for c in suite.controllers)
                     total = sum(len(c.runner.plan.points) for c in suite.controllers)
                     print(f"  {elapsed:5.1f} s: trial {done}/{total}", file=sys.stderr, flush=True)
-            if elapsed > args.timeout:
-                print(f"bringup: stopping after {args.timeout:g} s (--timeout)", file=sys.stderr)
-                break
     except (StartupError, FinConfigError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -226,7 +312,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"simulated {sim_s:.0f} s in {wall:.1f} s of wall time (x{sim_s / wall:.1f})")
     if args.json:
         Path(args.json).write_text(json.dumps({"bag": str(suite.bag_path), "fins": statuses}, indent=1))
-    return 0
+    aborted = [ns for ns, st in statuses.items() if st.get("state") == "aborted"]
+    if aborted:
+        print(f"aborted: {', '.join(aborted)}", file=sys.stderr)
+    return 1 if aborted else exit_code
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ from ._common import (
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
     TOPIC_STATUS,
+    SilenceWatch,
     StartupError,
     array_param,
     block_msg,
@@ -157,7 +158,19 @@ class Controller(Node):
             self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
         tick = self._tick_optimise if self.loop is not None else self._tick
         self._timer = self.create_timer(1.0 / heartbeat, tick)
+        # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
+        self._silence = SilenceWatch(
+            self, "time (the heartbeat)", "with use_sim_time: is fin_sim publishing /clock?"
+        )
         self.get_logger().info(summary)
+
+    def planned_s(self) -> float | None:
+        """Fin time the run needs (None: an optimiser without ``duration_s`` runs until stopped)."""
+        if self.loop is not None:
+            return self.duration_s or None
+        plan = self.runner.plan
+        per_trial = plan.trial_s if plan.mode is Mode.PROTOCOL else plan.settle_timeout_s
+        return len(plan.points) * (per_trial + plan.estimate_timeout_s)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -170,6 +183,7 @@ class Controller(Node):
         t = self._now()
         if t == 0.0:
             return  # use_sim_time and no /clock yet
+        self._silence.heard()
         if not self.runner.done:
             before = self.runner.index
             self._send(*self.runner.command(t))
@@ -185,8 +199,8 @@ class Controller(Node):
             if self._missing_in_a_row() >= self.max_missing:
                 self.runner.aborted = f"{self.max_missing} trials in a row without an estimate"
                 self.get_logger().error(f"stopping the run and the drive: {self.runner.aborted}")
-        if self.runner.done and not self.finished and self._all_settled():
-            self._finish()
+        if self.runner.done and not self.finished and (self.runner.aborted or self._all_settled()):
+            self._finish()  # an aborted run does not wait for the trial it was in
         if self.finished:
             c = self.chosen
             if self.after == "hold" and c is not None and self.runner.aborted is None:
@@ -235,6 +249,7 @@ class Controller(Node):
         t = self._now()
         if t == 0.0:
             return
+        self._silence.heard()
         if self._start_t is None:
             self._start_t = t
         if self.duration_s and t - self._start_t >= self.duration_s and not self.finished:

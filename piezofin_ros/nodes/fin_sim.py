@@ -9,6 +9,18 @@ timer tick advances the simulation by one block (``block_s``); the timer period 
 With ``publish_clock`` the node publishes ``/clock`` (the time of its last sample) and the rest
 of the graph follows with ``use_sim_time``.  Sample times are ``t0 + k / sample_rate_hz`` with
 ``t0`` the node clock at configure: never the wall clock inside a callback.
+
+Safety does not depend on anything another node can change.  The timer that advances the rig
+(and with it the watchdog and every ramp) runs on the steady clock: ``fin_sim`` *is* the time
+source, so ``use_sim_time`` is not taken (ignored with a warning at start, refused at run time)
+and no ``/clock`` publisher can pace or stop it.  Stops ramp at least at
+:data:`~piezofin_ros.rig.STOP_SLEW_VPP_PER_S` whatever the slew setting; a tripped watchdog
+latches until an off command or a lifecycle activate re-arms it.  Simulated faster than real
+time, one second of fin time is a few milliseconds of wall time, less than the scheduling jitter
+of the commanding process: the watchdog then waits at least :data:`WATCHDOG_MIN_WALL_S` of wall
+time (``command_timeout_s`` is raised to ``WATCHDOG_MIN_WALL_S x realtime_factor`` of fin time,
+with a log line).  A lifecycle request that is not a valid transition is refused (the caller gets
+``success: false``), never a crash.
 With ``model`` (an ``augmented_model.yaml`` written by ``piezofin diagnose --report``) the rig
 simulates that model: its fin, plus the fitted effects linearised at each commanded operating point
 (see :class:`~piezofin_ros.rig.SimulatedRig`), so the node streams what the diagnosed model predicts.
@@ -19,9 +31,12 @@ from __future__ import annotations
 import collections
 import math
 import sys
-from dataclasses import fields
+from dataclasses import fields, replace
 
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
 from rclpy.context import Context
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.parameter import Parameter
@@ -32,7 +47,15 @@ from std_msgs.msg import Float64MultiArray
 from ..blocks import COMMAND_FIELDS, Block, BlockFormatError
 from ..diagnosis.model import ModelError, load_augmented
 from ..fin import Fin, FinConfigError, load_fin
-from ..rig import HARD_VOLTAGE_PP_MAX, DriveLimits, Protocol, RigConfig, SimulatedRig, loosened
+from ..rig import (
+    HARD_VOLTAGE_PP_MAX,
+    STOP_SLEW_VPP_PER_S,
+    DriveLimits,
+    Protocol,
+    RigConfig,
+    SimulatedRig,
+    loosened,
+)
 from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
@@ -68,6 +91,9 @@ RIG_RANGES = {
     "loadcell_drift_m_per_s": (-1e-6, 1e-6),
     "swim_speed_m_s": (0.0, 10.0),
 }
+#: The watchdog never trips on less than this much wall time without a command (see the module).
+WATCHDOG_MIN_WALL_S = 0.25
+
 LIMIT_RANGES = {
     "frequency_min_hz": (0.01, 1000.0),
     "frequency_max_hz": (0.01, 1000.0),
@@ -111,16 +137,28 @@ class FinSim(LifecycleNode):
         self._protocol_off = float_param(self, "protocol_off_s", 10.0, 0.1, 600.0, "protocol: time off, s")
         self._protocol_on = float_param(self, "protocol_on_s", 10.0, 0.1, 600.0, "protocol: time on, s")
         self.autostart = bool_param(self, "autostart", True, "configure and activate at start (ros2 run)")
+        self.finalized = False  # lifecycle shutdown: the process ends (run_node)
         self._rig_config = dataclass_params(self, "rig", RigConfig(), RIG_RANGES, "rig model (SI units)")
         self._limits = dataclass_params(
             self, "limits", DriveLimits(), LIMIT_RANGES, "drive limits (SI units)"
         )
-        freeze_parameters(self, "limits.", self._on_limits)
+        if self.get_parameter("use_sim_time").value:
+            self.set_parameters([Parameter("use_sim_time", value=False)])
+            self.get_logger().warning(
+                "use_sim_time is not taken: fin_sim is the time source (its drive, watchdog and ramps "
+                "run on the steady clock)"
+            )
+        freeze_parameters(self, "limits.", self._on_limits, allow_sim_time=False)
+        self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
+        self._guard_change_state()
         self._rig: SimulatedRig | None = None
         self._fin: Fin | None = None
         self._timer = None
+        self._running = False  # active: the rig advances (on its own timer, or paced by bringup)
+        self.paced = False  # bringup steps every fin from one timer (see step()); no timer of its own
         self._pubs: dict[str, object] = {}
-        self.published = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}
+        self.published = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}  # samples
+        self.blocks_published = 0  # on each data topic
         self.command_log: list[str] = []
         self.command_counts: collections.Counter[str] = collections.Counter()
         self._last_reason_log_ns = -(2**62)
@@ -145,7 +183,7 @@ class FinSim(LifecycleNode):
         self._rig = SimulatedRig(
             self._fin,
             self._rig_config,
-            self._limits,
+            self._effective(self._limits),
             seed=self._seed,
             t0=t0,
             protocol=protocol,
@@ -160,6 +198,12 @@ class FinSim(LifecycleNode):
             for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL)
         }
         self._clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self._publish_clock else None
+        watchdog = self._rig.drive.limits.command_timeout_s
+        if watchdog > self._limits.command_timeout_s:
+            self.get_logger().info(
+                f"watchdog: {watchdog:g} s of fin time ({WATCHDOG_MIN_WALL_S:g} s of wall time at "
+                f"x{self._factor:g}) instead of limits.command_timeout_s {self._limits.command_timeout_s:g} s"
+            )
         self.get_logger().info(
             f"configured {self._fin.name}: {self._rig_config.sample_rate_hz:g} Hz samples in blocks of "
             f"{self._n_block}, x{self._factor:g} real time, limit {self._limits.voltage_pp_max:g} Vpp"
@@ -168,14 +212,17 @@ class FinSim(LifecycleNode):
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         period = self._n_block / self._rig_config.sample_rate_hz / self._factor
-        self._timer = self.create_timer(period, self._tick)
+        assert self._rig is not None
+        self._rig.rearm()  # activating is the operator's deliberate re-arm of a tripped watchdog
+        # the steady clock: nothing another node sets (use_sim_time, /clock) can stop the drive's ticks
+        if not self.paced:
+            self._timer = self.create_timer(period, self._tick, clock=self._steady)
+        self._running = True
         return super().on_activate(state)
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
         self._ramp_down("deactivated")
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = None
+        self._stop_timer()
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
@@ -186,9 +233,33 @@ class FinSim(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        if self._timer is not None:
+        if self._running:
             self._ramp_down("shutting down")
+            self._stop_timer()
+        self.finalized = True
         return TransitionCallbackReturn.SUCCESS
+
+    def _guard_change_state(self) -> None:
+        """A ``change_state`` request for a transition the current state does not have (``cleanup``
+        while active, ...) is answered ``success: false`` with a log line; rclpy would raise in the
+        service callback, killing the process and leaving the caller without a reply."""
+        service = self._service_change_state
+        handle = service.callback
+
+        def guarded(request: object, response: object) -> object:
+            try:
+                return handle(request, response)
+            except _rclpy.RCLError as exc:
+                label = self._state_machine.current_state[1]
+                req = request.transition  # type: ignore[attr-defined]
+                self.get_logger().warning(
+                    f"refused lifecycle transition {req.label or req.id} from state {label}: "
+                    f"{str(exc).splitlines()[0]}"
+                )
+                response.success = False  # type: ignore[attr-defined]
+                return response
+
+        service.callback = guarded
 
     # ------------------------------------------------------------------------------- behaviour
     @property
@@ -200,11 +271,27 @@ class FinSim(LifecycleNode):
         return min((p.get_subscription_count() for p in self._pubs.values()), default=0)  # type: ignore[attr-defined]
 
     @property
+    def block_s(self) -> float:
+        """Simulated time per block, s (after configure)."""
+        return self._n_block / self._rig_config.sample_rate_hz
+
+    @property
     def active(self) -> bool:
-        return self._timer is not None
+        return self._running
+
+    def _stop_timer(self) -> None:
+        self._running = False
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+
+    def step(self) -> None:
+        """Advance one block now (bringup's pacer: every fin from one timer, so all share one time)."""
+        if self._running:
+            self._publish(self._n_block)
 
     def _on_command(self, msg: Float64MultiArray) -> None:
-        if self._rig is None or self._timer is None:
+        if self._rig is None or not self._running:
             self._log_command("ignored: fin_sim is not active (the drive stays at 0 V)")
             return
         try:
@@ -235,11 +322,16 @@ class FinSim(LifecycleNode):
         looser = loosened(new, self._limits)
         if looser:
             return "only tighter limits are taken while running (restart to relax): " + ", ".join(looser)
-        what = self._rig.tighten(new) if self._rig is not None else "limits tightened"
+        what = self._rig.tighten(self._effective(new)) if self._rig is not None else "limits tightened"
         self._limits = new
         changed = ", ".join(f"{p.name} = {p.value:g}" for p in changes)
         self.get_logger().warning(f"{changed}: {what}")
         return None
+
+    def _effective(self, limits: DriveLimits) -> DriveLimits:
+        """The limits the rig runs with: the watchdog waits at least WATCHDOG_MIN_WALL_S of wall time."""
+        floor = WATCHDOG_MIN_WALL_S * self._factor
+        return replace(limits, command_timeout_s=max(limits.command_timeout_s, floor))
 
     def _log_command(self, reason: str) -> None:
         """Keep and log the reason; bursts are logged once a second with the count of the rest."""
@@ -260,7 +352,7 @@ class FinSim(LifecycleNode):
             self._unlogged += 1
 
     def _tick(self) -> None:
-        if self._timer is None:
+        if not self._running:
             return  # a tick queued before deactivation: the drive is stopped
         self._publish(self._n_block)
 
@@ -281,13 +373,14 @@ class FinSim(LifecycleNode):
         for topic, block in blocks.items():
             self._pubs[topic].publish(block_msg(block))  # type: ignore[attr-defined]
             self.published[topic] += n
+        self.blocks_published += 1
 
     def _ramp_down(self, why: str) -> None:
         rig = self._rig
         if rig is None:
             return
         rig.stop()
-        ramp_s = rig.drive.voltage_pp / rig.drive.limits.slew_vpp_per_s
+        ramp_s = rig.drive.voltage_pp / max(rig.drive.limits.slew_vpp_per_s, STOP_SLEW_VPP_PER_S)
         n = math.ceil((ramp_s + 0.05) * self._rig_config.sample_rate_hz)
         if rig.drive.voltage_pp > 0:
             self.get_logger().info(f"{why}: ramping the drive from {rig.drive.voltage_pp:.0f} Vpp to 0 V")
@@ -298,11 +391,10 @@ class FinSim(LifecycleNode):
 
     def close(self) -> None:
         """Ramp the drive down (if still active) and report what was published."""
-        if self._timer is not None:
+        if self._running:
             if self.context.ok():
                 self._ramp_down("stopping")
-            self.destroy_timer(self._timer)
-            self._timer = None
+            self._stop_timer()
         counts = ", ".join(f"{k} {v}" for k, v in self.published.items())
         commands = ", ".join(f"{k} {v}" for k, v in sorted(self.command_counts.items())) or "none"
         self.get_logger().info(f"published samples: {counts}; commands: {commands}")
@@ -319,7 +411,7 @@ def main(args: list[str] | None = None) -> int:
             node.trigger_activate()
         return node
 
-    return run_node(build, args)
+    return run_node(build, args, until=lambda node: node.finalized)  # type: ignore[attr-defined]
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ the node clock's time (the simulated time under ``use_sim_time``).  Chunks are f
 
 from __future__ import annotations
 
+import collections
 import importlib
 import sys
 import time
@@ -116,6 +117,8 @@ class Recorder(Node):
         self._subs: dict[str, Any] = {}
         self._untyped: set[str] = set()
         self._early: list[tuple[str, bytes]] = []
+        self.received: collections.Counter[str] = collections.Counter()  # messages taken, per topic
+        self.exit_code: int | None = None  # set when recording had to stop (run_node exits with it)
         wanted = self._wanted(topics, namespaces)
         for topic, type_name in wanted.items():
             self.add_topic(topic, type_name)
@@ -174,17 +177,31 @@ class Recorder(Node):
                 self.add_topic(topic, types[0])
 
     def _write(self, topic: str, data: bytes) -> None:
+        self.received[topic] += 1
         if self.bag.closed:
             return
         now = self.get_clock().now().nanoseconds
         if now == 0:  # use_sim_time and no /clock yet: keep the message until time starts
             self._early.append((topic, data))
             return
-        if self._early:
-            for early_topic, early_data in self._early:
-                self.bag.write(early_topic, now, early_data)
-            self._early.clear()
-        self.bag.write(topic, now, data)
+        try:
+            if self._early:
+                for early_topic, early_data in self._early:
+                    self.bag.write(early_topic, now, early_data)
+                self._early.clear()
+            self.bag.write(topic, now, data)
+        except OSError as exc:
+            self._give_up(exc)
+
+    def _give_up(self, exc: OSError) -> None:
+        """A write failed (disk full, file-size limit, I/O error): stop recording, say so, exit 1.
+        What was flushed before stays readable (``piezofin bag recover``)."""
+        self.get_logger().error(
+            f"cannot write to {self.path} ({exc.strerror or exc}): recording stopped; the file holds "
+            f"what was flushed before (`piezofin bag recover {self.path}` makes it a complete bag)"
+        )
+        self.bag.abandon()
+        self.exit_code = 1
 
     @property
     def counts(self) -> dict[str, int]:
@@ -192,9 +209,13 @@ class Recorder(Node):
 
     def close(self) -> None:
         if not self.bag.closed:
-            for topic, data in self._early:  # the clock never started: keep them at time 0
-                self.bag.write(topic, 0, data)
-            self.bag.close()
+            try:
+                for topic, data in self._early:  # the clock never started: keep them at time 0
+                    self.bag.write(topic, 0, data)
+                self.bag.close()
+            except OSError as exc:
+                self._give_up(exc)
+                return
             total = sum(self.bag.counts.values())
             self.get_logger().info(f"closed {self.path}: {total} messages on {len(self.bag.counts)} topics")
 

@@ -26,6 +26,7 @@ from ._common import (
     TOPIC_LOADCELL,
     TOPIC_SPEED,
     TOPIC_TIP,
+    SilenceWatch,
     StartupError,
     block_msg,
     dataclass_params,
@@ -75,8 +76,15 @@ class ThrustEstimator(Node):
         self.create_subscription(Float64MultiArray, TOPIC_LOADCELL, self._on_loadcell, QOS_DATA)
         self.create_subscription(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
         self._last_t = float("nan")
+        self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}  # blocks
+        self._silence = SilenceWatch(
+            self, f"{self.resolve_topic_name(TOPIC_DRIVE)}", "is fin_sim (or the rig driver) running?"
+        )
 
     def _decode(self, msg: Float64MultiArray, channels: tuple[str, ...], topic: str) -> Block | None:
+        self.received[topic] += 1
+        if topic == TOPIC_DRIVE:
+            self._silence.heard()
         try:
             return check_samples(msg_block(msg, expect=channels), channels)
         except BlockFormatError as exc:
