@@ -157,9 +157,8 @@ class BagWriter:
         )
         self._sequence[topic] = seq + 1
         self.counts[topic] += 1
-        if self._last_flush_ns is None:
-            self._last_flush_ns = log_time_ns
-        elif log_time_ns - self._last_flush_ns >= self._flush_ns:
+        if self._last_flush_ns is None or log_time_ns - self._last_flush_ns >= self._flush_ns:
+            # the first message too: from then on a SIGKILL loses at most flush_s
             self._writer.flush()
             self._file.flush()  # into the OS: a SIGKILL now loses nothing written so far
             self._last_flush_ns = log_time_ns

@@ -66,8 +66,9 @@ class DriveLimits:
             value = getattr(self, f.name)
             # bool is an int in Python: `true` must not become a 1 Vpp cap or a 1 s watchdog
             number = isinstance(value, (int, float)) and not isinstance(value, bool)
-            low_ok = value >= 0 if f.name == "voltage_pp_max" else value > 0
-            if not (number and math.isfinite(value) and low_ok):
+            if not (
+                number and math.isfinite(value) and (value >= 0 if f.name == "voltage_pp_max" else value > 0)
+            ):
                 bound = ">= 0" if f.name == "voltage_pp_max" else "> 0"
                 raise ValueError(f"{f.name} must be a finite number {bound}, got {value!r}")
         if self.frequency_min_hz >= self.frequency_max_hz:

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from piezofin_ros.fin import Fin
 from piezofin_ros.rig import (
@@ -166,3 +170,69 @@ def test_limits_tighten_live_and_never_relax(m8528: Fin) -> None:
     assert "outside the new band" in rig.tighten(replace(rig.drive.limits, frequency_max_hz=8.0))
     v = np.concatenate([rig.step(50).voltage for _ in range(10)])
     assert np.all(v[-200:] == 0.0) and rig.trial is None
+
+
+STOPS = ("off", "watchdog", "cap lowered", "cap to 0", "stop (deactivate)", "band narrowed")
+
+
+@settings(max_examples=120, deadline=None)
+@given(
+    slew=st.floats(1.0, 1e6),
+    cap=st.floats(100.0, HARD_VOLTAGE_PP_MAX),
+    f=st.floats(0.5, 40.0),
+    kind=st.sampled_from(STOPS),
+)
+def test_every_stop_is_fast_whatever_the_settings(slew: float, cap: float, f: float, kind: str) -> None:
+    """From full amplitude at any slew, cap and frequency, every kind of stop is below 1 % of the
+    amplitude within 0.5 s (0.5 s after the watchdog's timeout for that one), and never rises."""
+    from piezofin_ros.fin import load_fin
+
+    rig = SimulatedRig(load_fin("M8528-P1"), QUIET, DriveLimits(voltage_pp_max=cap, slew_vpp_per_s=1e6))
+    rig.command(f, cap, 1)
+    rig.step(20)
+    rig.tighten(DriveLimits(voltage_pp_max=cap, slew_vpp_per_s=slew))  # a slower slew, taken live
+    a0 = rig.drive.amplitude
+    assert a0 == pytest.approx(cap / 2)
+    limits = rig.drive.limits
+    wait = 0.0
+    if kind == "off":
+        rig.command(f, 0.0, 0)
+    elif kind == "watchdog":
+        wait = limits.command_timeout_s
+    elif kind == "cap lowered":
+        rig.tighten(replace(limits, voltage_pp_max=0.01 * cap))
+    elif kind == "cap to 0":
+        rig.tighten(replace(limits, voltage_pp_max=0.0))
+    elif kind == "stop (deactivate)":
+        rig.stop()
+    else:
+        rig.tighten(replace(limits, frequency_min_hz=f + 0.1, frequency_max_hz=f + 1.0))
+    amps = []
+    for _ in range(round((wait + 0.5) / 0.01) + 1):
+        rig.step(10)
+        amps.append(rig.drive.amplitude)
+    assert amps[-1] <= 0.01 * a0 + 1e-9
+    assert all(b <= a + 1e-9 for a, b in itertools.pairwise(amps))
+
+
+def test_the_watchdog_latches_until_an_off_command(m8528: Fin) -> None:
+    rig = SimulatedRig(m8528, QUIET)
+    rig.command(5.0, 800.0, 1)
+    for _ in range(40):  # 2 s without a command: tripped, ramped to zero
+        rig.step(50)
+    assert rig.drive.amplitude == 0.0 and rig.drive.tripped
+    accepted, why = rig.command(5.0, 800.0, 1)
+    assert not accepted and "re-arm" in (why or "")
+    rig.step(300)
+    assert rig.drive.amplitude == 0.0
+    assert rig.command(5.0, 0.0, 0) == (True, None)  # a deliberate off re-arms
+    assert rig.command(5.0, 800.0, 1)[0]
+    rig.step(300)
+    assert rig.drive.amplitude == pytest.approx(400.0)
+
+
+@pytest.mark.parametrize("value", [True, False, "400", None, math.nan, -1.0])
+def test_limits_refuse_what_is_not_a_number(value: object) -> None:
+    with pytest.raises(ValueError, match="voltage_pp_max"):
+        DriveLimits(voltage_pp_max=value)  # type: ignore[arg-type]
+    DriveLimits(voltage_pp_max=0.0)  # zero is a valid cap: no drive at all

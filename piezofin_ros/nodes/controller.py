@@ -189,6 +189,7 @@ class Controller(Node):
             self._send(*self.runner.command(t))
             if self.runner.index != before:
                 self._publish_status()
+        if not self.finished:  # the last trials' estimates may go missing after the plan has run
             missing = [r for r in self.runner.missing(t) if r.index not in self._reported_missing]
             for r in missing:
                 self._reported_missing.add(r.index)
@@ -196,7 +197,7 @@ class Controller(Node):
                     f"no estimate for trial {r.index} ({r.frequency_hz:g} Hz, {r.voltage_pp:g} Vpp): "
                     "is thrust_estimator running?"
                 )
-            if self._missing_in_a_row() >= self.max_missing:
+            if self.runner.aborted is None and self._missing_in_a_row() >= self.max_missing:
                 self.runner.aborted = f"{self.max_missing} trials in a row without an estimate"
                 self.get_logger().error(f"stopping the run and the drive: {self.runner.aborted}")
         if self.runner.done and not self.finished and (self.runner.aborted or self._all_settled()):
