@@ -446,8 +446,8 @@ class _Budget:
         except (zstandard.ZstdError, RuntimeError) as exc:  # lz4 raises RuntimeError
             raise _ChunkError(f"does not decompress ({exc})") from None
         if len(data) != usize:
-            more = "+" if len(data) > usize else ""
-            raise _ChunkError(f"decompresses to {len(data)}{more} bytes, not {usize}")
+            got = f"more than {usize}" if len(data) > usize else str(len(data))
+            raise _ChunkError(f"decompresses to {got} bytes, not the {usize} it states")
         if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
             raise _ChunkError("fails its CRC")
         self.expanded += usize

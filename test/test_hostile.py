@@ -396,7 +396,6 @@ def test_a_recorder_killed_at_any_moment_leaves_a_recoverable_bag(tmp_path) -> N
             deadline = time.monotonic() + 30.0
             while not bag.exists() and time.monotonic() < deadline:
                 time.sleep(0.005)
-            created = time.time()
             time.sleep(after)
             rec.send_signal(signal.SIGKILL)
             killed = time.time()
@@ -457,8 +456,10 @@ def test_several_fins_in_bringup_share_one_clock_drop_nothing_and_exit(tmp_path)
 
     bag = tmp_path / "fins.mcap"
     run = subprocess.run(
-        [str(BIN / "bringup"), "--namespaces", "a", "b", "c", "--frequencies", "5", "9", "--voltages", "800"]
-        + ["--bag", str(bag), "--json", str(tmp_path / "s.json")],
+        [
+            *(str(BIN / "bringup"), "--namespaces", "a", "b", "c", "--frequencies", "5", "9"),
+            *("--voltages", "800", "--bag", str(bag), "--json", str(tmp_path / "s.json")),
+        ],
         capture_output=True,
         text=True,
         timeout=300,
