@@ -404,17 +404,18 @@ class _Budget:
     * one chunk decompresses to at most ``50 x size + 32 MiB`` (and 1 GiB): the bytes are held
       while its records are read, so this bounds the reader's memory (records are parsed one by
       one from the chunk, never expanded into a list);
-    * all chunks together to at most ``200 x size + 64 MiB``, and the file holds at most one
-      record per byte (a record takes at least a few compressed bytes even in a very repetitive
-      bag): beyond either, the file is a decompression bomb and :class:`BagError` names it.
-      This bounds the time: a 2 MB file holds at most 2 million records.
+    * all chunks together to at most ``100 x size + 64 MiB``, and the file holds at most one
+      record per 4 bytes (a record takes several compressed bytes even in a very repetitive bag;
+      the suite's blocks take about a kilobyte): beyond either, the file is a decompression bomb
+      and :class:`BagError` names it.  This bounds the time: a 2 MB file holds at most 500,000
+      records.
     """
 
     def __init__(self, path: Path, size: int) -> None:
-        self.path = path
+        self.path, self.size = path, size
         self.chunk_limit = min(_MAX_CHUNK, 50 * size + (32 << 20))
-        self.total_limit = 200 * size + (64 << 20)
-        self.record_limit = max(size, 10_000)
+        self.total_limit = 100 * size + (64 << 20)
+        self.record_limit = max(size // 4, 10_000)
         self.expanded = 0
         self.records = 0
 
@@ -425,8 +426,8 @@ class _Budget:
             raise _ChunkError(f"claims {usize} bytes uncompressed, above the {self.chunk_limit}-byte limit")
         if self.expanded + usize > self.total_limit:
             raise BagError(
-                f"{self.path}: expands beyond {self.total_limit} bytes ({self.total_limit // max(1, usize)}x "
-                "its size or more): a decompression bomb, not a bag"
+                f"{self.path}: expands beyond {self.total_limit} bytes, over 100x its {self.size} bytes: "
+                "a decompression bomb, not a bag"
             )
         try:
             if chunk.compression == "zstd":
@@ -457,8 +458,8 @@ class _Budget:
         self.records += 1
         if self.records > self.record_limit:
             raise BagError(
-                f"{self.path}: holds more than {self.record_limit} records in {self.record_limit} bytes: "
-                "a decompression bomb, not a bag"
+                f"{self.path}: holds more than {self.record_limit} records in {4 * self.record_limit} "
+                "bytes: a decompression bomb, not a bag"
             )
 
 

@@ -37,7 +37,7 @@ with the same five corrections applied on top as effects of the same library.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -98,6 +98,10 @@ class Correction:
     thrust_gain: float = 1.0
 
     base: Augmented | None = None  # a diagnosed model (fin + effects) the correction applies on top of
+
+    def fitted(self) -> dict[str, float]:
+        """The five fitted numbers (for a status message: plain JSON, without the base model)."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self) if f.name != "base"}
 
     def plant(self, fin: Fin) -> Plant:
         return Plant(
@@ -357,7 +361,7 @@ class Optimiser:
             "voltage_pp": c.voltage_pp,
             "predicted_thrust_n": c.thrust_n,
             "predicted_power_w": c.power_w,
-            "correction": self.correction.__dict__,
+            "correction": self.correction.fitted(),
             "observations": len(self.observations),
         }
 

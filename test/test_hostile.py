@@ -140,6 +140,9 @@ def test_no_clock_or_time_parameter_silences_the_watchdog(attack: str) -> None:
             quiet_after = w.loud_until() - last_cmd
     finally:
         out = finish(proc)
+    print(
+        f"{attack}: below 1 % {quiet_after:.2f} s after the last command, {published_during} blocks meanwhile"
+    )
     assert published_during >= 40, (published_during, out)  # 2.5 s of 20 blocks/s: the timer runs on
     assert quiet_after < 1.0 + 0.5, (quiet_after, out)
     if attack == "start with use_sim_time":
@@ -193,6 +196,7 @@ def test_a_slow_slew_never_makes_a_stop_slow(stop_kind: str) -> None:
     t_stop_fin = t_stop + arrival_offset  # the stop in fin time (x1: one block of uncertainty)
     loud = t[np.abs(v) > QUIET]
     delay = {"watchdog": 1.0}.get(stop_kind, 0.0)  # the watchdog waits for its timeout first
+    print(f"slew 1 Vpp/s, {stop_kind}: below 1 % {loud[-1] - t_stop_fin - delay:.3f} s after the stop")
     assert loud[-1] - t_stop_fin < delay + 0.5 + 0.1, (loud[-1] - t_stop_fin, out)
     assert t[-1] - loud[-1] < 5.0 or stop_kind not in ("deactivate", "shutdown")
     if stop_kind in ("deactivate", "shutdown"):
@@ -297,6 +301,9 @@ def test_fast_simulation_does_not_trip_on_scheduling_jitter() -> None:
             stopped_after = w.loud_until() - last
     finally:
         out = finish(proc)
+    print(
+        f"x20, commands 200 ms apart: lowest peak {lowest:.1f} V; stopped: quiet {stopped_after:.3f} s later"
+    )
     assert lowest > 390.0, out  # never tripped while commanded
     assert "instead of limits.command_timeout_s" in out
     assert stopped_after < 0.25 + 0.1 + 0.15, stopped_after  # wall floor + ramp (at x20) + a block

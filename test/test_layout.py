@@ -75,3 +75,45 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
     )
     assert run.returncode == 0, run.stderr
     assert "M8528-P1" in run.stdout
+
+
+#: The rosdep key (or ROS package) that provides each third-party module the package imports.
+#: Keys checked against ros/rosdistro's rosdep/python.yaml (mcap: only `mcap-ros2-support`, a pip
+#: key whose package depends on mcap, which depends on zstandard and lz4).
+ROSDEP = {
+    "numpy": "python3-numpy",
+    "scipy": "python3-scipy",
+    "yaml": "python3-yaml",
+    "matplotlib": "python3-matplotlib",
+    "numba": "python3-numba",
+    "mcap": "mcap-ros2-support",
+    "zstandard": "mcap-ros2-support",
+    "lz4": "mcap-ros2-support",
+    "rosbags": "python3-rosbags-pip",
+}
+
+
+def test_every_import_is_declared_in_package_xml() -> None:
+    """After `rosdep install --from-paths src`, every module the package imports is there."""
+    import ast
+    import xml.etree.ElementTree as ET
+
+    declared = {e.text for e in ET.parse(ROOT / "package.xml").getroot() if e.tag.endswith("depend")}
+    stdlib = set(sys.stdlib_module_names)
+    files = [*(ROOT / "piezofin_ros").rglob("*.py"), *(ROOT / "launch").glob("*.py")]
+    needed: dict[str, str] = {}
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            for name in names:
+                top = name.split(".")[0]
+                if top not in stdlib and top != "piezofin_ros":
+                    needed[ROSDEP.get(top, top)] = str(path.relative_to(ROOT))
+    missing = {key: where for key, where in needed.items() if key not in declared}
+    assert not missing, f"imported but not declared in package.xml: {missing}"
+    unused = declared - set(needed) - {"python3-pytest", "python3-hypothesis"}
+    assert not unused, f"declared in package.xml but never imported: {unused}"
