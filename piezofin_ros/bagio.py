@@ -501,6 +501,20 @@ def _why(exc: BaseException) -> str:
     return f"{name}: {exc}" if str(exc) else name
 
 
+def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
+    """Topic -> message type of every channel in a bag: from its summary, or (a bag whose writer was
+    killed) by reading it through.  Raises :class:`BagError` as :func:`read_messages` does."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            channels = _summary_channels(f)
+    except OSError:
+        channels = {}
+    if channels:
+        return {topic: name for (topic, _), name in channels.values()}
+    return {m.topic: m.type_name for m in read_messages(path, on_damage=None)}
+
+
 @dataclass(frozen=True)
 class Recovery:
     """What :func:`recover` saved."""

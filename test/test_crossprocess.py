@@ -81,7 +81,11 @@ def test_no_drops_at_the_default_rate_for_10_s() -> None:
 
 @pytest.mark.parametrize(
     ("arg", "named"),
-    [("limits.voltage_pp_max:=2000.0", "limits.voltage_pp_max"), ("fin:=no-such-fin", "no-such-fin")],
+    [
+        ("limits.voltage_pp_max:=2000.0", "limits.voltage_pp_max"),
+        ("fin:=no-such-fin", "no-such-fin"),
+        ("realtime_factr:=10.0", "unknown parameter realtime_factr"),  # a typo is not silently ignored
+    ],
 )
 def test_bad_configuration_exits_2_naming_it(arg: str, named: str) -> None:
     proc = start("fin_sim", "-p", arg)

@@ -26,6 +26,8 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
             shutil.copytree(source, src / item, ignore=shutil.ignore_patterns("__pycache__"))
         elif source.exists():
             shutil.copy2(source, src / item)
+    (src / "bags").mkdir()
+    shutil.copy2(ROOT / "bags" / "sample_M8528-P1.mcap", src / "bags")  # a clone has only this bag
     ws = tmp_path / "ws"
     proc = subprocess.run(
         [colcon, "build", "--base-paths", "src"],
@@ -59,6 +61,7 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
     ]
     share = prefix / "share" / "piezofin_ros"
     assert (share / "config" / "bringup.yaml").exists()
+    assert (share / "bags" / "sample_M8528-P1.mcap").exists()  # `player -p bag:=bags/sample_...` anywhere
     launch = share / "launch" / "piezofin.launch.py"
     compile(launch.read_text(), str(launch), "exec")  # launch itself is not on PyPI: syntax only
     # The installed executable runs from the install tree and finds the installed presets.

@@ -436,3 +436,40 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
         assert all(b <= a + 1e-9 for a, b in itertools.pairwise(after))  # holds, then only down
         t_zero = next(t for t, v, _ in sent if t > t_kill and v == 0.0)
         assert t_zero - t_kill <= 2 * 3.0 + 800.0 / 400.0 + 1.0  # bounded: 2 x timeout + a full ramp
+
+
+def test_player_offers_every_topic_before_its_first_message(tmp_path: Any) -> None:
+    """`ros2 topic echo` started right after the player finds every topic's type: the publishers
+    exist from the start (the bag's channels), not from each topic's first message.  A relative
+    path that is not in the working directory is looked up in the package's share directory."""
+    import os
+
+    sample = "bags/sample_M8528-P1.mcap"
+    cwd = os.getcwd()
+    os.chdir(tmp_path)  # not the clone: the path resolves to the package's copy
+    try:
+        with graph() as g:
+            player = g.add(Player(context=g.context, parameter_overrides=params(bag=sample, rate=0.01)))
+            names = dict(player.get_topic_names_and_types())
+    finally:
+        os.chdir(cwd)
+    assert player.published == {}  # nothing played yet (rate 0.01) ...
+    for topic in ("/fin/drive", "/fin/tip_velocity", "/fin/loadcell", "/fin/cmd", "/fin/estimate"):
+        assert names[topic] == ["std_msgs/msg/Float64MultiArray"], topic  # ... and every topic offered
+
+
+def test_doubles_stay_doubles_and_every_parameter_says_what_it_is() -> None:
+    """`-p realtime_factor:=10` and `ros2 param set ... limits.voltage_pp_max 400` (integers) keep
+    the parameters doubles; the estimator's twelve window parameters each have their own description."""
+    with graph() as g:
+        sim = g.add(
+            FinSim(context=g.context, parameter_overrides=params(realtime_factor=10, autostart=False))
+        )
+        sim.trigger_configure()
+        assert sim.get_parameter("realtime_factor").type_ == Parameter.Type.DOUBLE
+        [result] = sim.set_parameters([Parameter("limits.voltage_pp_max", value=400)])
+        assert result.successful, result.reason
+        assert sim.get_parameter("limits.voltage_pp_max").type_ == Parameter.Type.DOUBLE
+        est = g.add(ThrustEstimator(context=g.context))
+        texts = [d.description for n, d in est._descriptors.items() if n.startswith("estimator.")]
+    assert len(texts) == 12 and len(set(texts)) == 12, texts

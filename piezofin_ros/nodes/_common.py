@@ -80,7 +80,28 @@ def float_param(
         raise StartupError(f"parameter {name}: expected a number, got {value!r}")
     if not (math.isfinite(value) and lo <= value <= hi):
         raise StartupError(f"parameter {name}: {value!r} is outside [{lo:g}, {hi:g}]")
+    if not isinstance(value, float):  # `-p x:=10`: stored as the double it is
+        node.set_parameters([Parameter(name, value=float(value))])
+    _keep_double(node, name)
     return float(value)
+
+
+def _keep_double(node: Node, name: str) -> None:
+    """At run time too, an integer set on a double parameter stays a double (``ros2 param set x 10``)."""
+    doubles = getattr(node, "_piezofin_doubles", None)
+    if doubles is None:
+        doubles = node._piezofin_doubles = set()  # type: ignore[attr-defined]
+
+        def to_double(params: list[Parameter]) -> list[Parameter]:
+            return [
+                Parameter(p.name, value=float(p.value))
+                if p.name in doubles and p.type_ == Parameter.Type.INTEGER
+                else p
+                for p in params
+            ]
+
+        node.add_pre_set_parameters_callback(to_double)
+    doubles.add(name)
 
 
 def int_param(node: Node, name: str, default: int, lo: int, hi: int, description: str) -> int:
@@ -112,26 +133,41 @@ def array_param(
     return list(value)
 
 
+def field_docs(cls: type) -> dict[str, str]:
+    """Each dataclass field's trailing comment in its source (``name: float = 1.0  # what it is``)."""
+    import inspect
+    import re
+
+    try:
+        source = inspect.getsource(cls)
+    except (OSError, TypeError):
+        return {}
+    return dict(re.findall(r"^\s+(\w+)\s*:[^#\n]*#\s*(.+?)\s*$", source, re.MULTILINE))
+
+
 def dataclass_params(
     node: Node, prefix: str, instance: Any, ranges: dict[str, tuple[float, float]], docs: str
 ) -> Any:
     """Declare ``prefix.<field>`` for every float field of a frozen dataclass; return the configured copy.
 
-    The dataclass's own validation runs on the result, so an inconsistent combination fails
-    with the dataclass's message (which names the field).
+    Each parameter's description is ``docs`` and the field's own comment in the dataclass.  The
+    dataclass's own validation runs on the result, so an inconsistent combination fails with the
+    dataclass's message (which names the field).
     """
     values = {}
+    comments = field_docs(type(instance))
     for f in fields(instance):
         lo, hi = ranges.get(f.name, (-math.inf, math.inf))
         default = getattr(instance, f.name)
         if isinstance(default, bool) or not isinstance(default, (int, float)):
             continue
+        text = f"{docs}: {comments[f.name]}" if f.name in comments else f"{docs}: {f.name.replace('_', ' ')}"
         if isinstance(default, int):  # bools were skipped above
             values[f.name] = int_param(
-                node, f"{prefix}.{f.name}", default, int(lo), int(min(hi, 2**31 - 1)), docs
+                node, f"{prefix}.{f.name}", default, int(lo), int(min(hi, 2**31 - 1)), text
             )
         else:
-            values[f.name] = float_param(node, f"{prefix}.{f.name}", default, lo, hi, docs)
+            values[f.name] = float_param(node, f"{prefix}.{f.name}", default, lo, hi, text)
     return type(instance)(**{**{f.name: getattr(instance, f.name) for f in fields(instance)}, **values})
 
 
@@ -237,6 +273,37 @@ class StopFlag:
         return self.signal is not None
 
 
+def command_line_parameters(argv: Sequence[str]) -> list[tuple[str, str]]:
+    """``(node or "", name)`` of every ``-p [node:]name:=value`` in the ROS arguments of ``argv``."""
+    out, ros = [], False
+    for k, arg in enumerate(argv):
+        if arg == "--ros-args":
+            ros = True
+        elif arg == "--":
+            ros = False
+        elif ros and arg in ("-p", "--param") and k + 1 < len(argv):
+            target, _, _ = argv[k + 1].partition(":=")
+            node, _, name = target.rpartition(":")
+            out.append((node, name))
+    return out
+
+
+def check_parameter_names(node: Node, argv: Sequence[str]) -> None:
+    """A ``-p`` name the node does not have is an error (rclpy ignores it silently: a typo would
+    run with the default).  Names for another node (``-p other:name:=...``) are left alone."""
+    unknown = sorted(
+        name
+        for target, name in command_line_parameters(argv)
+        if target in ("", node.get_name()) and not node.has_parameter(name)
+    )
+    if unknown:
+        known = ", ".join(sorted(n for n in node._parameters if n != "use_sim_time" and "." not in n))
+        raise StartupError(
+            f"unknown parameter {', '.join(unknown)} for {node.get_fully_qualified_name()} "
+            f"(it has: {known}, and dotted groups; `ros2 param list` shows them all)"
+        )
+
+
 def run_node(
     factory: Callable[[rclpy.context.Context], Node],
     args: list[str] | None = None,
@@ -260,6 +327,7 @@ def run_node(
     executor = None
     try:
         node = factory(context)
+        check_parameter_names(node, argv)
         executor = EventsExecutor(context=context)
         executor.add_node(node)
         # spin_once in a loop, not spin(): with rclpy 7.1's EventsExecutor.spin() a lifecycle

@@ -9,6 +9,7 @@ a file damaged part-way is played up to the damage, which is then reported.
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Iterator
 from typing import Any
@@ -21,7 +22,8 @@ from rclpy.parameter import Parameter
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from ..bagio import BagError, BagMessage, read_messages
+from ..bagio import BagError, BagMessage, bag_topics, read_messages
+from ..fin import config_dir
 from ._common import (
     QOS_CLOCK,
     StartupError,
@@ -45,9 +47,11 @@ class Player(Node):
         freeze_parameters(self)
         if not self.bag_path:
             raise StartupError("parameter bag: give the .mcap file to play (-p bag:=run.mcap)")
+        self.bag_path = resolve_bag(self.bag_path)
         self._selected = set(topics) if topics else None
         try:
             first = next(read_messages(self.bag_path, self._selected, on_damage=None), None)
+            types = bag_topics(self.bag_path)
         except BagError as exc:
             raise StartupError(str(exc)) from None
         if first is None:
@@ -65,6 +69,11 @@ class Player(Node):
         self.published: dict[str, int] = {}
         self.done = False
         self.error: str | None = None
+        for topic, type_name in sorted(types.items()):  # all at once: `ros2 topic echo` finds them early
+            if (self._selected is None or topic in self._selected) and not (
+                topic == "/clock" and self.publish_clock
+            ):
+                self._publisher(BagMessage(topic, type_name, 0, b""))
         self._timer = self.create_timer(0.002, self._tick, clock=self._steady)
         self.get_logger().info(f"playing {self.bag_path} at x{self.rate:g}")
 
@@ -119,6 +128,18 @@ class Player(Node):
         self.get_logger().info(
             f"played {total} messages on {len(self.published)} topics from {self.bag_path}"
         )
+
+
+def resolve_bag(path: str) -> str:
+    """``path`` itself, or, when it does not exist and is relative, the same path in the package's
+    share directory (so ``-p bag:=bags/sample_M8528-P1.mcap`` works after ``colcon build`` too)."""
+    if os.path.exists(path) or os.path.isabs(path):
+        return path
+    try:
+        installed = config_dir().parent / path
+    except FileNotFoundError:
+        return path
+    return str(installed) if installed.exists() else path
 
 
 def main(args: list[str] | None = None) -> int:
