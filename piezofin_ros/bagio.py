@@ -102,12 +102,25 @@ class BagWriter:
         if not (math.isfinite(flush_s) and flush_s > 0):
             raise ValueError(f"flush_s must be finite and > 0, got {flush_s}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file: BinaryIO | None = open(self.path, "xb")  # noqa: SIM115 (closed in close())
-        self._writer = Writer(self._file, chunk_size=chunk_size, compression=kinds[compression])
-        self._writer.start(profile="ros2", library="piezofin_ros")
-        if metadata:
-            self._writer.add_metadata("piezofin", {str(k): str(v) for k, v in metadata.items()})
-        self._file.flush()  # the header is on disk at once: a writer killed now leaves an MCAP file
+        if self.path.exists():
+            raise FileExistsError(f"{self.path}: exists")
+        # The file appears under its name only once its header is written: a writer killed at any
+        # moment leaves no file or an MCAP file, never an empty one.
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.new")
+        self._file: BinaryIO | None = open(tmp, "xb")  # noqa: SIM115 (closed in close())
+        try:
+            self._writer = Writer(self._file, chunk_size=chunk_size, compression=kinds[compression])
+            self._writer.start(profile="ros2", library="piezofin_ros")
+            if metadata:
+                self._writer.add_metadata("piezofin", {str(k): str(v) for k, v in metadata.items()})
+            self._file.flush()
+            os.link(tmp, self.path)  # fails if the name was taken meanwhile: never overwritten
+        except BaseException:
+            self._file.close()
+            self._file = None
+            raise
+        finally:
+            tmp.unlink(missing_ok=True)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}

@@ -266,6 +266,13 @@ class StopFlag:
         self.signal = signum
 
     def restore(self) -> None:
+        """Put the previous handlers back, unless a signal came: then the process is on its way out,
+        and a second SIGINT (``ros2 launch`` sends its own after the terminal's Ctrl-C) must not
+        turn a clean exit into death by signal (launch's ``process has died ... exit code -2``)."""
+        if self.signal is not None:  # (rclpy's shutdown may have put Python's default back)
+            for sig in self._previous:
+                signal.signal(sig, signal.SIG_IGN)
+            return
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
 
@@ -308,6 +315,7 @@ def run_node(
     factory: Callable[[rclpy.context.Context], Node],
     args: list[str] | None = None,
     until: Callable[[Node], bool] | None = None,
+    start: Callable[[Node], None] | None = None,
 ) -> int:
     """``ros2 run`` entry point body: init, build, spin with the EventsExecutor, clean up.
 
@@ -328,6 +336,8 @@ def run_node(
     try:
         node = factory(context)
         check_parameter_names(node, argv)
+        if start is not None:
+            start(node)  # after the checks: nothing is driven with a mistyped parameter
         executor = EventsExecutor(context=context)
         executor.add_node(node)
         # spin_once in a loop, not spin(): with rclpy 7.1's EventsExecutor.spin() a lifecycle

@@ -401,17 +401,19 @@ class FinSim(LifecycleNode):
 
 
 def main(args: list[str] | None = None) -> int:
-    def build(context: Context) -> FinSim:
-        node = FinSim(context=context)
+    def start(node: FinSim) -> None:  # type: ignore[misc]
         if not node.autostart:
-            return node
+            return
         if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
             raise StartupError("fin_sim failed to configure (see the log line above)")
-        if node.autostart:
-            node.trigger_activate()
-        return node
+        node.trigger_activate()
 
-    return run_node(build, args, until=lambda node: node.finalized)  # type: ignore[attr-defined]
+    return run_node(
+        lambda context: FinSim(context=context),
+        args,
+        until=lambda node: node.finalized,  # type: ignore[attr-defined]
+        start=start,  # type: ignore[arg-type]
+    )
 
 
 if __name__ == "__main__":

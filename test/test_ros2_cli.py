@@ -1,0 +1,178 @@
+"""The suite as a ROS user meets it: the real `ros2` command line and `ros2 launch`.
+
+Where a `ros2` is on the PATH (a ROS machine) it is used; otherwise the Jazzy ros2cli and launch
+are built from ``../shared/ros2-jazzy`` into ``.ros/ros2-jazzy`` (once, about a minute).  The
+package itself is built with ``colcon build --symlink-install`` into ``.ros/ws``, as a user does.
+Without either, these tests are skipped with one line saying why.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from .rosutil import BIN, clean_env
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "ros2-jazzy" / "setup.sh"
+
+
+def _sourced(*scripts: Path) -> dict[str, str]:
+    """The environment after sourcing ``scripts`` (after activating the project's venv)."""
+    lines = [f"source {BIN / 'activate'}", "set +u", *(f"source {s}" for s in scripts), "env -0"]
+    out = subprocess.run(
+        ["bash", "-c", "; ".join(lines)], capture_output=True, env=clean_env(), check=True, timeout=60
+    ).stdout
+    env = dict(item.split("=", 1) for item in out.decode().split("\0") if "=" in item)
+    env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
+    return env
+
+
+@pytest.fixture(scope="module")
+def ros_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    overlay: list[Path] = []
+    if shutil.which("ros2", path=os.environ.get("PATH")) is None:
+        if not SHARED.exists():
+            pytest.skip("no ros2 on the PATH and no ../shared/ros2-jazzy to build it from")
+        out = ROOT / ".ros" / "ros2-jazzy"
+        build = subprocess.run(
+            ["bash", str(SHARED), str(BIN.parent), str(out)], capture_output=True, text=True, env=clean_env()
+        )
+        if build.returncode != 0:
+            pytest.fail(f"building ros2cli and launch failed:\n{build.stderr[-2000:]}")
+        overlay.append(out / "install" / "local_setup.bash")
+    ws = ROOT / ".ros" / "ws"
+    (ws / "src").mkdir(parents=True, exist_ok=True)
+    link = ws / "src" / "piezofin_ros"
+    if not link.exists():
+        link.symlink_to(ROOT)
+    colcon = subprocess.run(
+        [str(BIN / "colcon"), "build", "--symlink-install", "--base-paths", "src"],
+        cwd=ws,
+        capture_output=True,
+        text=True,
+        env=_sourced(*overlay),
+        timeout=300,
+    )
+    assert colcon.returncode == 0, colcon.stdout[-2000:] + colcon.stderr[-2000:]
+    env = _sourced(*overlay, ws / "install" / "local_setup.bash")
+    env["ROS_DOMAIN_ID"] = str((int(os.environ.get("ROS_DOMAIN_ID", "0")) + 101) % 200 + 1)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_LOG_DIR"] = str(tmp_path_factory.mktemp("roslog"))
+    return env
+
+
+def ros2(env: dict[str, str], *args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        ["ros2", *args], env=env, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL
+    )
+
+
+class Launch:
+    """`ros2 launch ...` in its own session (SIGINT reaches it as Ctrl-C would), output to a file."""
+
+    def __init__(self, env: dict[str, str], cwd: Path, *args: str) -> None:
+        self.log = cwd / "launch.log"
+        self.proc = subprocess.Popen(
+            ["ros2", "launch", "piezofin_ros", "piezofin.launch.py", *args],
+            env=env,
+            cwd=cwd,
+            stdin=subprocess.DEVNULL,
+            stdout=open(self.log, "w"),  # noqa: SIM115 (closed with the process)
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
+
+    def output(self) -> str:
+        return self.log.read_text()
+
+    def wait_for(self, text: str, timeout: float = 60.0) -> None:
+        t0 = time.monotonic()
+        while text not in self.output():
+            if time.monotonic() - t0 > timeout or self.proc.poll() is not None:
+                raise AssertionError(f"{text!r} not in the launch output:\n{self.output()[-3000:]}")
+            time.sleep(0.2)
+
+    def interrupt(self) -> str:
+        os.killpg(self.proc.pid, signal.SIGINT)  # Ctrl-C in the terminal: the whole process group
+        try:
+            self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            raise
+        return self.output()
+
+
+def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
+    ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    from mcap.reader import make_reader
+
+    launch = Launch(ros_env, tmp_path, "realtime_factor:=10")
+    try:
+        launch.wait_for("thrust_estimator-2] [INFO]", 60.0)
+        launch.wait_for("trial 1.000 Hz 400 Vpp", 60.0)  # an estimate: the graph works
+        nodes = ros2(ros_env, "node", "list", "--spin-time", "3").stdout.split()
+        assert {"/fin/fin_sim", "/fin/thrust_estimator", "/fin/controller", "/recorder"} <= set(nodes), nodes
+        info = ros2(ros_env, "topic", "info", "-v", "/fin/drive", "--spin-time", "3").stdout
+        assert "RELIABLE" in info and "Publisher count: 1" in info, info
+        state = ros2(ros_env, "lifecycle", "get", "/fin/fin_sim", "--spin-time", "3")
+        assert state.stdout.startswith("active"), state.stdout + state.stderr
+        refused = ros2(ros_env, "lifecycle", "set", "/fin/fin_sim", "cleanup", "--spin-time", "3")
+        assert "successful" not in refused.stdout.lower() or "unsuccessful" in refused.stdout.lower()
+        tighter = ros2(
+            ros_env, "param", "set", "/fin/fin_sim", "limits.voltage_pp_max", "400", "--spin-time", "3"
+        )
+        assert "Set parameter successful" in tighter.stdout, tighter.stdout + tighter.stderr
+        looser = ros2(
+            ros_env, "param", "set", "/fin/fin_sim", "limits.voltage_pp_max", "600", "--spin-time", "3"
+        )
+        assert "only tighter limits" in looser.stdout + looser.stderr
+        kind = ros2(
+            ros_env, "param", "get", "/fin/fin_sim", "limits.voltage_pp_max", "--spin-time", "3"
+        ).stdout
+        assert "Double value is: 400.0" in kind, kind
+        assert launch.proc.poll() is None  # nothing above killed a node
+    finally:
+        out = launch.interrupt()
+    assert "[ERROR]" not in out, out[-3000:]
+    assert out.count("process has finished cleanly") == 4, out[-3000:]
+    bag = next((tmp_path / "bags").glob("piezofin_*.mcap"))
+    with open(bag, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 100
+
+
+def test_launch_without_the_simulator_waits_for_a_rig_driver(ros_env: dict[str, str], tmp_path: Path) -> None:
+    launch = Launch(ros_env, tmp_path, "sim:=false")
+    try:
+        launch.wait_for("recording 9 topics", 60.0)
+        launch.wait_for("protocol trials", 60.0)  # the controller is up (the estimator says nothing)
+        nodes = ros2(ros_env, "node", "list", "--spin-time", "3").stdout.split()
+        assert "/fin/fin_sim" not in nodes and "/fin/thrust_estimator" in nodes, nodes
+    finally:
+        out = launch.interrupt()
+    assert "[ERROR]" not in out, out[-3000:]
+    assert out.count("process has finished cleanly") == 3, out[-3000:]
+
+
+def test_ros2_run_refuses_a_mistyped_parameter(ros_env: dict[str, str]) -> None:
+    run = subprocess.run(
+        ["ros2", "run", "piezofin_ros", "fin_sim", "--ros-args", "-p", "realtime_factr:=10.0"],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
+    assert run.returncode != 0
+    assert "unknown parameter realtime_factr" in run.stderr + run.stdout
+    assert "Traceback" not in run.stderr + run.stdout
