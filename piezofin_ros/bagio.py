@@ -418,9 +418,9 @@ class _Budget:
       while its records are read, so this bounds the reader's memory (records are parsed one by
       one from the chunk, never expanded into a list);
     * all chunks together to at most ``100 x size + 64 MiB``, and the file holds at most one
-      record per 4 bytes (a record takes several compressed bytes even in a very repetitive bag;
+      record per 8 bytes (a record takes several compressed bytes even in a very repetitive bag;
       the suite's blocks take about a kilobyte): beyond either, the file is a decompression bomb
-      and :class:`BagError` names it.  This bounds the time: a 2 MB file holds at most 500,000
+      and :class:`BagError` names it.  This bounds the time: a 2 MB file holds at most 250,000
       records.
     """
 
@@ -428,7 +428,7 @@ class _Budget:
         self.path, self.size = path, size
         self.chunk_limit = min(_MAX_CHUNK, 50 * size + (32 << 20))
         self.total_limit = 100 * size + (64 << 20)
-        self.record_limit = max(size // 4, 10_000)
+        self.record_limit = max(size // 8, 10_000)
         self.expanded = 0
         self.records = 0
 
@@ -471,7 +471,7 @@ class _Budget:
         self.records += 1
         if self.records > self.record_limit:
             raise BagError(
-                f"{self.path}: holds more than {self.record_limit} records in {4 * self.record_limit} "
+                f"{self.path}: holds more than {self.record_limit} records in {8 * self.record_limit} "
                 "bytes: a decompression bomb, not a bag"
             )
 

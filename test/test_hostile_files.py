@@ -100,8 +100,8 @@ def bomb(path: Path, kind: str) -> Path:
         elif kind in ("many chunks, zstd", "many chunks, lz4"):
             f.write(_chunk(1, _schema_channel(), "zstd"))
             comp = kind.split(", ")[1]
-            for _ in range(40):  # each just under the 32 MiB floor of the per-chunk limit
-                f.write(_chunk((30 << 20) // piece, records, comp))
+            for k in range(40):  # each just under the 32 MiB floor of the per-chunk limit, each different
+                f.write(_chunk((30 << 20) // piece, _message(10**9 + k) * 4096, comp))
         elif kind == "unchunked flood":
             f.write(_schema_channel())
             for _ in range(100):  # 410 k empty messages, 12.7 MB
