@@ -2,13 +2,17 @@
 
 One fin per namespace: ``fin_sim`` (a managed node, configured and activated here),
 ``thrust_estimator`` and ``controller``; one ``recorder``.  Parameters come from the package's
-``config/bringup.yaml`` (or ``params_file:=...``).  With ``sim:=false`` no ``fin_sim`` is
+``config/bringup.yaml``, with ``params_file:=...`` layered on top (it needs to hold only what it
+changes).  With ``sim:=false`` no ``fin_sim`` is
 started: a rig driver or the fish's drive electronics publishes ``drive`` (and, on a rig,
 ``tip_velocity`` and ``loadcell``) in the same namespace instead.
 
     ros2 launch piezofin_ros piezofin.launch.py namespaces:="left right" realtime_factor:=10
 """
 
+import os
+
+from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.events import matches_action
@@ -16,12 +20,13 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import LifecycleNode, Node
 from launch_ros.event_handlers import OnStateTransition
 from launch_ros.events.lifecycle import ChangeState
-from launch_ros.substitutions import FindPackageShare
 from lifecycle_msgs.msg import Transition
 
 
 def _nodes(context, *args, **kwargs):
-    params_file = LaunchConfiguration("params_file").perform(context)
+    default = os.path.join(get_package_share_directory("piezofin_ros"), "config", "bringup.yaml")
+    extra = LaunchConfiguration("params_file").perform(context)
+    files = [default, extra] if extra else [default]
     namespaces = LaunchConfiguration("namespaces").perform(context).split()
     sim = LaunchConfiguration("sim").perform(context).lower() in ("1", "true", "yes")
     factor = float(LaunchConfiguration("realtime_factor").perform(context))
@@ -35,7 +40,7 @@ def _nodes(context, *args, **kwargs):
                 name="fin_sim",
                 namespace=ns,
                 parameters=[
-                    params_file,
+                    *files,
                     {"autostart": False, "realtime_factor": factor, "publish_clock": use_sim_time and k == 0},
                 ],
                 output="screen",
@@ -68,7 +73,7 @@ def _nodes(context, *args, **kwargs):
                     executable=exe,
                     name=exe,
                     namespace=ns,
-                    parameters=[params_file, {"use_sim_time": use_sim_time}],
+                    parameters=[*files, {"use_sim_time": use_sim_time}],
                     output="screen",
                 )
             )
@@ -77,7 +82,7 @@ def _nodes(context, *args, **kwargs):
             package="piezofin_ros",
             executable="recorder",
             name="recorder",
-            parameters=[params_file, {"namespaces": namespaces, "use_sim_time": use_sim_time}],
+            parameters=[*files, {"namespaces": namespaces, "use_sim_time": use_sim_time}],
             output="screen",
         )
     )
@@ -85,11 +90,12 @@ def _nodes(context, *args, **kwargs):
 
 
 def generate_launch_description():
-    default_params = [FindPackageShare("piezofin_ros"), "/config/bringup.yaml"]
     return LaunchDescription(
         [
             DeclareLaunchArgument(
-                "params_file", default_value=default_params, description="ROS 2 parameter file"
+                "params_file",
+                default_value="",
+                description="ROS 2 parameter file layered on the package's config/bringup.yaml",
             ),
             DeclareLaunchArgument("namespaces", default_value="fin", description="one namespace per fin"),
             DeclareLaunchArgument(

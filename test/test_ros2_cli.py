@@ -151,11 +151,16 @@ def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
     assert summary is not None and summary.statistics.message_count > 100
 
 
-def test_launch_without_the_simulator_waits_for_a_rig_driver(ros_env: dict[str, str], tmp_path: Path) -> None:
-    launch = Launch(ros_env, tmp_path, "sim:=false")
+def test_launch_without_the_simulator_and_with_a_layered_params_file(
+    ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    changes = tmp_path / "mine.yaml"  # only what changes: layered on the package's bringup.yaml
+    changes.write_text("/**/controller:\n  ros__parameters:\n    frequencies: [5.0, 6.0]\n")
+    launch = Launch(ros_env, tmp_path, "sim:=false", f"params_file:={changes}")
     try:
         launch.wait_for("recording 9 topics", 60.0)
-        launch.wait_for("protocol trials", 60.0)  # the controller is up (the estimator says nothing)
+        # the controller is up, with its voltages [400, 800] from bringup.yaml and frequencies from mine
+        launch.wait_for("4 protocol trials", 60.0)
         nodes = ros2(ros_env, "node", "list", "--spin-time", "3").stdout.split()
         assert "/fin/fin_sim" not in nodes and "/fin/thrust_estimator" in nodes, nodes
     finally:

@@ -64,8 +64,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--timeout",
         type=float,
-        help="stop after this many seconds of fin time (default: the trial plan's length x 1.25 + 60 s; "
-        "optimise: --duration + 60 s)",
+        help="stop after this many seconds of fin time (default: what the work needs x 1.25 + 60 s: the "
+        "trial plan, or optimise's --duration; optimise without --duration runs until stopped)",
     )
     args = p.parse_args(argv)
     if args.fins and len(args.fins) != len(args.namespaces):
