@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -25,9 +26,16 @@ def run(n_fins: int, extra: list[str]) -> dict[str, object]:
     with tempfile.TemporaryDirectory() as tmp:
         bag, status = Path(tmp) / "fins.mcap", Path(tmp) / "status.json"
         names = [f"f{k}" for k in range(n_fins)]
-        argv = ["bringup", "--namespaces", *names, "--bag", str(bag), "--json", str(status), *extra]
+        exe = str(Path(sys.executable).parent / "bringup")
+        argv = [exe, "--namespaces", *names, "--bag", str(bag), "--json", str(status), *extra]
+        # another rclpy's bootstrap variables break the child's (see the notes on the wheels)
+        env = {
+            k: v
+            for k, v in os.environ.items()
+            if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "LD_LIBRARY_PATH")
+        }
         t0 = time.monotonic()
-        proc = subprocess.run(argv, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+        proc = subprocess.run(argv, capture_output=True, text=True, stdin=subprocess.DEVNULL, env=env)
         wall = time.monotonic() - t0
         states = {ns: f["state"] for ns, f in json.loads(status.read_text())["fins"].items()}
         times: dict[str, list[np.ndarray]] = {}

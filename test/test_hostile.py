@@ -29,7 +29,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.blocks import Block
 from piezofin_ros.nodes._common import QOS_CLOCK, QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
-from .rosutil import BIN, Graph, clean_env, graph, start, stop
+from .rosutil import Graph, graph, start, stop
 
 pytestmark = pytest.mark.ros
 QUIET = 8.0  # V: 1 % of the 800 Vpp drive's amplitude (400 V)
@@ -463,37 +463,19 @@ def test_a_full_disk_stops_the_recorder_with_one_line_and_a_recoverable_bag(tmp_
 
 
 @pytest.mark.slow
-def test_several_fins_in_bringup_share_one_clock_drop_nothing_and_exit(tmp_path) -> None:
+def test_several_fins_in_bringup_share_one_clock_drop_nothing_and_exit() -> None:
     """Three fins in one bringup (a CPU-bound machine runs them slower than asked: the pacer waits
-    for the consumers instead of dropping): every controller done, every drive sample in the bag,
-    the same sample times for every fin, and the process exits on its own."""
-    from rosbags.highlevel import AnyReader
+    for the consumers instead of dropping): every controller done, every drive sample in the bag
+    (read by rosbags), the same sample times for every fin, and the process exits on its own."""
+    import sys
+    from pathlib import Path
 
-    bag = tmp_path / "fins.mcap"
-    run = subprocess.run(
-        [
-            *(str(BIN / "bringup"), "--namespaces", "a", "b", "c", "--frequencies", "5", "9"),
-            *("--voltages", "800", "--bag", str(bag), "--json", str(tmp_path / "s.json")),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        stdin=subprocess.DEVNULL,
-        env=clean_env(),
-    )
-    assert run.returncode == 0, run.stderr[-3000:]
-    import json
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_fins import run
 
-    states = {ns: f["state"] for ns, f in json.loads((tmp_path / "s.json").read_text())["fins"].items()}
-    assert states == {"/a": "done", "/b": "done", "/c": "done"}
-    times: dict[str, list[np.ndarray]] = {}
-    with AnyReader([bag]) as reader:
-        drives = [c for c in reader.connections if c.topic.endswith("/drive")]
-        for conn, _, raw in reader.messages(drives):
-            m = reader.deserialize(raw, conn.msgtype)
-            times.setdefault(conn.topic, []).append(np.asarray(m.data[: m.layout.dim[1].size]))
-    t = {k: np.concatenate(v) for k, v in times.items()}
-    assert set(t) == {"/a/drive", "/b/drive", "/c/drive"}
-    assert all(np.array_equal(t["/a/drive"], x) for x in t.values())  # one clock, lock-step
-    assert np.allclose(np.diff(t["/a/drive"]), 1e-3, atol=1e-6)  # nothing dropped
-    assert t["/a/drive"].size >= 60_000  # two 30 s protocol trials
+    r = run(3, ["--frequencies", "5", "9", "--voltages", "800"])
+    assert r["exit"] == 0, r["summary"]
+    assert r["states"] == {"/f0": "done", "/f1": "done", "/f2": "done"}
+    assert r["gaps"] == {"/f0/drive": 0, "/f1/drive": 0, "/f2/drive": 0}  # nothing dropped
+    assert r["one_clock"]  # lock-step: identical sample times
+    assert min(r["samples"].values()) >= 60_000  # two 30 s protocol trials
