@@ -75,6 +75,16 @@ def ros2(env: dict[str, str], *args: str, timeout: float = 60.0) -> subprocess.C
     )
 
 
+def node_list(env: dict[str, str], expected: set[str], timeout: float = 30.0) -> set[str]:
+    """`ros2 node list`, asked again until every expected node shows (discovery takes its time)."""
+    t0 = time.monotonic()
+    while True:
+        nodes = set(ros2(env, "node", "list", "--spin-time", "3").stdout.split())
+        if expected <= nodes or time.monotonic() - t0 > timeout:
+            return nodes
+        time.sleep(0.5)
+
+
 class Launch:
     """`ros2 launch ...` in its own session (SIGINT reaches it as Ctrl-C would), output to a file."""
 
@@ -120,8 +130,9 @@ def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
     try:
         launch.wait_for("thrust_estimator-2] [INFO]", 60.0)
         launch.wait_for("trial 1.000 Hz 400 Vpp", 60.0)  # an estimate: the graph works
-        nodes = ros2(ros_env, "node", "list", "--spin-time", "3").stdout.split()
-        assert {"/fin/fin_sim", "/fin/thrust_estimator", "/fin/controller", "/recorder"} <= set(nodes), nodes
+        suite = {"/fin/fin_sim", "/fin/thrust_estimator", "/fin/controller", "/recorder"}
+        nodes = node_list(ros_env, suite)
+        assert suite <= nodes, nodes
         info = ros2(ros_env, "topic", "info", "-v", "/fin/drive", "--spin-time", "3").stdout
         assert "RELIABLE" in info and "Publisher count: 1" in info, info
         state = ros2(ros_env, "lifecycle", "get", "/fin/fin_sim", "--spin-time", "3")
@@ -161,8 +172,9 @@ def test_launch_without_the_simulator_and_with_a_layered_params_file(
         launch.wait_for("recording 9 topics", 60.0)
         # the controller is up, with its voltages [400, 800] from bringup.yaml and frequencies from mine
         launch.wait_for("4 protocol trials", 60.0)
-        nodes = ros2(ros_env, "node", "list", "--spin-time", "3").stdout.split()
-        assert "/fin/fin_sim" not in nodes and "/fin/thrust_estimator" in nodes, nodes
+        nodes = node_list(ros_env, {"/fin/thrust_estimator", "/fin/controller", "/recorder"})
+        assert {"/fin/thrust_estimator", "/fin/controller", "/recorder"} <= nodes, nodes
+        assert "/fin/fin_sim" not in nodes, nodes
     finally:
         out = launch.interrupt()
     assert "[ERROR]" not in out, out[-3000:]
