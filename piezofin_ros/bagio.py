@@ -9,6 +9,12 @@ decoded on the hot path.  Chunks are flushed at least every ``flush_s`` seconds 
 so a writer killed without warning loses at most that much (the file up to the last chunk is
 recoverable); :meth:`BagWriter.close` is idempotent and leaves a complete, indexed file.
 
+Every channel carries ``offered_qos_profiles`` (the publishers' QoS as the recorder saw it, in
+rosbag2's version-9 YAML), and the file carries the ``rosbag2`` metadata record that
+rosbag2_storage_mcap reads for ``ros2 bag info`` and ``ros2 bag play`` (``serialized_metadata``,
+version 9, ``ros_distro: jazzy``): once right after the header, so that a writer killed at any
+moment leaves a file whose QoS strings parse, and complete (topics, counts, times) at close.
+
 Reading (:func:`read_messages`, :func:`block_of`): the ``mcap`` reader, with CDR decoded by
 the ``rosbags`` type store, so tests can check the writer against an independent decoder.
 """
@@ -74,6 +80,98 @@ def message_definition(type_name: str) -> str:
     return str(text)
 
 
+#: The rosbag2 metadata version of ROS 2 Jazzy (QoS policies as strings).
+ROSBAG2_VERSION = 9
+ROS_DISTRO = "jazzy"
+#: RMW_DURATION_INFINITE as rosbag2 writes it.
+INFINITE_DURATION = {"sec": 9223372036, "nsec": 854775807}
+
+
+def _duration(ns: int | None) -> dict[str, int]:
+    if ns is None or ns >= 9223372036854775807 or ns < 0:
+        return dict(INFINITE_DURATION)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def qos_profile(
+    *,
+    reliability: str = "reliable",
+    durability: str = "volatile",
+    history: str = "keep_last",
+    depth: int = 10,
+    deadline_ns: int | None = None,
+    lifespan_ns: int | None = None,
+    liveliness: str = "automatic",
+    liveliness_lease_duration_ns: int | None = None,
+    avoid_ros_namespace_conventions: bool = False,
+) -> dict[str, Any]:
+    """One offered QoS profile as rosbag2 (metadata version 9) stores it; ``None`` durations are
+    infinite.  Policy names are those of ``rmw_qos_*_policy_to_str`` (``reliable``, ``best_effort``,
+    ``volatile``, ``transient_local``, ``keep_last``, ``keep_all``, ``automatic``, ...)."""
+    return {
+        "history": history,
+        "depth": int(depth),
+        "reliability": reliability,
+        "durability": durability,
+        "deadline": _duration(deadline_ns),
+        "lifespan": _duration(lifespan_ns),
+        "liveliness": liveliness,
+        "liveliness_lease_duration": _duration(liveliness_lease_duration_ns),
+        "avoid_ros_namespace_conventions": bool(avoid_ros_namespace_conventions),
+    }
+
+
+def qos_yaml(profiles: Iterable[dict[str, Any]]) -> str:
+    """A channel's ``offered_qos_profiles`` string (a YAML list of :func:`qos_profile` dicts)."""
+    import yaml
+
+    items = list(profiles)
+    return yaml.safe_dump(items, sort_keys=False) if items else ""
+
+
+def rosbag2_metadata(
+    file_name: str,
+    topics: dict[str, tuple[str, str, int]],
+    start_ns: int,
+    end_ns: int,
+    custom: dict[str, str] | None = None,
+) -> str:
+    """The ``serialized_metadata`` YAML of rosbag2's ``BagMetadata`` (version 9, every field its
+    decoder requires); ``topics`` maps name -> (type, offered QoS YAML, message count)."""
+    import yaml
+
+    count = sum(n for _, _, n in topics.values())
+    duration = {"nanoseconds": max(0, end_ns - start_ns)}
+    start = {"nanoseconds_since_epoch": start_ns}
+    doc = {
+        "version": ROSBAG2_VERSION,
+        "storage_identifier": "mcap",
+        "duration": duration,
+        "starting_time": start,
+        "message_count": count,
+        "topics_with_message_count": [
+            {
+                "topic_metadata": {
+                    "name": name,
+                    "type": type_name,
+                    "serialization_format": "cdr",
+                    "offered_qos_profiles": yaml.safe_load(qos) or [],
+                    "type_description_hash": "",
+                },
+                "message_count": n,
+            }
+            for name, (type_name, qos, n) in topics.items()
+        ],
+        "compression_format": "",
+        "compression_mode": "",
+        "relative_file_paths": [file_name],
+        "files": [{"path": file_name, "starting_time": start, "duration": duration, "message_count": count}],
+        "custom_data": {str(k): str(v) for k, v in (custom or {}).items()},
+        "ros_distro": ROS_DISTRO,
+    }
+    return yaml.safe_dump(doc, sort_keys=False)
+
+
 class BagError(RuntimeError):
     """A bag cannot be read or written; the text names the file and the problem."""
 
@@ -94,8 +192,10 @@ class BagWriter:
         chunk_size: int = 1 << 20,
         flush_s: float = 1.0,
         metadata: dict[str, str] | None = None,
+        file_name: str | None = None,
     ) -> None:
         self.path = Path(path)
+        self._name = file_name or self.path.name  # what rosbag2's metadata calls the file
         kinds = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
         if compression not in kinds:
             raise ValueError(f"compression must be one of {', '.join(kinds)}, got {compression!r}")
@@ -111,8 +211,13 @@ class BagWriter:
         try:
             self._writer = Writer(self._file, chunk_size=chunk_size, compression=kinds[compression])
             self._writer.start(profile="ros2", library="piezofin_ros")
-            if metadata:
-                self._writer.add_metadata("piezofin", {str(k): str(v) for k, v in metadata.items()})
+            self._custom = {str(k): str(v) for k, v in (metadata or {}).items()}
+            if self._custom:
+                self._writer.add_metadata("piezofin", self._custom)
+            # rosbag2's record now (a killed writer's file still says version 9), complete at close
+            self._writer.add_metadata(
+                "rosbag2", {"serialized_metadata": rosbag2_metadata(self._name, {}, 0, 0, self._custom)}
+            )
             self._file.flush()
             os.link(tmp, self.path)  # fails if the name was taken meanwhile: never overwritten
         except BaseException:
@@ -123,6 +228,8 @@ class BagWriter:
             tmp.unlink(missing_ok=True)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
+        self._topics: dict[str, tuple[str, str]] = {}  # topic -> (type, offered QoS YAML)
+        self._span: list[int] = []  # [first, last] log time
         self._sequence: dict[str, int] = {}
         self._flush_ns = int(flush_s * 1e9)
         self._last_flush_ns: int | None = None
@@ -138,19 +245,43 @@ class BagWriter:
     def closed(self) -> bool:
         return self._file is None
 
-    def add_topic(self, topic: str, type_name: str, offered_qos: str = "") -> None:
-        """Register a topic (idempotent for the same type)."""
+    def has_topic(self, topic: str) -> bool:
+        return topic in self._channels
+
+    def add_topic(
+        self,
+        topic: str,
+        type_name: str,
+        offered_qos: str | Iterable[dict[str, Any]] = "",
+        *,
+        strict: bool = True,
+    ) -> None:
+        """Register a topic (idempotent) with its publishers' QoS: a list of :func:`qos_profile`
+        dicts or the YAML of one (empty: unknown, ``ros2 bag play`` then uses its default).
+        A type not in the Jazzy type store is a ValueError, or with ``strict=False`` gets an
+        empty schema (what ``recover`` does with a bag of foreign types)."""
         type_name = normalise_type(type_name)
         if topic in self._channels:
             return
+        if not isinstance(offered_qos, str):
+            offered_qos = qos_yaml(offered_qos)
         if type_name not in self._schemas:
+            try:
+                definition = message_definition(type_name).encode()
+            except ValueError:
+                if strict:
+                    raise
+                definition = b""
             self._schemas[type_name] = self._writer.register_schema(
-                name=type_name, encoding="ros2msg", data=message_definition(type_name).encode()
+                name=type_name, encoding="ros2msg", data=definition
             )
-        meta = {"offered_qos_profiles": offered_qos} if offered_qos else {}
         self._channels[topic] = self._writer.register_channel(
-            topic=topic, message_encoding="cdr", schema_id=self._schemas[type_name], metadata=meta
+            topic=topic,
+            message_encoding="cdr",
+            schema_id=self._schemas[type_name],
+            metadata={"offered_qos_profiles": offered_qos},
         )
+        self._topics[topic] = (type_name, offered_qos)
         self._sequence[topic] = 0
         self.counts[topic] = 0
 
@@ -170,6 +301,11 @@ class BagWriter:
         )
         self._sequence[topic] = seq + 1
         self.counts[topic] += 1
+        if self._span:
+            self._span[0] = min(self._span[0], log_time_ns)
+            self._span[1] = max(self._span[1], log_time_ns)
+        else:
+            self._span = [log_time_ns, log_time_ns]
         if self._last_flush_ns is None or log_time_ns - self._last_flush_ns >= self._flush_ns:
             # the first message too: from then on a SIGKILL loses at most flush_s
             self._writer.flush()
@@ -181,6 +317,10 @@ class BagWriter:
         if self._file is None:
             return
         try:
+            topics = {t: (ty, q, self.counts[t]) for t, (ty, q) in self._topics.items()}
+            start, end = self._span or [0, 0]
+            meta = rosbag2_metadata(self._name, topics, start, end, self._custom)
+            self._writer.add_metadata("rosbag2", {"serialized_metadata": meta})
             self._writer.finish()
         finally:
             self._file.close()
@@ -205,6 +345,7 @@ class BagMessage:
     type_name: str
     log_time_ns: int
     data: bytes
+    offered_qos: str = ""  # the channel's offered_qos_profiles
 
 
 @dataclass(frozen=True)
@@ -272,6 +413,7 @@ def read_messages(
                 raise BagError(f"{path}: not a readable MCAP file (no MCAP magic at the start)")
         schemas: dict[int, str] = {}
         channels: dict[int, tuple[str, int]] = {}
+        qos: dict[int, str] = {}
         budget = _Budget(path, size)
         summary_channels = _summary_channels(f)
         n = 0
@@ -289,15 +431,17 @@ def read_messages(
                 schemas[record.id] = record.name
             elif isinstance(record, Channel):
                 channels[record.id] = (record.topic, record.schema_id)
+                qos[record.id] = record.metadata.get("offered_qos_profiles", "")
             elif isinstance(record, (Message, _LazyMessage)):
                 ch = channels.get(record.channel_id)
                 name = None
                 if ch is not None:
                     name = schemas.get(ch[1], "")
                 elif record.channel_id in summary_channels:
-                    ch, name = summary_channels[record.channel_id]
+                    ch, name, qos[record.channel_id] = summary_channels[record.channel_id]
                 if ch is not None and (wanted is None or ch[0] in wanted):
-                    return BagMessage(ch[0], name or "", record.log_time, bytes(record.data))
+                    q = qos.get(record.channel_id, "")
+                    return BagMessage(ch[0], name or "", record.log_time, bytes(record.data), q)
             return None
 
         if base:
@@ -380,8 +524,9 @@ def _next_chunk(f: BinaryIO, start: int, size: int, seen: set[tuple[int, int, in
             return pos
 
 
-def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str]]:
-    """Channel id -> ((topic, schema id), schema name) from the summary, if the file has an intact one."""
+def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str, str]]:
+    """Channel id -> ((topic, schema id), schema name, offered QoS) from the summary, if the file
+    has an intact one."""
     try:
         f.seek(0)
         summary = make_reader(f).get_summary()
@@ -392,7 +537,10 @@ def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str]]:
     if summary is None:
         return {}
     names = {sid: s.name for sid, s in summary.schemas.items()}
-    return {cid: ((c.topic, c.schema_id), names.get(c.schema_id, "")) for cid, c in summary.channels.items()}
+    return {
+        cid: ((c.topic, c.schema_id), names.get(c.schema_id, ""), c.metadata.get("offered_qos_profiles", ""))
+        for cid, c in summary.channels.items()
+    }
 
 
 class _ChunkError(ValueError):
@@ -524,7 +672,7 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
     except OSError:
         channels = {}
     if channels:
-        return {topic: name for (topic, _), name in channels.values()}
+        return {topic: name for (topic, _), name, _ in channels.values()}
     return {m.topic: m.type_name for m in read_messages(path, on_damage=None)}
 
 
@@ -585,7 +733,9 @@ def recover(source: str | os.PathLike[str], output: str | os.PathLike[str] | Non
     # written under a temporary name, moved to ``out`` only when complete (never a partial file)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.partial")
     try:
-        counts, first_ns, last_ns = _copy_messages(itertools.chain([first] if first else [], messages), tmp)
+        counts, first_ns, last_ns = _copy_messages(
+            itertools.chain([first] if first else [], messages), tmp, out.name
+        )
         os.link(tmp, out)  # fails if ``out`` appeared meanwhile: still never overwritten
     except FileExistsError:
         raise BagError(f"{out}: exists; recover never overwrites a file") from None
@@ -622,34 +772,25 @@ def _header_end(path: Path) -> int | None:
 
 
 def _copy_messages(
-    messages: Iterable[BagMessage], path: Path
+    messages: Iterable[BagMessage], path: Path, name: str
 ) -> tuple[dict[str, int], int | None, int | None]:
-    """Write ``messages`` to a new, complete MCAP at ``path``; returns counts and the log-time span."""
-    counts: dict[str, int] = {}
+    """Write ``messages`` to a new, complete bag at ``path`` (their channels' QoS kept, rosbag2's
+    metadata record rebuilt); returns counts and the log-time span."""
     first_ns = last_ns = None
-    with open(path, "xb") as fh:
-        writer = Writer(fh, compression=CompressionType.ZSTD)
-        writer.start(profile="ros2", library="piezofin_ros recover")
-        schema_ids: dict[str, int] = {}
-        channel_ids: dict[str, int] = {}
-        sequence: dict[str, int] = {}
+    bag = BagWriter(path, metadata={"recovered_by": "piezofin bag recover"}, file_name=name)
+    try:
         for m in messages:
-            if m.topic not in channel_ids:
-                if m.type_name not in schema_ids:
-                    try:
-                        definition = message_definition(m.type_name).encode()
-                    except ValueError:
-                        definition = b""
-                    schema_ids[m.type_name] = writer.register_schema(m.type_name, "ros2msg", definition)
-                channel_ids[m.topic] = writer.register_channel(m.topic, "cdr", schema_ids[m.type_name])
-                sequence[m.topic] = 0
-            writer.add_message(channel_ids[m.topic], m.log_time_ns, m.data, m.log_time_ns, sequence[m.topic])
-            sequence[m.topic] += 1
-            counts[m.topic] = counts.get(m.topic, 0) + 1
+            if not bag.has_topic(m.topic):
+                bag.add_topic(m.topic, m.type_name, m.offered_qos, strict=False)
+            bag.write(m.topic, m.log_time_ns, m.data)
             first_ns = m.log_time_ns if first_ns is None else min(first_ns, m.log_time_ns)
             last_ns = m.log_time_ns if last_ns is None else max(last_ns, m.log_time_ns)
-        writer.finish()
-    return counts, first_ns, last_ns
+    except BaseException:
+        bag.abandon()
+        path.unlink(missing_ok=True)
+        raise
+    bag.close()
+    return dict(bag.counts), first_ns, last_ns
 
 
 class MessageError(ValueError):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -81,3 +82,38 @@ def test_bad_files_give_one_clear_error(tmp_path: Path, content: bytes | None, m
     with pytest.raises(BagError, match=match) as info:
         list(read_messages(path))
     assert str(path) in str(info.value)
+
+
+def test_a_killed_writer_leaves_rosbag2_metadata_and_recover_keeps_the_qos(tmp_path: Path) -> None:
+    """The QoS strings are version 9 (policy names): a file must say so even if its writer never
+    closed it, or rosbag2 would decode them as version 8 (integers) and fail."""
+    import yaml
+    from mcap.exceptions import EndOfFile
+    from mcap.records import Metadata
+    from mcap.stream_reader import StreamReader
+
+    from piezofin_ros.bagio import qos_profile, recover
+
+    path = tmp_path / "killed.mcap"
+    bag = BagWriter(path, flush_s=1e-9)
+    offered = [qos_profile(reliability="best_effort", depth=1)]
+    bag.add_topic("/fin/drive", "std_msgs/msg/Float64MultiArray", offered)
+    for k in range(5):
+        bag.write("/fin/drive", k, cdr_block(Block.from_columns(t_s=[k], voltage_V=[1.0])))
+    bag.abandon()  # as SIGKILL leaves it: no summary, no closing metadata
+    early = []
+    with open(path, "rb") as f, contextlib.suppress(EndOfFile):  # the cut
+        for r in StreamReader(f, skip_magic=False).records:
+            if isinstance(r, Metadata) and r.name == "rosbag2":
+                early.append(r)
+    assert [yaml.safe_load(r.metadata["serialized_metadata"])["version"] for r in early] == [9]
+    out = recover(path).output
+    msgs = list(read_messages(out))
+    assert len(msgs) == 5 and yaml.safe_load(msgs[0].offered_qos) == offered
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as f:
+        meta = [m for m in make_reader(f).iter_metadata() if m.name == "rosbag2"][-1]
+    doc = yaml.safe_load(meta.metadata["serialized_metadata"])
+    assert doc["relative_file_paths"] == [out.name] and doc["message_count"] == 5
+    assert doc["topics_with_message_count"][0]["topic_metadata"]["offered_qos_profiles"] == offered

@@ -473,3 +473,97 @@ def test_doubles_stay_doubles_and_every_parameter_says_what_it_is() -> None:
         est = g.add(ThrustEstimator(context=g.context))
         texts = [d.description for n, d in est._descriptors.items() if n.startswith("estimator.")]
     assert len(texts) == 12 and len(set(texts)) == 12, texts
+
+
+# What rosbag2_storage_mcap (Jazzy) needs of a bag: rosbag2_storage/yaml.hpp decodes these keys of
+# `serialized_metadata` (version 9) with no default, and qos.cpp these of each offered profile.
+ROSBAG2_V9_KEYS = {
+    "version", "storage_identifier", "duration", "starting_time", "message_count",
+    "topics_with_message_count", "relative_file_paths", "compression_format", "compression_mode",
+    "files", "custom_data", "ros_distro",
+}  # fmt: skip
+QOS_KEYS = {
+    "history", "depth", "reliability", "durability", "deadline", "lifespan", "liveliness",
+    "liveliness_lease_duration", "avoid_ros_namespace_conventions",
+}  # fmt: skip
+#: rmw_qos_*_policy_from_str accepts these; "unknown" is what rosbag2 itself writes for a policy
+#: DDS does not tell (a remote publisher's history and depth), and replays with its default.
+QOS_WORDS = {
+    "history": {"system_default", "keep_last", "keep_all", "unknown"},
+    "reliability": {"system_default", "reliable", "best_effort", "best_available"},
+    "durability": {"system_default", "transient_local", "volatile", "best_available"},
+    "liveliness": {"system_default", "automatic", "manual_by_topic", "best_available"},
+}
+
+
+def check_qos(profiles: list[dict[str, Any]]) -> None:
+    assert profiles, "no offered profile"
+    for p in profiles:
+        assert set(p) == QOS_KEYS, p
+        for key, words in QOS_WORDS.items():
+            assert p[key] in words, (key, p[key])
+        for key in ("deadline", "lifespan", "liveliness_lease_duration"):
+            assert set(p[key]) == {"sec", "nsec"} and all(isinstance(v, int) for v in p[key].values())
+
+
+def test_the_bag_is_what_rosbag2_storage_mcap_reads(live: dict[str, Any], tmp_path: Any) -> None:
+    """Checked with two readers that share no code with the writer: mcap's own reader against
+    rosbag2's decoding rules, and rosbags' rosbag2 implementation on a bag directory."""
+    from mcap.reader import make_reader
+    from rosbags.rosbag2 import Reader as Rosbag2Reader
+
+    with open(live["bag"], "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        records = [m for m in reader.iter_metadata() if m.name == "rosbag2"]
+    assert summary is not None and summary.statistics is not None
+    assert len(records) == 2  # one at the start (a killed writer leaves it), the complete one at close
+    first = yaml.safe_load(records[0].metadata["serialized_metadata"])
+    meta = yaml.safe_load(records[-1].metadata["serialized_metadata"])
+    for doc in (first, meta):
+        assert set(doc) == ROSBAG2_V9_KEYS and doc["version"] == 9 and doc["ros_distro"] == "jazzy"
+    stats = summary.statistics
+    assert meta["message_count"] == stats.message_count
+    assert meta["starting_time"]["nanoseconds_since_epoch"] == stats.message_start_time
+    assert meta["duration"]["nanoseconds"] == stats.message_end_time - stats.message_start_time
+    by_topic = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
+    channels = {c.topic: c for c in summary.channels.values()}
+    assert set(by_topic) == set(channels)
+    for cid, c in summary.channels.items():
+        qos = yaml.safe_load(c.metadata["offered_qos_profiles"] or "[]")
+        assert by_topic[c.topic]["message_count"] == stats.channel_message_counts[cid]
+        assert by_topic[c.topic]["topic_metadata"]["offered_qos_profiles"] == qos
+        if "/estimate/" in c.topic or "/cmd/" in c.topic:
+            assert qos == []  # plot fields: written to the bag, never published
+        else:
+            check_qos(qos)  # what the publishers offered, read from the graph
+    drive = yaml.safe_load(channels["/fin/drive"].metadata["offered_qos_profiles"])
+    assert [(p["reliability"], p["durability"]) for p in drive] == [("reliable", "volatile")]
+    clock = yaml.safe_load(channels["/clock"].metadata["offered_qos_profiles"])
+    assert [p["reliability"] for p in clock] == ["best_effort"]  # replayed as offered
+
+    # rosbags' rosbag2 reader: a bag directory with this file and its metadata as metadata.yaml
+    bagdir = tmp_path / "bagdir"
+    bagdir.mkdir()
+    (bagdir / live["bag"].name).symlink_to(live["bag"])
+    (bagdir / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": meta}))
+    with Rosbag2Reader(bagdir) as r2:
+        assert r2.message_count == stats.message_count
+        conns = {c.topic: c for c in r2.connections}
+        assert conns["/clock"].ext.offered_qos_profiles[0].reliability.name == "BEST_EFFORT"
+        assert conns["/fin/drive"].ext.offered_qos_profiles[0].reliability.name == "RELIABLE"
+        assert sum(1 for _ in r2.messages()) == stats.message_count
+
+
+def test_estimates_are_plottable_field_by_field(live: dict[str, Any]) -> None:
+    """Foxglove and PlotJuggler plot `/fin/estimate/<field>.data` (a Float64 per estimate)."""
+    with AnyReader([live["bag"]]) as reader:
+        series: dict[str, list[float]] = {}
+        for conn, _, raw in reader.messages():
+            if conn.topic.startswith(("/fin/estimate/", "/fin/cmd/")):
+                assert conn.msgtype == "std_msgs/msg/Float64"
+                series.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype).data)
+    thrust = series["/fin/estimate/thrust_n"]
+    assert thrust == pytest.approx([e.thrust_n for e in live["estimates"]], rel=1e-12)
+    assert len(series["/fin/cmd/frequency_hz"]) == live["recorded"]["/fin/cmd"]
+    assert len(series) > 10

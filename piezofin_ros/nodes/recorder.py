@@ -2,14 +2,22 @@
 
 Subscriptions are *raw* (rclpy hands over the CDR bytes), so nothing is deserialised or
 serialised again: each message goes straight into :class:`~piezofin_ros.bagio.BagWriter` with
-the node clock's time (the simulated time under ``use_sim_time``).  Chunks are flushed every
-``flush_s`` of log time; SIGINT or SIGTERM closes the file with its summary and indexes.
+the node clock's time (the simulated time under ``use_sim_time``).  A topic's channel is written
+at its first message, with the QoS its publishers offer then (``ros2 bag play`` offers the same).
+Chunks are flushed every ``flush_s`` of log time; SIGINT or SIGTERM closes the file with its
+summary, indexes and rosbag2 metadata.
+
+For plotting (Foxglove, PlotJuggler), each one-sample block (``estimate``, ``cmd``) is also
+written field by field as ``std_msgs/msg/Float64`` channels named ``<topic>/<field>`` (e.g.
+``/fin/estimate/thrust_N``): a series with a name and a unit, where the block itself is an
+array.  These ``plot_fields`` are written to the bag only, never published.
 """
 
 from __future__ import annotations
 
 import collections
 import importlib
+import struct
 import sys
 import time
 from pathlib import Path
@@ -19,7 +27,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..bagio import BagWriter, normalise_type
+from ..bagio import BagWriter, block_of, message_definition, normalise_type, qos_profile
 from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
@@ -69,6 +77,42 @@ def qos_for(topic: str, type_name: str) -> Any:
     return QOS_DATA if type_name == F64A else QOS_COMMAND
 
 
+#: Topics (relative) whose one-sample blocks are also written field by field, for plotting.
+PLOT_TOPICS = (TOPIC_ESTIMATE, TOPIC_CMD)
+FLOAT64 = "std_msgs/msg/Float64"
+_CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
+
+
+def float64_cdr(value: float) -> bytes:
+    """A serialised ``std_msgs/msg/Float64``."""
+    return _CDR_LE + struct.pack("<d", value)
+
+
+def offered_qos(endpoints: list[Any]) -> list[dict[str, Any]]:
+    """rosbag2's offered_qos_profiles from ``get_publishers_info_by_topic``."""
+
+    def ns(d: Any) -> int:
+        return int(d.nanoseconds)
+
+    out = []
+    for e in endpoints:
+        q = e.qos_profile
+        out.append(
+            qos_profile(
+                reliability=q.reliability.name.lower(),
+                durability=q.durability.name.lower(),
+                history=q.history.name.lower(),
+                depth=q.depth,
+                deadline_ns=ns(q.deadline),
+                lifespan_ns=ns(q.lifespan),
+                liveliness=q.liveliness.name.lower(),
+                liveliness_lease_duration_ns=ns(q.liveliness_lease_duration),
+                avoid_ros_namespace_conventions=q.avoid_ros_namespace_conventions,
+            )
+        )
+    return out
+
+
 def default_bag_path(directory: str = "bags") -> Path:
     """``bags/piezofin_YYYYmmdd-HHMMSS.mcap`` (local time at start; a new name every second)."""
     return Path(directory) / time.strftime("piezofin_%Y%m%d-%H%M%S.mcap")
@@ -98,6 +142,9 @@ class Recorder(Node):
         chunk_kib = int_param(self, "chunk_kib", 1024, 16, 65536, "chunk size, KiB")
         flush_s = float_param(self, "flush_s", 1.0, 0.05, 600.0, "longest log time between chunk flushes, s")
         self.discover = bool_param(self, "discover", False, "also record any other topic that appears")
+        self.plot_fields = bool_param(
+            self, "plot_fields", True, "also write estimate and cmd field by field (Float64) for plotting"
+        )
         freeze_parameters(self)
         self.path = Path(path) if path else default_bag_path()
         try:
@@ -115,6 +162,8 @@ class Recorder(Node):
         except (ValueError, OSError) as exc:
             raise StartupError(f"cannot open the bag {self.path}: {exc}") from None
         self._subs: dict[str, Any] = {}
+        self._types: dict[str, str] = {}
+        self._plot = {f"{p}/{t}" for p in self._prefixes(namespaces) for t in PLOT_TOPICS}
         self._untyped: set[str] = set()
         self._early: list[tuple[str, bytes]] = []
         self.received: collections.Counter[str] = collections.Counter()  # messages taken, per topic
@@ -132,12 +181,13 @@ class Recorder(Node):
                 name, _, type_name = entry.partition(":")
                 out[self.resolve_topic_name(name)] = type_name or ""
             return out
-        prefixes = [ns.rstrip("/") if ns.startswith("/") else "/" + ns.strip("/") for ns in namespaces]
-        if not prefixes:
-            prefixes = [self.get_namespace().rstrip("/")]
-        out = {f"{p}/{t}": ty for p in prefixes for t, ty in SUITE_TOPICS.items()}
+        out = {f"{p}/{t}": ty for p in self._prefixes(namespaces) for t, ty in SUITE_TOPICS.items()}
         out.update(GLOBAL_TOPICS)
         return out
+
+    def _prefixes(self, namespaces: list[str]) -> list[str]:
+        prefixes = [ns.rstrip("/") if ns.startswith("/") else "/" + ns.strip("/") for ns in namespaces]
+        return prefixes or [self.get_namespace().rstrip("/")]
 
     def add_topic(self, topic: str, type_name: str = "") -> bool:
         """Subscribe to ``topic`` (type looked up in the graph when not given); False if unknown yet."""
@@ -153,11 +203,12 @@ class Recorder(Node):
             type_name = types[0]
         try:
             cls = message_class(type_name)
-            self.bag.add_topic(topic, type_name)
+            message_definition(type_name)  # in the type store: the bag can describe it
         except (ImportError, AttributeError, ValueError) as exc:
             self.get_logger().error(f"cannot record {topic}: {exc}")
             return False
         self._untyped.discard(topic)
+        self._types[topic] = normalise_type(type_name)
         self._subs[topic] = self.create_subscription(
             cls,
             topic,
@@ -187,11 +238,32 @@ class Recorder(Node):
         try:
             if self._early:
                 for early_topic, early_data in self._early:
-                    self.bag.write(early_topic, now, early_data)
+                    self._record(early_topic, now, early_data)
                 self._early.clear()
-            self.bag.write(topic, now, data)
+            self._record(topic, now, data)
         except OSError as exc:
             self._give_up(exc)
+
+    def _record(self, topic: str, time_ns: int, data: bytes) -> None:
+        if not self.bag.has_topic(topic):  # the first message: its publishers are known now
+            qos = offered_qos(self.get_publishers_info_by_topic(topic))
+            self.bag.add_topic(topic, self._types[topic], qos)
+        self.bag.write(topic, time_ns, data)
+        if self.plot_fields and topic in self._plot:
+            self._record_fields(topic, time_ns, data)
+
+    def _record_fields(self, topic: str, time_ns: int, data: bytes) -> None:
+        try:
+            block = block_of(self._types[topic], data)
+        except ValueError:  # MessageError, BlockFormatError: whatever another node published
+            return  # not a block: the message itself is recorded, there is nothing to plot
+        if block.n != 1:
+            return
+        for name, value in zip(block.names, block.values[:, 0], strict=True):
+            field = f"{topic}/{name}"
+            if not self.bag.has_topic(field):
+                self.bag.add_topic(field, FLOAT64)  # never published: no QoS offered
+            self.bag.write(field, time_ns, float64_cdr(float(value)))
 
     def _give_up(self, exc: OSError) -> None:
         """A write failed (disk full, file-size limit, I/O error): stop recording, say so, exit 1.
@@ -211,7 +283,7 @@ class Recorder(Node):
         if not self.bag.closed:
             try:
                 for topic, data in self._early:  # the clock never started: keep them at time 0
-                    self.bag.write(topic, 0, data)
+                    self._record(topic, 0, data)
                 self.bag.close()
             except OSError as exc:
                 self._give_up(exc)
