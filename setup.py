@@ -32,6 +32,7 @@ setup(
             "sweep = piezofin_ros.cli:sweep_main",
             "diagnose = piezofin_ros.cli:diagnose_main",
             "fin_sim = piezofin_ros.nodes.fin_sim:main",
+            "fin_sims = piezofin_ros.nodes.fin_sim:fins_main",
             "thrust_estimator = piezofin_ros.nodes.thrust_estimator:main",
             "controller = piezofin_ros.nodes.controller:main",
             "recorder = piezofin_ros.nodes.recorder:main",

@@ -1,7 +1,9 @@
 """Launch the suite on a ROS 2 machine (``ros2 launch piezofin_ros piezofin.launch.py``).
 
 One fin per namespace: ``fin_sim`` (a managed node, configured and activated here),
-``thrust_estimator`` and ``controller``; one ``recorder``.  Parameters come from the package's
+``thrust_estimator`` and ``controller``; one ``recorder``.  With several namespaces the fins run
+in one ``fin_sims`` process that steps them together (one time for every fin; each is still its
+own lifecycle node, activated at start).  Parameters come from the package's
 ``config/bringup.yaml``, with ``params_file:=...`` layered on top (it needs to hold only what it
 changes).  With ``sim:=false`` no ``fin_sim`` is
 started: a rig driver or the fish's drive electronics publishes ``drive`` (and, on a rig,
@@ -32,8 +34,26 @@ def _nodes(context, *args, **kwargs):
     factor = float(LaunchConfiguration("realtime_factor").perform(context))
     use_sim_time = sim and factor != 1.0
     actions = []
+    several = sim and len(namespaces) > 1
+    if several:
+        # one process steps every fin from one timer: one time for all (separate processes drift)
+        actions.append(
+            Node(
+                package="piezofin_ros",
+                executable="fin_sims",
+                # settings as arguments (constructor overrides): a parameter dict of a node without a
+                # name is a `/**` entry, which the files' `/**/fin_sim` entries override
+                arguments=[
+                    *("--namespaces", *namespaces),
+                    *("--realtime-factor", str(factor)),
+                    *(["--publish-clock"] if use_sim_time else []),
+                ],
+                parameters=files,
+                output="screen",
+            )
+        )
     for k, ns in enumerate(namespaces):
-        if sim:
+        if sim and not several:
             fin_sim = LifecycleNode(
                 package="piezofin_ros",
                 executable="fin_sim",

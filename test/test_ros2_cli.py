@@ -193,3 +193,20 @@ def test_ros2_run_refuses_a_mistyped_parameter(ros_env: dict[str, str]) -> None:
     assert run.returncode != 0
     assert "unknown parameter realtime_factr" in run.stderr + run.stdout
     assert "Traceback" not in run.stderr + run.stdout
+
+
+@pytest.mark.parametrize("case", ["two_fins", "without_sim"])
+def test_launch_testing(ros_env: dict[str, str], tmp_path: Path, case: str) -> None:
+    """The launch tests in test/launch/, run by launch_testing's own `launch_test`."""
+    run = subprocess.run(
+        ["launch_test", str(ROOT / "test" / "launch" / f"{case}.py")],
+        env=ros_env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=400,
+        stdin=subprocess.DEVNULL,
+    )
+    out = run.stdout + run.stderr
+    assert run.returncode == 0, out[-6000:]
+    assert "FAILED" not in out and "Ran " in out, out[-3000:]

@@ -312,17 +312,21 @@ def check_parameter_names(node: Node, argv: Sequence[str]) -> None:
 
 
 def run_node(
-    factory: Callable[[rclpy.context.Context], Node],
+    factory: Callable[[rclpy.context.Context], Any],
     args: list[str] | None = None,
-    until: Callable[[Node], bool] | None = None,
-    start: Callable[[Node], None] | None = None,
+    until: Callable[[Any], bool] | None = None,
+    start: Callable[[Any], None] | None = None,
+    after_start: Callable[[list[Any]], object] | None = None,
 ) -> int:
     """``ros2 run`` entry point body: init, build, spin with the EventsExecutor, clean up.
 
-    Spins until SIGINT/SIGTERM (see :class:`StopFlag`), or until ``until(node)`` is true, then
-    calls the node's ``close()``.  Configuration errors exit with status 2 and one readable
-    line; Ctrl-C and SIGTERM exit 0; a node that gave up (its ``exit_code`` attribute set, e.g.
-    the recorder on a full disk) exits with that status.
+    ``factory`` builds one node or a list of nodes (one process, one executor).  Spins until
+    SIGINT/SIGTERM (see :class:`StopFlag`), or until ``until(node)`` is true for every node, then
+    calls each node's ``close()``.  ``start(node)`` runs for each node after its parameter names
+    were checked, then ``after_start(nodes)`` once (what it returns is kept alive while spinning).
+    Configuration errors exit with status 2 and one readable line; Ctrl-C and SIGTERM exit 0; a
+    node that gave up (its ``exit_code`` attribute set, e.g. the recorder on a full disk) exits
+    with that status.
     """
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -331,20 +335,27 @@ def run_node(
     argv = args if args is not None else sys.argv
     rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopFlag().install()
-    node = None
+    nodes: list[Any] = []
     executor = None
+    code: int | None = None
     try:
-        node = factory(context)
-        check_parameter_names(node, argv)
+        built = factory(context)
+        nodes = list(built) if isinstance(built, (list, tuple)) else [built]
+        for node in nodes:
+            check_parameter_names(node, argv)
         if start is not None:
-            start(node)  # after the checks: nothing is driven with a mistyped parameter
+            for node in nodes:
+                start(node)  # after the checks: nothing is driven with a mistyped parameter
+        keep = after_start(nodes) if after_start is not None else None  # noqa: F841 (kept alive)
         executor = EventsExecutor(context=context)
-        executor.add_node(node)
+        for node in nodes:
+            executor.add_node(node)
         # spin_once in a loop, not spin(): with rclpy 7.1's EventsExecutor.spin() a lifecycle
         # node's services do not answer clients in other processes (measured), spin_once does.
-        while context.ok() and not stop and not (until is not None and until(node)):
+        while context.ok() and not stop and not (until is not None and all(until(n) for n in nodes)):
             executor.spin_once(timeout_sec=0.1)
-            if getattr(node, "exit_code", None) is not None:
+            code = next((n.exit_code for n in nodes if getattr(n, "exit_code", None) is not None), None)
+            if code is not None:
                 break
     except (StartupError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -352,7 +363,7 @@ def run_node(
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if node is not None:
+        for node in nodes:
             close = getattr(node, "close", None)
             if close is not None:
                 close()
@@ -362,5 +373,6 @@ def run_node(
         if context.ok():
             rclpy.shutdown(context=context)
         stop.restore()
-    code = getattr(node, "exit_code", None)
+    if code is None:
+        code = next((n.exit_code for n in nodes if getattr(n, "exit_code", None) is not None), None)
     return int(code) if code is not None else 0

@@ -36,7 +36,7 @@ from ..params import load_parameter_file, node_parameters
 from ..report import plot_trials, trial_table
 from ._common import StartupError, StopFlag
 from .controller import Controller
-from .fin_sim import FinSim
+from .fin_sim import FinSim, Pacer
 from .recorder import Recorder, default_bag_path
 from .thrust_estimator import ThrustEstimator
 
@@ -84,44 +84,15 @@ MAX_LAG_BLOCKS = 20
 STALL_S = 30.0
 
 
-class Pacer:
-    """Steps every fin together from one steady-clock timer, while all consumers keep up."""
-
-    def __init__(self, suite: Suite, realtime_factor: float) -> None:
-        from rclpy.clock import Clock, ClockType
-
-        durations = {round(sim.block_s, 9) for sim in suite.fin_sims}
-        if len(durations) != 1:
-            raise StartupError(f"bringup steps all fins together: give them one block_s (got {durations})")
-        self.suite = suite
-        self.steps = 0
-        self.waits = 0  # ticks skipped because a consumer was behind
-        self._clock = Clock(clock_type=ClockType.STEADY_TIME)
-        self.last_step_ns = self._clock.now().nanoseconds
-        period = durations.pop() / realtime_factor
-        self._timer = suite.fin_sims[0].create_timer(period, self._tick, clock=self._clock)
-
-    def lag(self) -> int:
-        """Blocks the slowest consumer (estimator or recorder, any fin, any topic) is behind."""
-        worst = 0
-        rec = self.suite.recorder.received
-        for sim, est in zip(self.suite.fin_sims, self.suite.estimators, strict=True):
-            ns = sim.get_namespace().rstrip("/")
-            for topic, got in est.received.items():
-                worst = max(worst, sim.blocks_published - got, sim.blocks_published - rec[f"{ns}/{topic}"])
-        return worst
-
-    def _tick(self) -> None:
-        if self.lag() > MAX_LAG_BLOCKS:
-            self.waits += 1
-            return
-        for sim in self.suite.fin_sims:
-            sim.step()
-        self.steps += 1
-        self.last_step_ns = self._clock.now().nanoseconds
-
-    def stalled_s(self) -> float:
-        return (self._clock.now().nanoseconds - self.last_step_ns) * 1e-9
+def consumer_lag(suite: Suite) -> int:
+    """Blocks the slowest consumer (estimator or recorder, any fin, any topic) is behind."""
+    worst = 0
+    rec = suite.recorder.received
+    for sim, est in zip(suite.fin_sims, suite.estimators, strict=True):
+        ns = sim.get_namespace().rstrip("/")
+        for topic, got in est.received.items():
+            worst = max(worst, sim.blocks_published - got, sim.blocks_published - rec[f"{ns}/{topic}"])
+    return worst
 
 
 class Suite:
@@ -147,7 +118,6 @@ class Suite:
             sim_extra = {"realtime_factor": args.realtime_factor, "publish_clock": k == 0, "start_time_s": t0}
             sim_extra["autostart"] = False
             sim = FinSim(context=context, namespace=ns, parameter_overrides=params("fin_sim", sim_extra))
-            sim.paced = True
             sim_time = {"use_sim_time": True}
             est = ThrustEstimator(
                 context=context, namespace=ns, parameter_overrides=params("thrust_estimator", sim_time)
@@ -229,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         suite = Suite(context, args)
         for node in suite.nodes:
             executor.add_node(node)
-        pacer = Pacer(suite, args.realtime_factor)
+        pacer = Pacer(suite.fin_sims, ready=lambda: consumer_lag(suite) <= MAX_LAG_BLOCKS)
         suite.activate(executor)
         budget = args.timeout if args.timeout is not None else suite.fin_time_budget()
         print(f"bringup: {', '.join(args.namespaces)} -> {suite.bag_path}", file=sys.stderr, flush=True)
@@ -250,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
             if pacer.stalled_s() > STALL_S:
                 print(
                     f"bringup: stopping: fin time has not advanced for {pacer.stalled_s():.0f} s "
-                    f"(a consumer is {pacer.lag()} blocks behind)",
+                    f"(a consumer is {consumer_lag(suite)} blocks behind)",
                     file=sys.stderr,
                 )
                 exit_code = 1

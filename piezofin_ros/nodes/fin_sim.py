@@ -31,7 +31,9 @@ from __future__ import annotations
 import collections
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import fields, replace
+from typing import Any
 
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
@@ -285,6 +287,15 @@ class FinSim(LifecycleNode):
             self.destroy_timer(self._timer)
             self._timer = None
 
+    @property
+    def realtime_factor(self) -> float:
+        return self._factor
+
+    def share_time_origin(self, t0: float) -> None:
+        """Start sample times at ``t0`` unless ``start_time_s`` was given (before configure)."""
+        if not self._start_time:
+            self._start_time = t0
+
     def step(self) -> None:
         """Advance one block now (bringup's pacer: every fin from one timer, so all share one time)."""
         if self._running:
@@ -400,19 +411,100 @@ class FinSim(LifecycleNode):
         self.get_logger().info(f"published samples: {counts}; commands: {commands}")
 
 
-def main(args: list[str] | None = None) -> int:
-    def start(node: FinSim) -> None:  # type: ignore[misc]
-        if not node.autostart:
-            return
-        if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-            raise StartupError("fin_sim failed to configure (see the log line above)")
-        node.trigger_activate()
+class Pacer:
+    """Steps several fins together from one steady-clock timer, so all share one time.
 
+    Each tick advances every active fin by one block, while ``ready()`` (default: always; bringup
+    waits for its slowest consumer).  Used by ``fin_sims`` and by ``bringup``.
+    """
+
+    def __init__(self, fin_sims: list[FinSim], ready: Callable[[], bool] | None = None) -> None:
+        durations = {round(sim.block_s, 9) for sim in fin_sims}
+        factors = {sim.realtime_factor for sim in fin_sims}
+        if len(durations) != 1 or len(factors) != 1:
+            raise StartupError(
+                f"fins stepped together need one block_s and one realtime_factor (got block_s "
+                f"{sorted(durations)}, realtime_factor {sorted(factors)})"
+            )
+        self.fin_sims = fin_sims
+        self.ready = ready
+        self.steps = 0
+        self.waits = 0  # ticks skipped because not ready
+        for sim in fin_sims:
+            sim.paced = True
+        self._clock = RosClock(clock_type=ClockType.STEADY_TIME)
+        self.last_step_ns = self._clock.now().nanoseconds
+        self._timer = fin_sims[0].create_timer(durations.pop() / factors.pop(), self._tick, clock=self._clock)
+
+    def _tick(self) -> None:
+        if self.ready is not None and not self.ready():
+            self.waits += 1
+            return
+        for sim in self.fin_sims:
+            sim.step()
+        self.steps += 1
+        self.last_step_ns = self._clock.now().nanoseconds
+
+    def stalled_s(self) -> float:
+        return (self._clock.now().nanoseconds - self.last_step_ns) * 1e-9
+
+
+def _start(node: FinSim) -> None:
+    if not node.autostart:
+        return
+    if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+        raise StartupError(f"{node.get_fully_qualified_name()} failed to configure (see the log line above)")
+    node.trigger_activate()
+
+
+def main(args: list[str] | None = None) -> int:
     return run_node(
         lambda context: FinSim(context=context),
         args,
-        until=lambda node: node.finalized,  # type: ignore[attr-defined]
-        start=start,  # type: ignore[arg-type]
+        until=lambda node: node.finalized,
+        start=_start,
+    )
+
+
+def fins_main(args: list[str] | None = None) -> int:
+    """``fin_sims --namespaces left right [--realtime-factor F] [--publish-clock] [--ros-args ...]``:
+    one ``fin_sim`` per namespace in one process, configured and activated at start and stepped
+    together by one :class:`Pacer`: every fin has the same sample times, and with
+    ``--publish-clock`` the first one publishes ``/clock``.  Parameters (``--params-file``, ``-p``)
+    apply to every fin; the options override them.  Each fin is a lifecycle node of its own
+    (``ros2 lifecycle set /left/fin_sim deactivate``)."""
+    import argparse
+    import time
+
+    from rclpy.utilities import remove_ros_args
+
+    argv = list(args if args is not None else sys.argv)
+    parser = argparse.ArgumentParser(prog="fin_sims", description=fins_main.__doc__.splitlines()[0])  # type: ignore[union-attr]
+    parser.add_argument("--namespaces", nargs="+", required=True, help="one namespace per fin")
+    parser.add_argument("--realtime-factor", type=float, help="simulated s per wall s (every fin)")
+    parser.add_argument("--publish-clock", action="store_true", help="the first fin publishes /clock")
+    opts = parser.parse_args(remove_ros_args(argv)[1:])
+    t0 = time.time()  # one time origin for every fin
+
+    def build(context: Any) -> list[FinSim]:
+        fins = []
+        for k, ns in enumerate(opts.namespaces):
+            extra = [Parameter("autostart", value=True)]
+            extra.append(Parameter("publish_clock", value=opts.publish_clock and k == 0))  # one /clock
+            if opts.realtime_factor is not None:
+                extra.append(Parameter("realtime_factor", value=float(opts.realtime_factor)))
+            fins.append(FinSim(context=context, namespace=ns, parameter_overrides=extra))
+        for sim in fins:
+            sim.share_time_origin(t0)
+            sim.paced = True  # before activation: the Pacer's timer, not one per fin
+        return fins
+
+    return run_node(
+        build,
+        argv,
+        until=lambda node: node.finalized,
+        start=_start,
+        after_start=lambda nodes: Pacer(nodes),
     )
 
 
