@@ -1,0 +1,203 @@
+"""Every command line in a ``bash`` block of README.md and docs/*.md, run as a user types it.
+
+Lines run in the order written, in one scratch directory holding a copy of ``bags/`` and the
+placeholders the text names (``mine.yaml``, ``my_fin.yaml``, ``bags/run.mcap``, ``trials.csv``), so a
+line may use what an earlier one wrote (``out/diag/augmented_model.yaml``).  Three kinds:
+
+- a node or a launch (runs until Ctrl-C): still running, or exited 0, after a few seconds; then
+  SIGINT, and it must exit 0;
+- a line talking to a running suite (``ros2 node|topic|param|lifecycle|service``): run while
+  ``ros2 launch piezofin_ros piezofin.launch.py realtime_factor:=10`` runs in the background;
+- anything else: exits 0 within its time limit.
+
+No line may print a traceback.  A line marked ``(not run by the tests: why)`` is skipped, saying
+why.  ``ros2`` lines need the ``ros_env`` fixture (skipped, saying why, without a ROS command line).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from .rosutil import BIN, clean_env
+
+pytestmark = [pytest.mark.slow]
+ROOT = Path(__file__).resolve().parents[1]
+DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+NOT_RUN = "(not run by the tests:"
+RUNS_UNTIL_STOPPED = re.compile(
+    r"^(ros2 launch |ros2 run piezofin_ros (fin_sim|fin_sims|thrust_estimator|controller|recorder|player)\b)"
+)
+TALKS_TO_THE_SUITE = re.compile(r"^ros2 (node|topic|param|lifecycle|service) ")
+NEEDS_ROS = re.compile(r"^(ros2|colcon|rosdep) ")
+#: Seconds a node or launch must survive before it is stopped; the limit for everything else.
+ALIVE_S = 12.0
+LIMIT_S = 600.0
+
+
+def command_lines() -> list[tuple[str, int, str]]:
+    """(document, line number, command) of every command line in a ``bash`` block."""
+    found = []
+    for doc in DOCUMENTS:
+        inside = False
+        for number, line in enumerate(doc.read_text().splitlines(), start=1):
+            if line.startswith("```"):
+                inside = line.strip() == "```bash" if not inside else False
+                continue
+            if inside and line.strip() and not line.lstrip().startswith("#"):
+                found.append((doc.name, number, line.strip()))
+    return found
+
+
+LINES = command_lines()
+
+
+def test_the_documents_have_commands_to_run() -> None:
+    assert len(LINES) >= 30, LINES
+    marked = [line for _, _, line in LINES if NOT_RUN in line]
+    assert all(re.search(r"\(not run by the tests: \S.+\)", line) for line in marked)  # a reason each
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from piezofin_ros.diagnosis.synthetic import Case, simulate_case
+
+    here = tmp_path_factory.mktemp("readme")
+    (here / "bags").mkdir()
+    sample = ROOT / "bags" / "sample_M8528-P1.mcap"
+    shutil.copy2(sample, here / "bags" / sample.name)
+    shutil.copy2(sample, here / "bags" / "run.mcap")
+    for name in ("tools", "requirements.txt", "requirements-dev.txt", "setup.py"):
+        (here / name).symlink_to(ROOT / name)  # tools/main.sh runs here, on the project's venv
+    shutil.copy2(ROOT / "config" / "fins" / "M8528-P1.yaml", here / "my_fin.yaml")
+    (here / "mine.yaml").write_text("/**/controller:\n  ros__parameters:\n    frequencies: [5.0, 6.0]\n")
+    simulate_case(Case("M8528-P1", {"electroelastic_softening": 0.3}, 5)).trials.to_csv(here / "trials.csv")
+    return here
+
+
+class Background:
+    """The suite under ``ros2 launch`` while talking lines run (started when first needed)."""
+
+    def __init__(self) -> None:
+        self.proc: subprocess.Popen[str] | None = None
+
+    def start(self, env: dict[str, str], cwd: Path) -> None:
+        if self.proc is not None:
+            return
+        log = open(cwd / "background-launch.log", "w")  # noqa: SIM115 (closed with the process)
+        self.proc = subprocess.Popen(
+            ["ros2", "launch", "piezofin_ros", "piezofin.launch.py", "realtime_factor:=10"],
+            env=env,
+            cwd=cwd,
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
+        deadline = time.monotonic() + 60
+        while "trial 1.000 Hz" not in (cwd / "background-launch.log").read_text():  # estimates flow
+            assert self.proc.poll() is None and time.monotonic() < deadline, (
+                cwd / "background-launch.log"
+            ).read_text()[-3000:]
+            time.sleep(0.3)
+
+    def stop(self) -> None:
+        if self.proc is None:
+            return
+        os.killpg(self.proc.pid, signal.SIGINT)
+        try:
+            self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+        self.proc = None
+
+
+@pytest.fixture(scope="module")
+def background() -> Iterator[Background]:
+    bg = Background()
+    yield bg
+    bg.stop()
+
+
+@pytest.fixture(scope="module")
+def plain_env() -> dict[str, str]:
+    return clean_env(
+        PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}",
+        PIEZOFIN_VENV=str(BIN.parent),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        MPLBACKEND="Agg",
+    )
+
+
+def _run_until_stopped(command: str, env: dict[str, str], cwd: Path) -> str:
+    proc = subprocess.Popen(
+        ["bash", "-c", command],
+        env=env,
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        out, _ = proc.communicate(timeout=ALIVE_S)
+        assert proc.returncode == 0, f"exited {proc.returncode} before it was stopped:\n{out[-3000:]}"
+        return out
+    except subprocess.TimeoutExpired:
+        pass  # still running, as it should: Ctrl-C
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, _ = proc.communicate()
+        raise AssertionError(f"did not stop on Ctrl-C within 30 s:\n{out[-3000:]}") from None
+    assert proc.returncode == 0, f"exit {proc.returncode} on Ctrl-C:\n{out[-3000:]}"
+    return out
+
+
+@pytest.mark.parametrize(("document", "number", "command"), LINES, ids=[f"{d}:{n}" for d, n, _ in LINES])
+def test_command_line(
+    document: str,
+    number: int,
+    command: str,
+    scratch: Path,
+    background: Background,
+    plain_env: dict[str, str],
+    request: pytest.FixtureRequest,
+) -> None:
+    if NOT_RUN in command:
+        pytest.skip(command[command.index(NOT_RUN) + 1 : command.rindex(")")])
+    env = request.getfixturevalue("ros_env") if NEEDS_ROS.match(command) else plain_env
+    if TALKS_TO_THE_SUITE.match(command):
+        background.start(env, scratch)
+    elif RUNS_UNTIL_STOPPED.match(command):
+        background.stop()  # one suite at a time under the same names
+    if RUNS_UNTIL_STOPPED.match(command):
+        out = _run_until_stopped(command, env, scratch)
+    else:
+        run = subprocess.run(
+            ["bash", "-c", command],
+            env=env,
+            cwd=scratch,
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+            timeout=LIMIT_S,
+        )
+        out = run.stdout + run.stderr
+        assert run.returncode == 0, f"{document}:{number}: exit {run.returncode}\n{out[-3000:]}"
+    assert "Traceback" not in out, f"{document}:{number}:\n{out[-3000:]}"
