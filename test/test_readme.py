@@ -184,8 +184,8 @@ def test_command_line(
     env = request.getfixturevalue("ros_env") if NEEDS_ROS.match(command) else plain_env
     if TALKS_TO_THE_SUITE.match(command):
         background.start(env, scratch)
-    elif RUNS_UNTIL_STOPPED.match(command):
-        background.stop()  # one suite at a time under the same names
+    else:
+        background.stop()  # one suite at a time under the same names, and the CPU to this line
     if RUNS_UNTIL_STOPPED.match(command):
         out = _run_until_stopped(command, env, scratch)
     else:
