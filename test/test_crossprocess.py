@@ -251,6 +251,8 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
         "voltages:=[800.0]",
         "-p",
         "on_s:=600.0",
+        "-p",
+        "wait_estimator_s:=0.0",  # no estimator here: drive at once
     )
     drive: list[Block] = []
     try:

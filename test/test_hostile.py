@@ -267,6 +267,8 @@ def test_a_tripped_watchdog_latches_until_an_off_command() -> None:
         "frequencies:=[6.0]",
         "-p",
         "voltages:=[800.0]",
+        "-p",
+        "wait_estimator_s:=0.0",  # no estimator here: drive at once
     )
     try:
         with graph() as g:
@@ -384,7 +386,12 @@ def test_an_aborted_run_finishes_and_stops_the_drive() -> None:
                 context=g.context,
                 namespace="ab",
                 parameter_overrides=params(
-                    frequencies=[5.0, 6.0, 7.0], off_s=0.5, on_s=1.0, max_missing=1, use_sim_time=False
+                    frequencies=[5.0, 6.0, 7.0],
+                    off_s=0.5,
+                    on_s=1.0,
+                    max_missing=1,
+                    use_sim_time=False,
+                    wait_estimator_s=1.0,
                 ),
             )
         )

@@ -6,6 +6,10 @@ does not come (the estimator or the rig is gone), the trial is marked missing an
 ``max_missing`` in a row the run stops and the drive is commanded off.  At the end the chosen
 point (most thrust per watt among trials with at least ``min_thrust_n``) is either held or the
 drive is switched off (``after``).
+
+The first trial waits (drive off) until a ``thrust_estimator`` publishes on ``estimate``, at most
+``wait_estimator_s`` of wall time: under ``ros2 launch`` the nodes start in any order, and on a
+loaded machine the estimator may be the last, which used to cost the first trial its estimate.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import time
 
 from rclpy.context import Context
 from rclpy.node import Node
@@ -102,7 +107,17 @@ class Controller(Node):
         self.duration_s = float_param(
             self, "duration_s", 0.0, 0.0, 1e7, "optimise: stop after this long (0: never)"
         )
+        self.wait_estimator_s = float_param(
+            self,
+            "wait_estimator_s",
+            20.0,
+            0.0,
+            3600.0,
+            "wall time to wait for a thrust_estimator before the first trial, s (0: none)",
+        )
         freeze_parameters(self)
+        self._created = time.monotonic()
+        self._waiting_logged = False
         if mode != "optimise" and mode not in {m.value for m in Mode}:
             raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous, optimise")
         if self.source not in SOURCES:
@@ -179,11 +194,34 @@ class Controller(Node):
         v = min(max(v, 0.0), self.voltage_limit)  # belt and braces: the plan was checked at start
         self._cmd_pub.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on})))
 
+    def _estimator_ready(self) -> bool:
+        """True once an estimator publishes ``estimate`` (or ``wait_estimator_s`` passed); else drive off."""
+        if self.count_publishers(TOPIC_ESTIMATE) > 0:
+            return True
+        waited = time.monotonic() - self._created
+        if waited >= self.wait_estimator_s:
+            if self._waiting_logged:
+                self.get_logger().warning(
+                    f"no thrust_estimator after {self.wait_estimator_s:g} s: starting without one"
+                )
+                self._waiting_logged = False
+            return True
+        if not self._waiting_logged:
+            self._waiting_logged = True
+            self.get_logger().info(
+                f"waiting for a thrust_estimator on {self.resolve_topic_name(TOPIC_ESTIMATE)} "
+                f"(at most {self.wait_estimator_s:g} s), drive off"
+            )
+        self._send(0.0, 0.0, 0.0)
+        return False
+
     def _tick(self) -> None:
         t = self._now()
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         self._silence.heard()
+        if self.runner.t_begin is None and not self.runner.done and not self._estimator_ready():
+            return
         if not self.runner.done:
             before = self.runner.index
             self._send(*self.runner.command(t))
@@ -252,6 +290,8 @@ class Controller(Node):
             return
         self._silence.heard()
         if self._start_t is None:
+            if not self._estimator_ready():
+                return
             self._start_t = t
         if self.duration_s and t - self._start_t >= self.duration_s and not self.finished:
             self.finished = True
