@@ -64,6 +64,42 @@ def graph() -> Iterator[Graph]:
         g.close()
 
 
+class Launch:
+    """`ros2 launch ...` in its own session (SIGINT reaches it as Ctrl-C would), output to a file."""
+
+    def __init__(self, env: dict[str, str], cwd: Path, *args: str, log: str = "launch.log") -> None:
+        self.log = cwd / log
+        self.proc = subprocess.Popen(
+            ["ros2", "launch", "piezofin_ros", "piezofin.launch.py", *args],
+            env=env,
+            cwd=cwd,
+            stdin=subprocess.DEVNULL,
+            stdout=open(self.log, "w"),  # noqa: SIM115 (closed with the process)
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
+
+    def output(self) -> str:
+        return self.log.read_text()
+
+    def wait_for(self, text: str, timeout: float = 60.0) -> None:
+        t0 = time.monotonic()
+        while text not in self.output():
+            if time.monotonic() - t0 > timeout or self.proc.poll() is not None:
+                raise AssertionError(f"{text!r} not in the launch output:\n{self.output()[-3000:]}")
+            time.sleep(0.2)
+
+    def interrupt(self) -> str:
+        os.killpg(self.proc.pid, signal.SIGINT)  # Ctrl-C in the terminal: the whole process group
+        try:
+            self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            raise
+        return self.output()
+
+
 BIN = Path(sys.executable).parent
 
 
@@ -86,6 +122,25 @@ def start(exe: str, *ros_args: str, **popen: Any) -> subprocess.Popen[str]:
         text=True,
         env=clean_env(),
         **popen,
+    )
+
+
+def start_driving_controller(namespace: str, *ros_args: str) -> subprocess.Popen[str]:
+    """A ``controller`` in ``namespace`` driving 6 Hz at 800 Vpp continuously, with no estimator to
+    wait for (the watchdog and latch tests drive fin_sim alone)."""
+    return start(
+        "controller",
+        "-r",
+        f"__ns:=/{namespace}",
+        "-p",
+        "mode:=continuous",
+        "-p",
+        "frequencies:=[6.0]",
+        "-p",
+        "voltages:=[800.0]",
+        "-p",
+        "wait_estimator_s:=0.0",
+        *ros_args,
     )
 
 

@@ -20,7 +20,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
-from .rosutil import BIN, graph, start, stop
+from .rosutil import BIN, graph, start, start_driving_controller, stop
 
 pytestmark = pytest.mark.ros
 
@@ -239,21 +239,7 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
         "-p",
         "rig.voltage_noise_v:=0.0",
     )
-    ctl = start(
-        "controller",
-        "-r",
-        "__ns:=/wd",
-        "-p",
-        "mode:=continuous",
-        "-p",
-        "frequencies:=[6.0]",
-        "-p",
-        "voltages:=[800.0]",
-        "-p",
-        "on_s:=600.0",
-        "-p",
-        "wait_estimator_s:=0.0",  # no estimator here: drive at once
-    )
+    ctl = start_driving_controller("wd", "-p", "on_s:=600.0")
     drive: list[Block] = []
     try:
         with graph() as g:

@@ -29,7 +29,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.blocks import Block
 from piezofin_ros.nodes._common import QOS_CLOCK, QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
-from .rosutil import Graph, graph, start, stop
+from .rosutil import Graph, graph, start, start_driving_controller, stop
 
 pytestmark = pytest.mark.ros
 QUIET = 8.0  # V: 1 % of the 800 Vpp drive's amplitude (400 V)
@@ -257,19 +257,7 @@ def test_a_tripped_watchdog_latches_until_an_off_command() -> None:
     """The controller is SIGSTOPped while driving 800 Vpp (the watchdog trips), then SIGCONTinued: it
     resumes its heartbeat of on-commands, which fin_sim refuses; only a deliberate off re-arms it."""
     proc = fin_sim("latch")
-    ctl = start(
-        "controller",
-        "-r",
-        "__ns:=/latch",
-        "-p",
-        "mode:=continuous",
-        "-p",
-        "frequencies:=[6.0]",
-        "-p",
-        "voltages:=[800.0]",
-        "-p",
-        "wait_estimator_s:=0.0",  # no estimator here: drive at once
-    )
+    ctl = start_driving_controller("latch")
     try:
         with graph() as g:
             w = Witness(g, "latch")

@@ -21,13 +21,12 @@ import re
 import shutil
 import signal
 import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from .rosutil import BIN, clean_env
+from .rosutil import BIN, Launch, clean_env
 
 pytestmark = [pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,40 +86,17 @@ class Background:
     """The suite under ``ros2 launch`` while talking lines run (started when first needed)."""
 
     def __init__(self) -> None:
-        self.proc: subprocess.Popen[str] | None = None
+        self.launch: Launch | None = None
 
     def start(self, env: dict[str, str], cwd: Path) -> None:
-        if self.proc is not None:
-            return
-        log = open(cwd / "background-launch.log", "w")  # noqa: SIM115 (closed with the process)
-        self.proc = subprocess.Popen(
-            ["ros2", "launch", "piezofin_ros", "piezofin.launch.py", "realtime_factor:=10"],
-            env=env,
-            cwd=cwd,
-            stdin=subprocess.DEVNULL,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            text=True,
-            start_new_session=True,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        )
-        deadline = time.monotonic() + 60
-        while "trial 1.000 Hz" not in (cwd / "background-launch.log").read_text():  # estimates flow
-            assert self.proc.poll() is None and time.monotonic() < deadline, (
-                cwd / "background-launch.log"
-            ).read_text()[-3000:]
-            time.sleep(0.3)
+        if self.launch is None:
+            self.launch = Launch(env, cwd, "realtime_factor:=10", log="background-launch.log")
+            self.launch.wait_for("trial 1.000 Hz", 60.0)  # estimates flow
 
     def stop(self) -> None:
-        if self.proc is None:
-            return
-        os.killpg(self.proc.pid, signal.SIGINT)
-        try:
-            self.proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait()
-        self.proc = None
+        if self.launch is not None:
+            self.launch.interrupt()
+            self.launch = None
 
 
 @pytest.fixture(scope="module")

@@ -8,13 +8,13 @@ Without either, these tests are skipped with one line saying why.
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
+
+from .rosutil import Launch
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,42 +34,6 @@ def node_list(env: dict[str, str], expected: set[str], timeout: float = 30.0) ->
         if expected <= nodes or time.monotonic() - t0 > timeout:
             return nodes
         time.sleep(0.5)
-
-
-class Launch:
-    """`ros2 launch ...` in its own session (SIGINT reaches it as Ctrl-C would), output to a file."""
-
-    def __init__(self, env: dict[str, str], cwd: Path, *args: str) -> None:
-        self.log = cwd / "launch.log"
-        self.proc = subprocess.Popen(
-            ["ros2", "launch", "piezofin_ros", "piezofin.launch.py", *args],
-            env=env,
-            cwd=cwd,
-            stdin=subprocess.DEVNULL,
-            stdout=open(self.log, "w"),  # noqa: SIM115 (closed with the process)
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        )
-
-    def output(self) -> str:
-        return self.log.read_text()
-
-    def wait_for(self, text: str, timeout: float = 60.0) -> None:
-        t0 = time.monotonic()
-        while text not in self.output():
-            if time.monotonic() - t0 > timeout or self.proc.poll() is not None:
-                raise AssertionError(f"{text!r} not in the launch output:\n{self.output()[-3000:]}")
-            time.sleep(0.2)
-
-    def interrupt(self) -> str:
-        os.killpg(self.proc.pid, signal.SIGINT)  # Ctrl-C in the terminal: the whole process group
-        try:
-            self.proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-            raise
-        return self.output()
 
 
 def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
