@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezofin_ros.blocks import (
+from piezofin_ros.bags.blocks import (
     COMMAND_FIELDS,
     DRIVE_CHANNELS,
     Block,

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from piezofin_ros.cli import UsageError, parse_frequencies
-from piezofin_ros.fin import load_fin
-from piezofin_ros.steady import harmonic_balance
+from piezofin_ros.cli.main import UsageError, parse_frequencies
+from piezofin_ros.physics.fin import load_fin
+from piezofin_ros.physics.steady import harmonic_balance
 
 BIN = Path(sys.executable).parent
 

@@ -17,7 +17,7 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from std_msgs.msg import Float64MultiArray
 
-from piezofin_ros.blocks import Block
+from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
 from .rosutil import BIN, graph, start, start_driving_controller, stop
@@ -210,7 +210,7 @@ def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Pat
         [str(BIN / "piezofin"), "bag", "recover", str(bag)], capture_output=True, text=True, timeout=60
     )
     assert run.returncode == 0, run.stderr
-    from piezofin_ros.bagio import block_of, read_messages
+    from piezofin_ros.bags.mcapio import block_of, read_messages
 
     out = tmp_path / "killed.recovered.mcap"
     got = [float(block_of(m.type_name, m.data)["t_s"][-1]) for m in read_messages(out, ["/kill/drive"])]

@@ -15,20 +15,14 @@ from numpy.testing import assert_allclose
 
 from piezofin_ros.diagnosis.attribute import diagnose, largest_move, summary_json
 from piezofin_ros.diagnosis.data import DataError, from_csv
-from piezofin_ros.diagnosis.model import (
-    LIBRARY,
-    Augmented,
-    ModelError,
-    _coefficients,
-    load_augmented,
-    steady_knobs,
-)
 from piezofin_ros.diagnosis.paper import fit_facts, quantities
 from piezofin_ros.diagnosis.stages import stage_gaps
 from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, simulate_case, swim_speed_m_s
-from piezofin_ros.fin import Fin, load_fin
-from piezofin_ros.rig import RigConfig, SimulatedRig
-from piezofin_ros.steady import harmonic_balance, solve_amplitude
+from piezofin_ros.physics.effects import LIBRARY, Duffing, ModelError
+from piezofin_ros.physics.fin import Fin, load_fin
+from piezofin_ros.physics.model import Model, load_model, steady_knobs
+from piezofin_ros.physics.steady import coefficients, harmonic_balance, solve_amplitude
+from piezofin_ros.rig.simulated import RigConfig, SimulatedRig
 
 FIN = load_fin("M8528-P1")
 F = np.tile(np.linspace(1, 11, 11), 3)
@@ -37,7 +31,7 @@ V = np.repeat([400.0, 600.0, 800.0], 11)
 
 def test_nominal_augmented_model_is_the_harmonic_balance() -> None:
     hb = harmonic_balance(FIN, F, V)
-    p = Augmented(FIN).predict(F, V)
+    p = Model(FIN).predict(F, V)
     assert_allclose(p.tip_velocity_rms, hb.tip_velocity_rms, rtol=1e-12)
     assert_allclose(p.power_w, hb.power_w, rtol=1e-12)
     assert_allclose(p.current_rms, hb.current_rms, rtol=1e-12)
@@ -45,27 +39,27 @@ def test_nominal_augmented_model_is_the_harmonic_balance() -> None:
 
 
 def test_every_effect_is_neutral_at_its_neutral_values() -> None:
-    base = Augmented(FIN).predict(F, V)
+    base = Model(FIN).predict(F, V)
     for name, cls in LIBRARY.items():
-        p = Augmented.of(FIN, {name: list(cls.neutral())}).predict(F, V)
+        p = Model.of(FIN, {name: list(cls.neutral())}).predict(F, V)
         for ch in ("tip_velocity_rms", "power_w", "current_rms", "thrust_loadcell_n", "voltage_pp_drive"):
             assert_allclose(getattr(p, ch), getattr(base, ch), rtol=1e-9, err_msg=f"{name}: {ch}")
 
 
 def test_closed_forms_of_simple_effects() -> None:
     # resonance offset: a fin with f_sc scaled and 2 zeta wn kept (the effect moves the spring only)
-    p = Augmented.of(FIN, {"resonance_offset": [0.8]}).predict(F, V)
+    p = Model.of(FIN, {"resonance_offset": [0.8]}).predict(F, V)
     hb = harmonic_balance(FIN.replace(f_sc=FIN.f_sc * 0.8, zeta=FIN.zeta / 0.8), F, V)
     assert_allclose(p.tip_velocity_rms, hb.tip_velocity_rms, rtol=1e-12)
     # dielectric loss adds (1/2) tan(delta) C w V^2 to the power and nothing to the motion
-    q = Augmented.of(FIN, {"dielectric_loss": [0.05]}).predict(F, V)
-    base = Augmented(FIN).predict(F, V)
+    q = Model.of(FIN, {"dielectric_loss": [0.05]}).predict(F, V)
+    base = Model(FIN).predict(F, V)
     assert_allclose(
         q.power_w - base.power_w, 0.5 * 0.05 * FIN.C_eq * 2 * math.pi * F * (V / 2) ** 2, rtol=1e-12
     )
     assert_allclose(q.tip_velocity_rms, base.tip_velocity_rms, rtol=1e-12)
     # clipping at half the amplitude keeps (2/pi)(asin r + r sqrt(1 - r^2)) of the fundamental
-    amp = Augmented.of(FIN, {"amplifier_limit": [1.0]})  # I_max = 1 mA
+    amp = Model.of(FIN, {"amplifier_limit": [1.0]})  # I_max = 1 mA
     f = np.array([10.0])
     v = np.array([2 * 2 * 1e-3 / (FIN.C_eq * 2 * math.pi * 10.0)])  # amplitude = 2 x clip level
     r = 0.5
@@ -75,25 +69,23 @@ def test_closed_forms_of_simple_effects() -> None:
 
 
 def test_augmented_model_round_trips_through_safe_yaml(tmp_path: Path) -> None:
-    m = Augmented.of(FIN, {"electroelastic_softening": [0.3], "dielectric_loss": [0.04]})
+    m = Model.of(FIN, {"electroelastic_softening": [0.3], "dielectric_loss": [0.04]})
     text = yaml.safe_dump(m.to_mapping())
-    back = Augmented.from_mapping(yaml.safe_load(text))
+    back = Model.from_mapping(yaml.safe_load(text))
     assert back.parameters() == m.parameters()
     assert_allclose(back.predict(F, V).power_w, m.predict(F, V).power_w)
     with pytest.raises(ModelError, match="unknown effect 'bogus'"):
-        Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"bogus": {}}})
+        Model.from_mapping({"fin": FIN.inputs(), "effects": {"bogus": {}}})
     with pytest.raises(ModelError, match="softening"):
-        Augmented.from_mapping(
-            {"fin": FIN.inputs(), "effects": {"electroelastic_softening": {"softening": 7.0}}}
-        )
+        Model.from_mapping({"fin": FIN.inputs(), "effects": {"electroelastic_softening": {"softening": 7.0}}})
     with pytest.raises(ModelError, match="must be a number"):
-        Augmented.from_mapping({"fin": FIN.inputs(), "effects": {"dielectric_loss": {"tan_delta": "x"}}})
+        Model.from_mapping({"fin": FIN.inputs(), "effects": {"dielectric_loss": {"tan_delta": "x"}}})
 
 
 def test_load_augmented_names_the_file_and_the_problem(tmp_path: Path) -> None:
     good = tmp_path / "model.yaml"
-    good.write_text(yaml.safe_dump(Augmented.of(FIN, {"drag_offset": [2.0]}).to_mapping()))
-    assert load_augmented(str(good)).parameters() == {"drag_offset": {"scale": 2.0}}
+    good.write_text(yaml.safe_dump(Model.of(FIN, {"drag_offset": [2.0]}).to_mapping()))
+    assert load_model(str(good)).parameters() == {"drag_offset": {"scale": 2.0}}
     cases = {
         "missing.yaml": (None, "cannot read"),
         "broken.yaml": ("fin: [1, 2", "not valid YAML"),
@@ -106,7 +98,7 @@ def test_load_augmented_names_the_file_and_the_problem(tmp_path: Path) -> None:
         if text is not None:
             path.write_text(text)
         with pytest.raises(ModelError, match=why) as info:
-            load_augmented(str(path))
+            load_model(str(path))
         assert name in str(info.value)
 
 
@@ -127,7 +119,7 @@ def _fundamental_rms(t: np.ndarray, y: np.ndarray, f: float) -> float:
 def test_the_rig_streams_what_the_augmented_model_predicts(effects: dict, f: float) -> None:
     """fin_sim's rig with a diagnosed model: its steady state is the model's (within the
     single-harmonic balance's own 2 % against the time domain), with the amplifier clipping for real."""
-    model = Augmented.of(FIN, effects)
+    model = Model.of(FIN, effects)
     quiet = RigConfig(
         voltage_noise_v=0,
         current_noise_a=0,
@@ -159,11 +151,11 @@ def test_the_rig_streams_what_the_augmented_model_predicts(effects: dict, f: flo
         )
 
 
-def _duffing(fin: Fin, change: float) -> Augmented:
+def _duffing(fin: Fin, change: float) -> Model:
     """A Duffing spring whose stiffness changes by ``change`` at the nominal peak tip amplitude."""
     f = np.linspace(0.5, 1.5 * fin.f_water_linear, 200)
     x_ref = float(np.max(harmonic_balance(fin, f, 800.0).modal_amplitude)) * fin.phi_tip
-    return Augmented(fin, ("stiffness_nonlinearity",), ((change / (x_ref / fin.L) ** 2,),))
+    return Model(fin, (Duffing(change / (x_ref / fin.L) ** 2),))
 
 
 @pytest.mark.parametrize("change", [-0.5, -0.3, 0.3, 1.0])
@@ -174,8 +166,9 @@ def test_amplitude_effects_predict_a_steady_state(change: float) -> None:
     f = np.linspace(0.5, 1.5 * FIN.f_water_linear, 300)
     for vpp in (400.0, 800.0):
         v = np.full_like(f, vpp)
-        kk, amp = steady_knobs(FIN, model.instances(), f, v)
-        again = solve_amplitude(*_coefficients(FIN, 2 * math.pi * f, kk, v, None))
+        kk, amp = steady_knobs(FIN, model.effects, f, v)
+        force = FIN.theta * kk.coupling * 0.5 * v * kk.voltage
+        again = solve_amplitude(*coefficients(FIN, 2 * math.pi * f, kk), force)
         assert_allclose(again, amp, rtol=1e-6)
 
 
@@ -197,7 +190,7 @@ def test_clean_data_has_no_gap(clean: Case) -> None:
     g = simulate_case(clean)
     d = diagnose(g.trials, FIN)
     assert d.verdict == "no gap"
-    assert not any(s.significant for s in stage_gaps(g.trials, Augmented(FIN)))
+    assert not any(s.significant for s in stage_gaps(g.trials, Model(FIN)))
 
 
 @pytest.mark.parametrize(
@@ -217,7 +210,7 @@ def test_the_gap_is_found_where_it_arises(effect: str, stage: str) -> None:
         "amplifier_limit": 0.6,
     }
     g = simulate_case(Case("M8528-P1", {effect: strength[effect]}, 3))
-    gaps = {s.stage for s in stage_gaps(g.trials, Augmented(FIN)) if s.significant}
+    gaps = {s.stage for s in stage_gaps(g.trials, Model(FIN)) if s.significant}
     assert stage in gaps
     downstream_only = {
         "tip": {"thrust", "current"},
@@ -301,7 +294,7 @@ def test_summary_is_json_and_model_reloads() -> None:
     d = diagnose(g.trials, FIN)
     s = json.loads(json.dumps(summary_json(d), default=float))
     assert s["verdict"] == "explained" and s["named"] == ["resonance_offset"]
-    m = Augmented.from_mapping(s["augmented_model"])
+    m = Model.from_mapping(s["augmented_model"])
     assert abs(m.parameters()["resonance_offset"]["scale"] - 0.85) < 0.01
 
 
@@ -350,7 +343,7 @@ def test_bad_csv_names_the_file(tmp_path: Path, content: str) -> None:
 
 def test_the_papers_two_numbers() -> None:
     """What the paper reports for M8528-P1 at 800 Vpp: resonance near 5.5 Hz, at most 60.7 mN/W."""
-    nominal = quantities(Augmented(FIN), 800.0)
+    nominal = quantities(Model(FIN), 800.0)
     assert nominal["resonance_hz"] == pytest.approx(9.9)
     assert nominal["max_thrust_per_watt"] > 100 * 0.0607  # the linear model: far too efficient
     pair = fit_facts(FIN, ("electroelastic_softening", "leakage"))

@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from piezofin_ros.estimation import Estimate, EstimatorConfig, StreamEstimator, analyse_window
-from piezofin_ros.fin import Fin
-from piezofin_ros.rig import DriveLimits, RigConfig, SimulatedRig
-from piezofin_ros.steady import harmonic_balance
-from piezofin_ros.timedomain import simulate
-from piezofin_ros.waveforms import SineBurst
+from piezofin_ros.estimation.estimator import Estimate, EstimatorConfig, StreamEstimator, analyse_window
+from piezofin_ros.physics.fin import Fin
+from piezofin_ros.physics.steady import harmonic_balance
+from piezofin_ros.physics.timedomain import simulate
+from piezofin_ros.physics.waveforms import SineBurst
+from piezofin_ros.rig.simulated import DriveLimits, RigConfig, SimulatedRig
 
 
 def run_protocol(
@@ -41,7 +41,7 @@ def run_protocol(
 
 @pytest.fixture(scope="module")
 def protocol_run() -> tuple[list[Estimate], SimulatedRig]:
-    from piezofin_ros.fin import load_fin
+    from piezofin_ros.physics.fin import load_fin
 
     return run_protocol(load_fin("M8528-P1"), [(5.5, 800.0), (9.9, 800.0), (8.0, 400.0)])
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from numpy.testing import assert_allclose
 
-from piezofin_ros.fin import FIELDS, Fin, FinConfigError, load_fin, preset_names, safe_load_yaml
+from piezofin_ros.physics.fin import FIELDS, Fin, FinConfigError, load_fin, preset_names, safe_load_yaml
 
 
 def test_presets_are_the_papers_three() -> None:

@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 from scipy import integrate
 
 from piezofin_ros import hydro, modeshape
-from piezofin_ros.modeshape import LAMBDA1, phi_hat
+from piezofin_ros.physics.modeshape import LAMBDA1, phi_hat
 
 
 def test_tip_value_of_mass_normalised_mode() -> None:

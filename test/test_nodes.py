@@ -16,16 +16,16 @@ from rclpy.parameter import Parameter
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import Float64MultiArray
 
-from piezofin_ros.bagio import block_of, read_messages
-from piezofin_ros.blocks import Block
-from piezofin_ros.estimation import Estimate
+from piezofin_ros.bags.blocks import Block
+from piezofin_ros.bags.mcapio import block_of, read_messages
+from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg
 from piezofin_ros.nodes.controller import Controller
 from piezofin_ros.nodes.fin_sim import FinSim
 from piezofin_ros.nodes.player import Player
 from piezofin_ros.nodes.recorder import Recorder
 from piezofin_ros.nodes.thrust_estimator import ThrustEstimator
-from piezofin_ros.steady import harmonic_balance
+from piezofin_ros.physics.steady import harmonic_balance
 
 from .rosutil import graph
 
@@ -216,11 +216,11 @@ def test_parameters_have_ranges_and_reasons() -> None:
 def test_fin_sim_and_controller_load_a_diagnosed_model(tmp_path: Any) -> None:
     """`-p model:=augmented_model.yaml`: fin_sim streams the diagnosed model, the optimiser starts
     from it; a bad model fails at start naming the parameter and the file."""
-    from piezofin_ros.diagnosis.model import Augmented
-    from piezofin_ros.fin import load_fin
+    from piezofin_ros.physics.fin import load_fin
+    from piezofin_ros.physics.model import Model
 
     fin = load_fin("M8528-P1")
-    model = Augmented.of(fin, {"drag_offset": [3.0]})
+    model = Model.of(fin, {"drag_offset": [3.0]})
     path = tmp_path / "augmented_model.yaml"
     path.write_text(yaml.safe_dump(model.to_mapping()))
     bad = tmp_path / "bad.yaml"

@@ -9,9 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from piezofin_ros.estimation import Estimate
-from piezofin_ros.fin import Fin, load_fin
-from piezofin_ros.optimise import (
+from piezofin_ros.control.optimise import (
     DriveLoop,
     Limits,
     Optimiser,
@@ -19,7 +17,9 @@ from piezofin_ros.optimise import (
     score,
     true_optimum,
 )
-from piezofin_ros.plants import Plant
+from piezofin_ros.control.plants import Plant
+from piezofin_ros.estimation.estimator import Estimate
+from piezofin_ros.physics.fin import Fin, load_fin
 
 LIMITS = Limits(1.0, 20.0, 50.0, 800.0)
 
@@ -146,14 +146,14 @@ def test_loop_holds_then_ramps_down_when_estimates_stop(m8528: Fin) -> None:
 def test_a_diagnosed_model_is_the_optimisers_starting_map(m8528: Fin) -> None:
     """With the fin's diagnosed effects (the softening and loss the plant has), the first choice is
     already near the plant's optimum; an empty augmented model is the paper's map."""
-    from piezofin_ros.diagnosis.model import Augmented
+    from piezofin_ros.physics.model import Model
 
     plant = Plant(m8528, softening=0.4, loss_tan_delta=0.1)
-    empty = Optimiser(m8528, LIMITS, model=Augmented.of(m8528)).choice
+    empty = Optimiser(m8528, LIMITS, model=Model.of(m8528)).choice
     nominal = Optimiser(m8528, LIMITS).choice
     assert empty is not None and nominal is not None
     assert empty.frequency_hz == pytest.approx(nominal.frequency_hz, rel=1e-3)
-    diagnosed = Augmented.of(m8528, {"electroelastic_softening": [0.4], "dielectric_loss": [0.1]})
+    diagnosed = Model.of(m8528, {"electroelastic_softening": [0.4], "dielectric_loss": [0.1]})
     first = Optimiser(m8528, LIMITS, model=diagnosed).choice
     assert first is not None
     _, _, best = true_optimum(plant, LIMITS, None)

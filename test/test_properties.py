@@ -6,10 +6,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from piezofin_ros.fin import Fin
-from piezofin_ros.steady import harmonic_balance
-from piezofin_ros.timedomain import simulate
-from piezofin_ros.waveforms import protocol
+from piezofin_ros.physics.fin import Fin
+from piezofin_ros.physics.steady import harmonic_balance
+from piezofin_ros.physics.timedomain import simulate
+from piezofin_ros.physics.waveforms import protocol
 
 
 @st.composite

@@ -11,16 +11,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from piezofin_ros.fin import Fin
-from piezofin_ros.rig import (
+from piezofin_ros.physics.fin import Fin
+from piezofin_ros.physics.timedomain import simulate
+from piezofin_ros.physics.waveforms import SineBurst
+from piezofin_ros.rig.simulated import (
     HARD_VOLTAGE_PP_MAX,
     DriveLimits,
     RigConfig,
     SimulatedRig,
     check_command,
 )
-from piezofin_ros.timedomain import simulate
-from piezofin_ros.waveforms import SineBurst
 
 QUIET = RigConfig(voltage_noise_v=0, current_noise_a=0, vibrometer_noise_m_s=0, displacement_noise_m=0)
 
@@ -116,7 +116,7 @@ def test_rig_config_rejects_bad_values() -> None:
 
 
 def test_protocol_mode_runs_the_papers_trial_on_one_command(m8528: Fin) -> None:
-    from piezofin_ros.rig import Protocol
+    from piezofin_ros.rig.simulated import Protocol
 
     rig = SimulatedRig(m8528, QUIET, protocol=Protocol(off_s=2.0, on_s=3.0))
     rig.command(9.0, 800.0, 1)  # one command only: the watchdog must not stop the burst
@@ -138,7 +138,7 @@ def test_protocol_mode_runs_the_papers_trial_on_one_command(m8528: Fin) -> None:
 
 def bursting(fin: Fin) -> SimulatedRig:
     """A protocol-mode rig 1 s into a 9 Hz, 800 Vpp trial (0.5 s off, then the burst)."""
-    from piezofin_ros.rig import Protocol
+    from piezofin_ros.rig.simulated import Protocol
 
     rig = SimulatedRig(fin, QUIET, protocol=Protocol(off_s=0.5, on_s=5.0))
     rig.command(9.0, 800.0, 1)
@@ -185,7 +185,7 @@ STOPS = ("off", "watchdog", "cap lowered", "cap to 0", "stop (deactivate)", "ban
 def test_every_stop_is_fast_whatever_the_settings(slew: float, cap: float, f: float, kind: str) -> None:
     """From full amplitude at any slew, cap and frequency, every kind of stop is below 1 % of the
     amplitude within 0.5 s (0.5 s after the watchdog's timeout for that one), and never rises."""
-    from piezofin_ros.fin import load_fin
+    from piezofin_ros.physics.fin import load_fin
 
     rig = SimulatedRig(load_fin("M8528-P1"), QUIET, DriveLimits(voltage_pp_max=cap, slew_vpp_per_s=1e6))
     rig.command(f, cap, 1)

@@ -13,7 +13,7 @@ import rclpy
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from piezofin_ros.blocks import Block
+from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg, msg_block
 from piezofin_ros.nodes.fin_sim import FinSim
 
@@ -168,7 +168,7 @@ def test_bad_node_configuration_names_the_key(tmp_path: Path) -> None:
 
 
 def test_bad_fin_files_name_the_key(tmp_path: Path) -> None:
-    from piezofin_ros.fin import FinConfigError, load_fin
+    from piezofin_ros.physics.fin import FinConfigError, load_fin
 
     good = (ROOT / "config" / "fins" / "M8528-P1.yaml").read_text()
     cases = {

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from piezofin_ros.fin import load_fin
-from piezofin_ros.offline import replay_estimates
+from piezofin_ros.estimation.offline import replay_estimates
+from piezofin_ros.physics.fin import load_fin
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_M8528-P1.mcap"
 

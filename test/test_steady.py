@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from piezofin_ros.fin import Fin
-from piezofin_ros.steady import (
+from piezofin_ros.physics.fin import Fin
+from piezofin_ros.physics.steady import (
     DRAG_HARMONIC,
     frf_in_air,
     harmonic_balance,

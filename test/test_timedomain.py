@@ -7,10 +7,10 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.integrate import solve_ivp
 
-from piezofin_ros.fin import Fin, load_fin
-from piezofin_ros.steady import SteadyState, harmonic_balance
-from piezofin_ros.timedomain import simulate, simulate_batch
-from piezofin_ros.waveforms import Sampled, SineBurst, protocol
+from piezofin_ros.physics.fin import Fin, load_fin
+from piezofin_ros.physics.steady import SteadyState, harmonic_balance
+from piezofin_ros.physics.timedomain import simulate, simulate_batch
+from piezofin_ros.physics.waveforms import Sampled, SineBurst, protocol
 
 
 def _steady_stats(fin: Fin, f: float, vpp: float, start: SteadyState, settle: float = 20.0):
@@ -134,10 +134,10 @@ def test_runs_without_numba_with_the_same_result(tmp_path) -> None:
     code = (
         "import numpy as np, sys\n"
         "from piezofin_ros import _compile\n"
-        "from piezofin_ros.fin import load_fin\n"
-        "from piezofin_ros.steady import harmonic_balance\n"
-        "from piezofin_ros.timedomain import simulate\n"
-        "from piezofin_ros.waveforms import protocol\n"
+        "from piezofin_ros.physics.fin import load_fin\n"
+        "from piezofin_ros.physics.steady import harmonic_balance\n"
+        "from piezofin_ros.physics.timedomain import simulate\n"
+        "from piezofin_ros.physics.waveforms import protocol\n"
         "fin = load_fin('M8528-P1')\n"
         "tr = simulate(fin, protocol(7.0, 800.0, 0.1, 0.5), 0.7)\n"
         "s = harmonic_balance(fin, [5.0, 9.0], 800.0)\n"

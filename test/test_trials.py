@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from piezofin_ros.estimation import Estimate
-from piezofin_ros.trials import Mode, TrialPlan, TrialRunner, choose
+from piezofin_ros.control.trials import Mode, TrialPlan, TrialRunner, choose
+from piezofin_ros.estimation.estimator import Estimate
 
 
 def estimate(t_start: float, f: float, thrust: float, power: float, final: float = 1.0) -> Estimate:

@@ -41,9 +41,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, stats
 
-from ..fin import Fin
+from ..physics.effects import LIBRARY, effect_class
+from ..physics.fin import Fin
+from ..physics.model import Model
 from .data import CHANNELS, Trials
-from .model import LIBRARY, Augmented, ParamSpace, effect_class
+from .space import ParamSpace
 from .stages import Resonance, StageGap, resonances, stage_gaps
 
 FloatArray = NDArray[Any]
@@ -54,13 +56,13 @@ def _wrap(x: FloatArray) -> FloatArray:
     return np.angle(np.exp(1j * x))
 
 
-def predicted_channels(model: Augmented, trials: Trials) -> dict[str, FloatArray]:
+def predicted_channels(model: Model, trials: Trials) -> dict[str, FloatArray]:
     """The model's value of every channel for the table's trials (measured voltage as input where known)."""
     pred = model.predict(trials.frequency_hz, trials.voltage_pp, drive_pp=trials.measured_drive())
     return {name: np.asarray(getattr(pred, name), float) for name in FIT_CHANNELS}
 
 
-def residuals(model: Augmented, trials: Trials) -> dict[str, FloatArray]:
+def residuals(model: Model, trials: Trials) -> dict[str, FloatArray]:
     """``(measured - predicted) / sigma`` per channel (NaN where not measured)."""
     pred = predicted_channels(model, trials)
     out = {}
@@ -77,7 +79,7 @@ def _stack(res: dict[str, FloatArray]) -> FloatArray:
     return r[np.isfinite(r)]
 
 
-def chi2(model: Augmented, trials: Trials) -> tuple[float, int]:
+def chi2(model: Model, trials: Trials) -> tuple[float, int]:
     r = _stack(residuals(model, trials))
     return float(np.sum(r * r)), int(r.size)
 
@@ -85,7 +87,7 @@ def chi2(model: Augmented, trials: Trials) -> tuple[float, int]:
 @dataclass(frozen=True)
 class Candidate:
     effects: tuple[str, ...]
-    model: Augmented
+    model: Model
     chi2_train: float
     chi2_test: float
     n_test: int
@@ -99,7 +101,7 @@ class Candidate:
 
 def fit(
     fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[float, ...]] | None = None
-) -> Augmented:
+) -> Model:
     """Least-squares parameters of ``names`` on ``train`` (bounded, two starts, weak prior)."""
     space = ParamSpace(fin, tuple(names))
     params = space.params
@@ -114,7 +116,7 @@ def fit(
             return np.full(n_res, 1e6)
         return np.concatenate([r, z / 10.0])
 
-    n_res = _stack(residuals(Augmented(fin), train)).size
+    n_res = _stack(residuals(Model(fin), train)).size
     starts = []
     if start:
         x0 = np.concatenate([np.asarray(start.get(n, effect_class(n).neutral()), float) for n in names])
@@ -159,7 +161,7 @@ class ChannelGap:
     n: int
 
 
-def channel_gaps(before: Augmented, after: Augmented, trials: Trials) -> list[ChannelGap]:
+def channel_gaps(before: Model, after: Model, trials: Trials) -> list[ChannelGap]:
     """Per channel, the RMS gap in units and relative to the RMS of the measurement (percent)."""
     pb, pa = predicted_channels(before, trials), predicted_channels(after, trials)
     out = []
@@ -236,14 +238,10 @@ def separating_experiment(
     return Experiment(float(ff[best[1]]), float(vv[best[1]]), best[2], best[0], a.label, b.label)
 
 
-def largest_move(model: Augmented, effect: str, trials: Trials) -> float:
+def largest_move(model: Model, effect: str, trials: Trials) -> float:
     """The largest change of any prediction, in units of its noise, when ``effect`` is taken out of
     ``model`` (the other effects kept as fitted)."""
-    rest = Augmented(
-        model.fin,
-        tuple(e for e in model.effects if e != effect),
-        tuple(v for e, v in zip(model.effects, model.values, strict=True) if e != effect),
-    )
+    rest = model.without(effect)
     full, without = predicted_channels(model, trials), predicted_channels(rest, trials)
     moves = [0.0]
     for name in FIT_CHANNELS:
@@ -256,7 +254,7 @@ def largest_move(model: Augmented, effect: str, trials: Trials) -> float:
     return max(moves)
 
 
-def _params_text(model: Augmented, effect: str) -> str:
+def _params_text(model: Model, effect: str) -> str:
     return ", ".join(f"{k} = {v:.3g}" for k, v in model.parameters()[effect].items())
 
 
@@ -276,7 +274,7 @@ class Diagnosis:
     experiments: list[Experiment]
     gaps: list[ChannelGap]  # held out, before/after the best candidate
     shrink: float
-    final_model: Augmented  # refitted on all trials
+    final_model: Model  # refitted on all trials
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -303,7 +301,7 @@ def diagnose(
     """Where, which and how far; see the module docstring."""
     say = progress or (lambda _msg: None)
     names = list(library or LIBRARY)
-    nominal_model = Augmented(fin)
+    nominal_model = Model(fin)
     stages = stage_gaps(trials, nominal_model)
     res = resonances(trials, nominal_model)
     test, test_text = split(trials)

@@ -24,8 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..bagio import block_of, read_messages
-from ..blocks import (
+from ..bags.blocks import (
     COMMAND_FIELDS,
     DRIVE_CHANNELS,
     LOADCELL_CHANNELS,
@@ -33,9 +32,10 @@ from ..blocks import (
     BlockFormatError,
     check_samples,
 )
-from ..estimation import Estimate, EstimatorConfig
-from ..fin import Fin
-from ..offline import replay_estimates, topic_prefix
+from ..bags.mcapio import block_of, read_messages
+from ..estimation.estimator import Estimate, EstimatorConfig
+from ..estimation.offline import replay_estimates, topic_prefix
+from ..physics.fin import Fin
 
 FloatArray = NDArray[Any]
 

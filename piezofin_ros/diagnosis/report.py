@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from ..physics.effects import effect_class
 from .attribute import Diagnosis
 from .data import CHANNELS
-from .model import effect_class
 
 
 def text(d: Diagnosis) -> str:

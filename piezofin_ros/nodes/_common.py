@@ -18,7 +18,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ..blocks import Block, from_layout, to_layout
+from ..bags.blocks import Block, from_layout, to_layout
 
 #: High-rate sample blocks and estimates: reliable (nothing dropped), 200 blocks of history.
 QOS_DATA = QoSProfile(
@@ -44,7 +44,7 @@ TOPIC_DEMAND = "thrust_demand"
 
 
 def block_msg(block: Block) -> Float64MultiArray:
-    """A :class:`Block` as a ``Float64MultiArray`` (see :mod:`piezofin_ros.blocks`)."""
+    """A :class:`Block` as a ``Float64MultiArray`` (see :mod:`piezofin_ros.bags.blocks`)."""
     dims, data = to_layout(block)
     msg = Float64MultiArray()
     msg.layout.dim = [

@@ -31,12 +31,12 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from ..fin import FinConfigError, config_dir
-from ..params import load_parameter_file, node_parameters
-from ..report import plot_trials, trial_table
+from ..cli.plots import plot_trials, trial_table
+from ..physics.fin import FinConfigError, config_dir
 from ._common import StartupError, StopFlag
 from .controller import Controller
 from .fin_sim import FinSim, Pacer
+from .params import load_parameter_file, node_parameters
 from .recorder import Recorder, default_bag_path
 from .thrust_estimator import ThrustEstimator
 

@@ -24,13 +24,14 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray, String
 
-from ..blocks import Block, BlockFormatError
-from ..diagnosis.model import ModelError, load_augmented
-from ..estimation import Estimate
-from ..fin import FinConfigError, load_fin
-from ..optimise import DriveLoop, Limits, Optimiser
-from ..rig import HARD_VOLTAGE_PP_MAX
-from ..trials import SOURCES, Mode, TrialPlan, TrialRunner, choose
+from ..bags.blocks import Block, BlockFormatError
+from ..control.optimise import DriveLoop, Limits, Optimiser
+from ..control.trials import SOURCES, Mode, TrialPlan, TrialRunner, choose
+from ..estimation.estimator import Estimate
+from ..physics.effects import ModelError
+from ..physics.fin import FinConfigError, load_fin
+from ..physics.model import load_model
+from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -130,7 +131,7 @@ class Controller(Node):
         self.finished = False
         if mode == "optimise":
             try:
-                model = load_augmented(model_path) if model_path else None
+                model = load_model(model_path) if model_path else None
             except ModelError as exc:
                 raise StartupError(f"parameter model: {exc}") from None
             try:
@@ -143,7 +144,7 @@ class Controller(Node):
                 raise StartupError(f"optimiser: {exc}") from None
             if model is not None:
                 self.get_logger().info(
-                    f"optimiser starts from the augmented model {model_path} ({', '.join(model.effects)})"
+                    f"optimiser starts from the augmented model {model_path} ({', '.join(model.names)})"
                 )
             self.loop = DriveLoop(optimiser, self.source, slew, timeout)
             self._start_t: float | None = None

@@ -1,4 +1,5 @@
-"""``fin_sim``: the simulated hardware, a lifecycle node over :class:`~piezofin_ros.rig.SimulatedRig`.
+"""``fin_sim``: the simulated hardware, a lifecycle node over
+:class:`~piezofin_ros.rig.simulated.SimulatedRig`.
 
 The drive is at zero volts unless the node is active.  On deactivate (and on shutdown) the
 drive ramps to zero and the ramp is published, so the last samples show a safe drive.  With
@@ -14,7 +15,7 @@ Safety does not depend on anything another node can change.  The timer that adva
 (and with it the watchdog and every ramp) runs on the steady clock: ``fin_sim`` *is* the time
 source, so ``use_sim_time`` is not taken (ignored with a warning at start, refused at run time)
 and no ``/clock`` publisher can pace or stop it.  Stops ramp at least at
-:data:`~piezofin_ros.rig.STOP_SLEW_VPP_PER_S` whatever the slew setting; a tripped watchdog
+:data:`~piezofin_ros.rig.simulated.STOP_SLEW_VPP_PER_S` whatever the slew setting; a tripped watchdog
 latches until an off command or a lifecycle activate re-arms it.  Simulated faster than real
 time, one second of fin time is a few milliseconds of wall time, less than the scheduling jitter
 of the commanding process: the watchdog then waits at least :data:`WATCHDOG_MIN_WALL_S` of wall
@@ -23,7 +24,8 @@ with a log line).  A lifecycle request that is not a valid transition is refused
 ``success: false``), never a crash.
 With ``model`` (an ``augmented_model.yaml`` written by ``piezofin diagnose --report``) the rig
 simulates that model: its fin, plus the fitted effects linearised at each commanded operating point
-(see :class:`~piezofin_ros.rig.SimulatedRig`), so the node streams what the diagnosed model predicts.
+(see :class:`~piezofin_ros.rig.simulated.SimulatedRig`), so the node streams what the
+diagnosed model predicts.
 """
 
 from __future__ import annotations
@@ -46,10 +48,11 @@ from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
-from ..blocks import COMMAND_FIELDS, Block, BlockFormatError
-from ..diagnosis.model import ModelError, load_augmented
-from ..fin import Fin, FinConfigError, load_fin
-from ..rig import (
+from ..bags.blocks import COMMAND_FIELDS, Block, BlockFormatError
+from ..physics.effects import ModelError
+from ..physics.fin import Fin, FinConfigError, load_fin
+from ..physics.model import load_model
+from ..rig.simulated import (
     HARD_VOLTAGE_PP_MAX,
     STOP_SLEW_VPP_PER_S,
     DriveLimits,
@@ -172,7 +175,7 @@ class FinSim(LifecycleNode):
         model = None
         try:
             if self._model_path:
-                model = load_augmented(self._model_path)
+                model = load_model(self._model_path)
                 self._fin = model.fin
             else:
                 self._fin = load_fin(self._fin_name)

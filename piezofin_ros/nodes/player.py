@@ -22,8 +22,8 @@ from rclpy.parameter import Parameter
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from ..bagio import BagError, BagMessage, bag_topics, read_messages
-from ..fin import config_dir
+from ..bags.mcapio import BagError, BagMessage, bag_topics, read_messages
+from ..physics.fin import config_dir
 from ._common import (
     QOS_CLOCK,
     StartupError,

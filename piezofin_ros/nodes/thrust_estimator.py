@@ -1,4 +1,4 @@
-"""``thrust_estimator``: :class:`~piezofin_ros.estimation.StreamEstimator` on the live topics.
+"""``thrust_estimator``: :class:`~piezofin_ros.estimation.estimator.StreamEstimator` on the live topics.
 
 Subscribes ``drive`` (required), ``tip_velocity`` and ``loadcell`` (optional: a fish has
 neither) and ``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` block per
@@ -14,10 +14,17 @@ from rclpy.context import Context
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
 
-from ..blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, Block, BlockFormatError, check_samples
-from ..estimation import Estimate, EstimatorConfig, StreamEstimator
-from ..fin import FinConfigError, load_fin
-from ..rig import RigConfig
+from ..bags.blocks import (
+    DRIVE_CHANNELS,
+    LOADCELL_CHANNELS,
+    TIP_CHANNELS,
+    Block,
+    BlockFormatError,
+    check_samples,
+)
+from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
+from ..physics.fin import FinConfigError, load_fin
+from ..rig.simulated import RigConfig
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,

@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .fin import Fin
+from ..physics.fin import Fin
 
 FloatArray = NDArray[Any]
 

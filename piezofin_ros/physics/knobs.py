@@ -1,8 +1,8 @@
 """Knobs: multiplicative (and additive) changes to the model's coefficients at an operating point.
 
-The nominal model of the paper (Eqs. 9-10, 19-20) is ``Knobs()``.  The diagnosis's effects
-(:mod:`piezofin_ros.diagnosis.model`) set them as functions of frequency, voltage and amplitude;
-the steady state (harmonic balance) and the streaming rig (:class:`~piezofin_ros.rig.SimulatedRig`)
+The nominal model of the paper (Eqs. 9-10, 19-20) is ``Knobs()``.  Effects' describing functions
+(:mod:`piezofin_ros.physics.effects`) set them as functions of frequency, voltage and amplitude;
+the steady state (harmonic balance) and the streaming rig (:class:`~piezofin_ros.rig.simulated.SimulatedRig`)
 both read them, so a model fitted by ``piezofin diagnose`` drives the simulator the same way::
 
     (1 + mass mu) eta'' + (damping 2 zeta wn + drag gamma |eta'|) eta' + stiffness wn^2 eta
@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 FloatArray = NDArray[Any]
 
 
-@dataclass
+@dataclass(frozen=True)
 class Knobs:
     """Multiplicative (and additive) modifications of the model's coefficients, per operating point."""
 

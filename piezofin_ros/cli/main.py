@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .fin import Fin, FinConfigError, load_fin, preset_names
-from .steady import SteadyState, harmonic_balance
+from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
+from ..physics.steady import SteadyState, harmonic_balance
 
 EXIT_USAGE = 2
 
@@ -182,10 +182,11 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 
 def _sweep_augmented(args: argparse.Namespace) -> int:
-    from .diagnosis.model import ModelError, load_augmented
+    from ..physics.effects import ModelError
+    from ..physics.model import load_model
 
     try:
-        model = load_augmented(args.model)
+        model = load_model(args.model)
     except ModelError as exc:
         raise UsageError(f"--model: {exc}") from None
     freqs = parse_frequencies(args.freq)
@@ -210,7 +211,7 @@ def _sweep_augmented(args: argparse.Namespace) -> int:
         )
         sys.stdout.write("\n")
         return 0
-    print(f"# {model.fin.name} with {', '.join(model.effects) or 'no effect'}")
+    print(f"# {model.fin.name} with {', '.join(model.names) or 'no effect'}")
     print(f"{'f [Hz]':>7} {'Vpp':>5} {'u_rms [mm/s]':>12} {'P [mW]':>8} {'T [mN]':>8} {'T/P [mN/W]':>10}")
     for r in records:
         print(
@@ -249,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run_bag_recover(args: argparse.Namespace) -> int:
-    from .bagio import BagError, recover
+    from ..bags.mcapio import BagError, recover
 
     try:
         report = recover(args.bag, args.output)
@@ -262,8 +263,8 @@ def run_bag_recover(args: argparse.Namespace) -> int:
 
 
 def run_estimate(args: argparse.Namespace) -> int:
-    from .bagio import BagError
-    from .offline import replay_estimates
+    from ..bags.mcapio import BagError
+    from ..estimation.offline import replay_estimates
 
     fin = _load(args.fin, None)
     try:
@@ -338,10 +339,10 @@ def _refuse_existing(args: argparse.Namespace) -> None:
 def run_diagnose(args: argparse.Namespace) -> int:
     import time
 
-    from .bagio import BagError
-    from .diagnosis.attribute import diagnose, summary_json
-    from .diagnosis.data import DataError, from_bags, from_csv
-    from .diagnosis.report import text, write
+    from ..bags.mcapio import BagError
+    from ..diagnosis.attribute import diagnose, summary_json
+    from ..diagnosis.data import DataError, from_bags, from_csv
+    from ..diagnosis.report import text, write
 
     fin = _load(args.fin, None)
     t0 = time.perf_counter()
@@ -354,7 +355,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         raise UsageError("--relative-sigma: expected a number in (0, 1)")
     _refuse_existing(args)
     if args.paper:
-        from .diagnosis.paper import paper_gap, paper_text
+        from ..diagnosis.paper import paper_gap, paper_text
 
         if args.data:
             raise UsageError("--paper takes no data files")

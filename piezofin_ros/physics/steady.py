@@ -54,6 +54,7 @@ from scipy import optimize
 
 from ._compile import NUMBA, njit
 from .fin import Fin
+from .knobs import Knobs
 from .modeshape import phi_hat
 
 FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
@@ -187,12 +188,20 @@ class SteadyState:
         return [{k: float(col[i]) for k, col in flat.items()} for i in range(flat["power_w"].size)]
 
 
-def _coefficients(fin: Fin, omega: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """``a, c0, k`` of the derivation above."""
+def coefficients(
+    fin: Fin, omega: FloatArray, knobs: Knobs | None = None
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``a, c0, k`` of the derivation above, with an effect's coefficient changes (``knobs``) applied."""
     wn = fin.omega_n
-    a = wn * wn - (1.0 + fin.mu) * omega * omega
-    c0 = 2.0 * fin.zeta * wn * omega
-    k = DRAG_HARMONIC * fin.gamma * omega * omega
+    if knobs is None:
+        return (
+            wn * wn - (1.0 + fin.mu) * omega * omega,
+            2.0 * fin.zeta * wn * omega,
+            DRAG_HARMONIC * fin.gamma * omega * omega,
+        )
+    a = wn * wn * knobs.stiffness - (1.0 + fin.mu * knobs.mass) * omega * omega
+    c0 = 2.0 * fin.zeta * wn * omega * knobs.damping
+    k = DRAG_HARMONIC * fin.gamma * knobs.drag * omega * omega
     return a, c0, k
 
 
@@ -312,7 +321,7 @@ def harmonic_balance(
             h1.reshape(-1),
         )
     else:
-        a, c0, k = _coefficients(fin, omega)
+        a, c0, k = coefficients(fin, omega)
         amp = solve_amplitude(a, c0, k, force)
         d = c0 + k * amp
         s = a * a + d * d

@@ -1,7 +1,7 @@
 """The estimator offline on a recorded bag: the same core as the live node, fed from the file.
 
 :func:`replay_estimates` feeds a bag's ``drive``, ``tip_velocity``, ``loadcell`` and
-``swim_speed`` messages of one fin to a :class:`~piezofin_ros.estimation.StreamEstimator` in
+``swim_speed`` messages of one fin to a :class:`~piezofin_ros.estimation.estimator.StreamEstimator` in
 log-time order, and returns its estimates with those the live ``thrust_estimator`` recorded.
 """
 
@@ -10,10 +10,10 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from .bagio import BagError, block_of, decode, read_messages
-from .blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
-from .estimation import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
-from .fin import Fin
+from ..bags.blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..bags.mcapio import BagError, block_of, decode, read_messages
+from ..physics.fin import Fin
+from .estimator import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
 
 #: Skipped messages are counted; only this many lines describing them are kept.
 MAX_SKIPPED_LINES = 100

@@ -7,11 +7,11 @@ ROS.  It reproduces the paper's set-up (Sec. 3):
   a bounded slew rate, so the voltage never steps; a burst started from rest begins at a zero
   crossing.  Commands are checked by :func:`check_command` (rejected or clamped, with the
   reason); a watchdog ramps the drive to zero when commands stop.
-* **Fin**: the time-domain engine's RK4 step (:mod:`piezofin_ros.timedomain`), advanced
+* **Fin**: the time-domain engine's RK4 step (:mod:`piezofin_ros.physics.timedomain`), advanced
   incrementally with its state carried across blocks.  With a ``model`` (a diagnosed
-  :class:`~piezofin_ros.diagnosis.model.Augmented` model's ``knobs_at``) the coefficients of
+  :class:`~piezofin_ros.physics.model.Model` model's ``knobs_at``) the coefficients of
   Eqs. (9)-(10) and of the load cell are those of the model's steady state at the commanded
-  operating point (:mod:`piezofin_ros.knobs`): amplitude-dependent effects are linearised there
+  operating point (:mod:`piezofin_ros.physics.knobs`): amplitude-dependent effects are linearised there
   (describing function), so the stream's steady state is the model's (within the 2 % of the
   single-harmonic balance) while transients follow the linearisation; an amplifier limit clips
   the drive for real, and its harmonics drive the fin too.
@@ -34,9 +34,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, signal
 
-from .fin import Fin
-from .knobs import Knobs
-from .timedomain import default_step, integrate_nodes
+from ..physics.fin import Fin
+from ..physics.knobs import Knobs
+from ..physics.timedomain import default_step, integrate_nodes
 
 FloatArray = NDArray[Any]
 

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .fin import FinConfigError, read_yaml_file
+from ..physics.fin import FinConfigError, read_yaml_file
 
 
 def load_parameter_file(path: str | os.PathLike[str]) -> dict[str, Any]:

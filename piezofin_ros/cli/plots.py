@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .fin import Fin
-from .steady import harmonic_balance
+from ..physics.fin import Fin
+from ..physics.steady import harmonic_balance
 
 
 def _fmt(x: float | None, scale: float, digits: int) -> str:

@@ -335,8 +335,8 @@ def config_dir() -> Path:
     env = os.environ.get("PIEZOFIN_CONFIG")
     candidates = [Path(env)] if env else []
     here = Path(__file__).resolve()
-    candidates.append(here.parent.parent / "config")  # source checkout / editable install
-    # Installed trees: <prefix>/lib/pythonX.Y/site-packages/piezofin_ros/fin.py
+    candidates.append(here.parents[2] / "config")  # source checkout / editable install
+    # Installed trees: <prefix>/lib/pythonX.Y/site-packages/piezofin_ros/physics/fin.py
     #                  -> <prefix>/share/piezofin_ros/config (colcon and pip data_files)
     candidates += [p / "share" / "piezofin_ros" / "config" for p in here.parents]
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):

@@ -367,7 +367,7 @@ class Damage:
         )
 
 
-_LOG = logging.getLogger("piezofin_ros.bagio")
+_LOG = logging.getLogger("piezofin_ros.bags.mcapio")
 
 
 def _warn(damage: Damage) -> None:
@@ -806,7 +806,7 @@ def decode(type_name: str, data: bytes) -> Any:
 
 
 def block_of(type_name: str, data: bytes, expect: tuple[str, ...] | None = None) -> Block:
-    """Decode a ``Float64MultiArray`` message into a :class:`~piezofin_ros.blocks.Block`."""
+    """Decode a ``Float64MultiArray`` message into a :class:`~piezofin_ros.bags.blocks.Block`."""
     msg = decode(type_name, data)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
     return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 
-from .estimation import Estimate
+from ..estimation.estimator import Estimate
 
 #: Which estimate ranks the operating points (a fish has only ``self``).
 SOURCES = {

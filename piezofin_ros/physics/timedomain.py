@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ._compile import njit
 from .fin import Fin
@@ -170,7 +170,7 @@ def integrate_nodes(
     ``v_nodes`` is ``(n, 2 * substeps * (n_out - 1) + 1)``; returns ``eta`` and ``deta/dt`` at the
     ``n_out`` output samples (the first is ``state0``).  Shared by :func:`simulate_batch` and the
     streaming rig, which calls it block by block with the state carried over.  ``knobs`` scale the
-    coefficients (stiffness, added mass, damping, drag, coupling; see :mod:`piezofin_ros.knobs`).
+    coefficients (stiffness, added mass, damping, drag, coupling; see :mod:`piezofin_ros.physics.knobs`).
     """
     k = knobs or Knobs()
     n, n_nodes = v_nodes.shape
@@ -249,3 +249,161 @@ def simulate(
 ) -> Trajectory:
     """Integrate Eq. (9)-(10) for one waveform; see :func:`simulate_batch`."""
     return simulate_batch(fin, [waveform], duration, rate_hz, **kwargs)[0]  # type: ignore[arg-type]
+
+
+# --- the time-domain law of a model with effects (sine drive, one trial per operating point) ----
+@njit(cache=True)
+def _rk4_law(
+    f_hz: FloatArray,  # (n,)
+    v_amp: FloatArray,  # (n,) voltage amplitude
+    v_clip: FloatArray,  # (n,) the drive clips at +-this (inf: never)
+    mass0: FloatArray,  # (n,) 1 + mu M
+    mass_kc: FloatArray,  # (n,) mu M M_kc: the added mass per unit KC
+    wn2: FloatArray,  # (n,) wn^2 S
+    k3: FloatArray,  # (n,) wn^2 S c3
+    c_lin: FloatArray,  # (n,) 2 zeta wn D
+    c_abs: FloatArray,  # (n,) 2 zeta wn D c_abs
+    gam: FloatArray,  # (n,) gamma G
+    drag_n: FloatArray,  # (n,) drag ~ KC^-n
+    theta: FloatArray,  # (n,) theta Q
+    kc_per_eta: float,  # KC per unit modal amplitude: 2 pi phi / b
+    h: float,
+    substeps: int,
+    n_out: int,
+    eta_out: FloatArray,
+    deta_out: FloatArray,
+    v_out: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    n = f_hz.shape[0]
+    xs = np.empty(4)  # RK4 stage states and slopes, reused across steps
+    ys = np.empty(4)
+    ax = np.empty(4)
+    ay = np.empty(4)
+    for j in range(n):
+        w = 2.0 * np.pi * f_hz[j]
+        x = 0.0
+        y = 0.0
+        t = 0.0
+        for k in range(n_out):
+            vs = min(max(v_amp[j] * np.sin(w * t), -v_clip[j]), v_clip[j])  # the amplifier clips
+            eta_out[j, k] = x
+            deta_out[j, k] = y
+            v_out[j, k] = vs
+            if k == n_out - 1:
+                break
+            for _ in range(substeps):
+                for stage in range(4):
+                    if stage == 0:
+                        xs[0] = x
+                        ys[0] = y
+                        tt = t
+                    elif stage == 1:
+                        xs[1] = x + 0.5 * h * ax[0]
+                        ys[1] = y + 0.5 * h * ay[0]
+                        tt = t + 0.5 * h
+                    elif stage == 2:
+                        xs[2] = x + 0.5 * h * ax[1]
+                        ys[2] = y + 0.5 * h * ay[1]
+                        tt = t + 0.5 * h
+                    else:
+                        xs[3] = x + h * ax[2]
+                        ys[3] = y + h * ay[2]
+                        tt = t + h
+                    xx = xs[stage]
+                    yy = ys[stage]
+                    v = min(max(v_amp[j] * np.sin(w * tt), -v_clip[j]), v_clip[j])
+                    kc = kc_per_eta * np.sqrt(xx * xx + (yy / w) ** 2)
+                    mass = mass0[j] + mass_kc[j] * kc
+                    drag = gam[j]
+                    if drag_n[j] != 0.0:
+                        drag = drag * max(kc, 1e-3) ** (-drag_n[j])
+                    force = (
+                        theta[j] * v
+                        - (c_lin[j] + c_abs[j] * abs(xx) + drag * abs(yy)) * yy
+                        - wn2[j] * xx
+                        - k3[j] * xx**3
+                    )
+                    ax[stage] = yy
+                    ay[stage] = force / mass
+                x += h / 6.0 * (ax[0] + 2.0 * ax[1] + 2.0 * ax[2] + ax[3])
+                y += h / 6.0 * (ay[0] + 2.0 * ay[1] + 2.0 * ay[2] + ay[3])
+                t += h
+
+
+@dataclass(frozen=True)
+class LawRun:
+    """Sampled trials of :func:`simulate_law`: one row per operating point (SI units)."""
+
+    t: FloatArray  # (n_out,)
+    voltage: FloatArray  # (n, n_out), the drive the fin receives (clipped)
+    eta: FloatArray
+    eta_dot: FloatArray
+    current: FloatArray
+    tip_velocity: FloatArray
+    thrust: FloatArray  # instantaneous Lighthill thrust with the law's added mass, N
+    loadcell_thrust: FloatArray  # through the transducer law (gain, bias), N
+
+
+def simulate_law(
+    fin: Fin,
+    law: Any,
+    frequency_hz: ArrayLike,
+    voltage_pp: ArrayLike,
+    duration: float = 10.0,
+    rate_hz: float = 1000.0,
+) -> LawRun:
+    """Each operating point driven by a sine from rest for ``duration`` with the effects' laws.
+
+    ``law`` is a :class:`~piezofin_ros.physics.effects.TimeLaw` (``model.law(f, v)``), its fields
+    floats or arrays over the points.  Fixed-step RK4 (60 steps per shortest period), compiled.
+    """
+    fb, vb = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
+    f, vpp = fb.ravel(), vb.ravel()
+    n = f.size
+
+    def col(x: Any) -> FloatArray:
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(x, float), (n,)), dtype=float)
+
+    c_lin = 2 * fin.zeta * fin.omega_n * col(law.damping)
+    wn2 = fin.omega_n**2 * col(law.stiffness)
+    added = fin.mu * col(law.mass)
+    theta = fin.theta * col(law.coupling)
+    kc_per_eta = 2 * math.pi * fin.phi_tip / fin.b
+    n_out = int(duration * rate_hz) + 1
+    f_fast = max(fin.f_water_linear * 1.2, float(np.max(f)))
+    substeps = max(1, math.ceil(60 * f_fast / rate_hz))
+    h = 1.0 / (rate_hz * substeps)
+    eta = np.empty((n, n_out))
+    deta = np.empty((n, n_out))
+    v = np.empty((n, n_out))
+    _rk4_law(
+        f,
+        0.5 * vpp,
+        col(law.voltage_clip),
+        1.0 + added,
+        added * col(law.mass_kc),
+        wn2,
+        wn2 * col(law.c3),
+        c_lin,
+        c_lin * col(law.c_abs),
+        fin.gamma * col(law.drag),
+        col(law.drag_n),
+        theta,
+        kc_per_eta,
+        h,
+        substeps,
+        n_out,
+        eta,
+        deta,
+        v,
+    )
+    t = np.arange(n_out) / rate_hz
+    vdot = np.asarray(np.gradient(v, t, axis=1))
+    current = fin.C_eq * vdot + col(law.loss_conductance)[:, None] * v + theta[:, None] * deta
+    tip = fin.phi_tip * deta
+    kc = kc_per_eta * np.sqrt(eta**2 + (deta / (2 * math.pi * f[:, None])) ** 2)
+    mv_t = fin.m_v * col(law.mass)[:, None] * (1 + col(law.mass_kc)[:, None] * kc)
+    U = col(law.swim_speed)[:, None]
+    thrust = 0.5 * mv_t * (tip**2 - U**2 * (fin.phi_tip_slope * eta) ** 2)
+    loadcell = col(law.thrust_gain)[:, None] * thrust + col(law.thrust_bias_n)[:, None]
+    return LawRun(t, v, eta, deta, current, tip, thrust, loadcell)

@@ -29,7 +29,7 @@ a probe at ``f (1 +- probe_step)`` keeps the fit informed.  A measurement more t
 load): the older measurements are dropped and the fit starts again from the latest, so a
 drifting fin is followed without a restart.
 
-With ``model`` (an :class:`~piezofin_ros.diagnosis.model.Augmented` model saved by ``piezofin
+With ``model`` (an :class:`~piezofin_ros.physics.model.Model` model saved by ``piezofin
 diagnose``) the map starts from the diagnosed model instead of the paper's: its fin and effects,
 with the same five corrections applied on top as effects of the same library.
 """
@@ -44,10 +44,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
-from .diagnosis.model import LIBRARY, Augmented, predict
-from .fin import Fin
+from ..physics.effects import DielectricLoss, DragOffset, Electroelastic, ResonanceOffset
+from ..physics.fin import Fin
+from ..physics.model import Model
+from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from .plants import Noise, Plant, PlantResponse
-from .rig import HARD_VOLTAGE_PP_MAX
 
 FloatArray = NDArray[Any]
 
@@ -89,7 +90,8 @@ class Limits:
 
 @dataclass(frozen=True)
 class Correction:
-    """How the real fin differs from the model (1/0 = the nominal model)."""
+    """How the real fin differs from the model (1/0 = the nominal model): four effects of the one
+    library fitted on top of the base model, and a thrust gain (estimate over model)."""
 
     resonance_scale: float = 1.0
     softening: float = 0.0
@@ -97,46 +99,38 @@ class Correction:
     loss_tan_delta: float = 0.0
     thrust_gain: float = 1.0
 
-    base: Augmented | None = None  # a diagnosed model (fin + effects) the correction applies on top of
+    base: Model | None = None  # a diagnosed model (fin + effects) the correction applies on top of
 
     def fitted(self) -> dict[str, float]:
         """The five fitted numbers (for a status message: plain JSON, without the base model)."""
         return {f.name: float(getattr(self, f.name)) for f in fields(self) if f.name != "base"}
 
-    def plant(self, fin: Fin) -> Plant:
-        return Plant(
-            fin.replace(c_d=fin.c_d * self.drag_scale),
-            softening=self.softening,
-            loss_tan_delta=self.loss_tan_delta,
-            resonance_scale=self.resonance_scale,
+    def model(self, fin: Fin) -> Model:
+        """The base model (``fin`` without one) plus the correction's effects."""
+        base = self.base if self.base is not None else Model(fin)
+        return (
+            base
+            + ResonanceOffset(self.resonance_scale)
+            + Electroelastic(self.softening)
+            + DragOffset(self.drag_scale)
+            + DielectricLoss(self.loss_tan_delta)
         )
 
     def response(self, fin: Fin, f: Any, v: Any) -> PlantResponse:
-        if self.base is None:
-            r = self.plant(fin).steady(f, v)
-            return PlantResponse(r.thrust_n * self.thrust_gain, r.power_w, r.tip_velocity_rms)
-        # The diagnosed model's effects, then the correction as the same library's effects (the
-        # load-cell effects of the base describe the rig, not the fin: the thrust is Lighthill's).
-        lib = LIBRARY
-        effects = [
-            *self.base.instances(),
-            (lib["resonance_offset"](), (self.resonance_scale,)),
-            (lib["electroelastic_softening"](), (self.softening,)),
-            (lib["drag_offset"](), (self.drag_scale,)),
-            (lib["dielectric_loss"](), (self.loss_tan_delta,)),
-        ]
-        p = predict(self.base.fin, effects, f, v)
+        # (the load-cell effects of a base describe the rig, not the fin: the thrust is Lighthill's)
+        p = self.model(fin).predict(f, v)
         return PlantResponse(p.thrust_n * self.thrust_gain, p.power_w, p.tip_velocity_rms)
 
 
 # (vector -> Correction) with log parameters where a scale is positive; priors (mean, sigma).
 _PRIOR_MEAN = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
 _PRIOR_SIGMA = np.array([0.3, 0.3, 0.7, 0.3, 0.3])
-_LOWER = np.array([math.log(0.3), 0.0, math.log(0.1), 0.0, math.log(0.2)])
-_UPPER = np.array([math.log(2.0), 0.8, math.log(10.0), 2.0, math.log(5.0)])
+# (inside the library's bounds of each effect: exp(log(x)) may round across them)
+_LOWER = np.array([math.log(0.3) + 1e-12, 0.0, math.log(0.1), 0.0, math.log(0.2)])
+_UPPER = np.array([math.log(2.0) - 1e-12, 0.8, math.log(10.0), 0.5, math.log(5.0)])
 
 
-def _correction(x: FloatArray, base: Augmented | None = None) -> Correction:
+def _correction(x: FloatArray, base: Model | None = None) -> Correction:
     return Correction(math.exp(x[0]), float(x[1]), math.exp(x[2]), float(x[3]), math.exp(x[4]), base)
 
 
@@ -234,7 +228,7 @@ class Optimiser:
     correction: Correction = field(default_factory=Correction)
     choice: Choice | None = None
     converged: bool = False
-    model: Augmented | None = None  # a diagnosed model: its fin and effects replace ``fin``
+    model: Model | None = None  # a diagnosed model: its fin and effects replace ``fin``
     _held: int = 0
     _probe_sign: float = 1.0
 
@@ -479,7 +473,7 @@ class DriveLoop:
         return (f, self.command_v, 1.0 if self.command_v > 0 else 0.0)
 
     def add_estimate(self, t: float, e: Any) -> bool:
-        """Use a running-window estimate (an :class:`~piezofin_ros.estimation.Estimate`)."""
+        """Use a running-window estimate (an :class:`~piezofin_ros.estimation.estimator.Estimate`)."""
         self._last_estimate_t = t
         if self.state != "driving":
             self.events.append(f"estimates are back: resuming from {self.state}")
