@@ -7,7 +7,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import integrate
 
-from piezofin_ros import hydro, modeshape
+from piezofin_ros.physics import hydro, modeshape
 from piezofin_ros.physics.modeshape import LAMBDA1, phi_hat
 
 

@@ -133,7 +133,7 @@ def test_runs_without_numba_with_the_same_result(tmp_path) -> None:
 
     code = (
         "import numpy as np, sys\n"
-        "from piezofin_ros import _compile\n"
+        "from piezofin_ros.physics import _compile\n"
         "from piezofin_ros.physics.fin import load_fin\n"
         "from piezofin_ros.physics.steady import harmonic_balance\n"
         "from piezofin_ros.physics.timedomain import simulate\n"
