@@ -27,6 +27,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..errors import BagError
+
 FloatArray = NDArray[Any]
 
 #: Channels of each high-rate topic, in wire order.
@@ -40,7 +42,7 @@ COMMAND_FIELDS = ("frequency_hz", "voltage_pp_V", "on")
 MAX_VALUES = 1_000_000
 
 
-class BlockFormatError(ValueError):
+class BlockFormatError(BagError, ValueError):
     """A message does not follow the block layout; the text says what is wrong."""
 
 

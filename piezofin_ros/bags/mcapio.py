@@ -37,7 +37,7 @@ from typing import Any, BinaryIO
 import lz4.frame
 import zstandard
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message, Schema
@@ -46,6 +46,7 @@ from mcap.writer import CompressionType, Writer
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
+from ..errors import BagError
 from .blocks import Block, from_layout
 
 _TYPESTORE: Any = None
@@ -66,7 +67,7 @@ def normalise_type(name: str) -> str:
     if len(parts) == 2:
         parts = [parts[0], "msg", parts[1]]
     if len(parts) != 3 or not all(parts):
-        raise ValueError(f"not a ROS message type name: {name!r}")
+        raise MessageError(f"not a ROS message type name: {name!r}")
     return "/".join(parts)
 
 
@@ -75,7 +76,7 @@ def message_definition(type_name: str) -> str:
     store = typestore()
     type_name = normalise_type(type_name)
     if type_name not in store.fielddefs:
-        raise ValueError(f"unknown message type {type_name!r} (not in the ROS 2 Jazzy type store)")
+        raise MessageError(f"unknown message type {type_name!r} (not in the ROS 2 Jazzy type store)")
     text, _ = store.generate_msgdef(type_name, ros_version=2)
     return str(text)
 
@@ -172,8 +173,26 @@ def rosbag2_metadata(
     return yaml.safe_dump(doc, sort_keys=False)
 
 
-class BagError(RuntimeError):
-    """A bag cannot be read or written; the text names the file and the problem."""
+class BagConfigError(BagError, ValueError):
+    """A writer setting that is not valid (compression, flush period)."""
+
+
+#: What mcap's reader and the decompressors raise on damaged bytes: mcap's own errors (bad magic,
+#: end of file, record length, CRC is a ValueError), struct and EOF errors from truncated records,
+#: zstandard's and lz4's (a RuntimeError) decompression errors, and the lookup, arithmetic and type
+#: errors that garbled lengths and opcodes cause inside the parser.  Anything else is a bug.
+_DAMAGE: tuple[type[BaseException], ...] = (
+    McapError,
+    ValueError,
+    struct.error,
+    EOFError,
+    zstandard.ZstdError,
+    RuntimeError,
+    LookupError,
+    ArithmeticError,
+    TypeError,
+    MemoryError,
+)
 
 
 class BagWriter:
@@ -198,9 +217,9 @@ class BagWriter:
         self._name = file_name or self.path.name  # what rosbag2's metadata calls the file
         kinds = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
         if compression not in kinds:
-            raise ValueError(f"compression must be one of {', '.join(kinds)}, got {compression!r}")
+            raise BagConfigError(f"compression must be one of {', '.join(kinds)}, got {compression!r}")
         if not (math.isfinite(flush_s) and flush_s > 0):
-            raise ValueError(f"flush_s must be finite and > 0, got {flush_s}")
+            raise BagConfigError(f"flush_s must be finite and > 0, got {flush_s}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.path.exists():
             raise FileExistsError(f"{self.path}: exists")
@@ -457,7 +476,7 @@ def read_messages(
                     record = next(records)
                 except StopIteration:
                     break
-                except Exception as exc:  # any corruption ends this stretch, never the caller
+                except _DAMAGE as exc:  # any corruption ends this stretch, never the caller
                     resume = _next_chunk(f, offset + 1, size, seen_chunks)
                     if resume is None:
                         damaged(_why(exc), fatal=True)
@@ -530,7 +549,7 @@ def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str, str]
     try:
         f.seek(0)
         summary = make_reader(f).get_summary()
-    except Exception:  # no summary (a killed writer) or a damaged one: channels come from the chunks
+    except _DAMAGE:  # no summary (a killed writer) or a damaged one: channels come from the chunks
         return {}
     finally:
         f.seek(0)
@@ -543,7 +562,7 @@ def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str, str]
     }
 
 
-class _ChunkError(ValueError):
+class _ChunkError(BagError, ValueError):
     """A chunk that cannot be used (its size, CRC, compression or framing); it is skipped."""
 
 
@@ -657,7 +676,7 @@ def _position(reader: Any) -> int:
 
 def _why(exc: BaseException) -> str:
     name = type(exc).__name__
-    if isinstance(exc, (EOFError, struct.error)) or name in ("EndOfFile", "RecordLengthLimitExceeded"):
+    if isinstance(exc, (EOFError, struct.error, EndOfFile, RecordLengthLimitExceeded)):
         return "the file ends or is garbled here, as when its writer is stopped before closing it"
     return f"{name}: {exc}" if str(exc) else name
 
@@ -793,7 +812,7 @@ def _copy_messages(
     return dict(bag.counts), first_ns, last_ns
 
 
-class MessageError(ValueError):
+class MessageError(BagError, ValueError):
     """A message's bytes are not a valid CDR message of its type (the readers skip and count it)."""
 
 

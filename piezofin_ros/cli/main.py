@@ -16,13 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import CliError
 from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
 from ..physics.steady import SteadyState, harmonic_balance
 
 EXIT_USAGE = 2
 
 
-class UsageError(Exception):
+class UsageError(CliError):
     """A user-facing error: printed as one line, exit status 2."""
 
 

@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
+from ..errors import ControlError
 from ..physics.effects import DielectricLoss, DragOffset, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
@@ -65,11 +66,11 @@ class Limits:
     def __post_init__(self) -> None:
         vals = (self.frequency_min_hz, self.frequency_max_hz, self.voltage_pp_min, self.voltage_pp_max)
         if not all(math.isfinite(x) and x > 0 for x in vals):
-            raise ValueError(f"limits must be finite and > 0, got {vals}")
+            raise ControlError(f"limits must be finite and > 0, got {vals}")
         if self.frequency_min_hz >= self.frequency_max_hz or self.voltage_pp_min >= self.voltage_pp_max:
-            raise ValueError("limits: each minimum must be below its maximum")
+            raise ControlError("limits: each minimum must be below its maximum")
         if self.voltage_pp_max > HARD_VOLTAGE_PP_MAX:
-            raise ValueError(
+            raise ControlError(
                 f"voltage_pp_max {self.voltage_pp_max} V exceeds the hard cap {HARD_VOLTAGE_PP_MAX} V"
             )
 

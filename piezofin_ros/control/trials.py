@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 
+from ..errors import ControlError
 from ..estimation.estimator import Estimate
 
 #: Which estimate ranks the operating points (a fish has only ``self``).
@@ -41,14 +42,14 @@ class TrialPlan:
 
     def __post_init__(self) -> None:
         if not self.points:
-            raise ValueError("the trial plan has no operating point")
+            raise ControlError("the trial plan has no operating point")
         for f, v in self.points:
             if not (math.isfinite(f) and f > 0 and math.isfinite(v) and v >= 0):
-                raise ValueError(f"bad operating point ({f} Hz, {v} Vpp)")
+                raise ControlError(f"bad operating point ({f} Hz, {v} Vpp)")
         for name in ("off_s", "on_s", "settle_timeout_s", "estimate_timeout_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value}")
+                raise ControlError(f"{name} must be finite and > 0, got {value}")
 
     @classmethod
     def grid(cls, frequencies: Sequence[float], voltages: Sequence[float], **kwargs: object) -> TrialPlan:

@@ -33,6 +33,7 @@ from ..bags.blocks import (
     check_samples,
 )
 from ..bags.mcapio import block_of, read_messages
+from ..errors import DiagnosisError
 from ..estimation.estimator import Estimate, EstimatorConfig
 from ..estimation.offline import replay_estimates, topic_prefix
 from ..physics.fin import Fin
@@ -61,7 +62,7 @@ CSV_COLUMNS = {
 }
 
 
-class DataError(ValueError):
+class DataError(DiagnosisError):
     """Input data that cannot be diagnosed; the message names the file and the problem."""
 
 

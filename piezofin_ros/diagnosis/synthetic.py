@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import DiagnosisError
 from ..estimation.estimator import EstimatorConfig, analyse_window
 from ..physics.effects import DF_ABS_DAMPING, Effect, make
 from ..physics.fin import Fin, load_fin, preset_names
@@ -105,7 +106,7 @@ def random_case(rng: np.random.Generator, kind: str = "single", fin: str | None 
     elif kind == "outside":
         names = [str(rng.choice(OUT_OF_LIBRARY))]
     else:
-        raise ValueError(f"kind must be single, double or outside, got {kind!r}")
+        raise DiagnosisError(f"kind must be single, double or outside, got {kind!r}")
     return Case(fin_name, {n: draw_strength(n, rng) for n in names}, int(rng.integers(2**31)))
 
 

@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..errors import EstimationError
 from ..physics.fin import Fin
 
 FloatArray = NDArray[Any]
@@ -128,7 +129,7 @@ class EstimatorConfig:
         for f in fields(self):
             value = getattr(self, f.name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"estimator.{f.name} must be a finite number > 0, got {value!r}")
+                raise EstimationError(f"estimator.{f.name} must be a finite number > 0, got {value!r}")
 
 
 def _harmonic_fit(t: FloatArray, t_ref: float, omega: float, orders: FloatArray, x: FloatArray) -> FloatArray:
@@ -167,7 +168,7 @@ def analyse_window(
     v = np.asarray(voltage, dtype=float)
     i = np.asarray(current, dtype=float)
     if t.size < 4 or t.shape != v.shape or t.shape != i.shape:
-        raise ValueError(
+        raise EstimationError(
             "a window needs at least 4 drive samples, with t, voltage and current of equal length"
         )
     w = 2.0 * math.pi * frequency_hz

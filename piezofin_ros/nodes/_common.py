@@ -19,6 +19,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..bags.blocks import Block, from_layout, to_layout
+from ..errors import NodeError
 
 #: High-rate sample blocks and estimates: reliable (nothing dropped), 200 blocks of history.
 QOS_DATA = QoSProfile(
@@ -241,7 +242,7 @@ class SilenceWatch:
 
 
 # --------------------------------------------------------------------------------------- main
-class StartupError(RuntimeError):
+class StartupError(NodeError):
     """A node cannot start (bad configuration); the text is shown without a traceback."""
 
 

@@ -41,6 +41,7 @@ from typing import Any, ClassVar, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import PhysicsError
 from .fin import Fin
 from .knobs import Knobs
 
@@ -51,7 +52,7 @@ DF_ABS_DAMPING = 4.0 / (3.0 * math.pi)
 DF_CUBIC = 0.75
 
 
-class ModelError(ValueError):
+class ModelError(PhysicsError):
     """A model or an effect is malformed (unknown effect, wrong parameter, out of range)."""
 
 

@@ -36,10 +36,11 @@ from typing import Any, NamedTuple
 
 import yaml
 
+from ..errors import PhysicsError
 from . import hydro, modeshape
 
 
-class FinConfigError(ValueError):
+class FinConfigError(PhysicsError):
     """A fin description is missing a field, has a field of the wrong type or out of range."""
 
 

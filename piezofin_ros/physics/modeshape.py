@@ -22,6 +22,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..errors import PhysicsError
+
 #: First root of 1 + cos(l) cosh(l) = 0 (clamped-free), as given below Eq. (5).
 LAMBDA1 = 1.87510407
 
@@ -39,7 +41,7 @@ def phi_hat(xi: ArrayLike, derivative: int = 0) -> NDArray[np.float64]:
     Sign: positive at the tip (Eq. 5 times -1, see the module docstring).
     """
     if derivative not in range(5):
-        raise ValueError(f"derivative order must be 0..4, got {derivative}")
+        raise PhysicsError(f"derivative order must be 0..4, got {derivative}")
     z = LAMBDA1 * np.asarray(xi, dtype=float)
     # d^k/dz^k of cos, cosh, sin, sinh: cycle of period 4 (cos, sin) or 2 (cosh, sinh).
     cos_k = (np.cos, lambda u: -np.sin(u), lambda u: -np.cos(u), np.sin)[derivative % 4]

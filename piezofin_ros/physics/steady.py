@@ -52,6 +52,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
+from ..errors import PhysicsError
 from ._compile import NUMBA, njit
 from .fin import Fin
 from .knobs import Knobs
@@ -220,7 +221,7 @@ def solve_amplitude(
         bound_drag = np.where(k > 0, np.sqrt(force / k), np.inf)
     amp = np.minimum(bound_lin, bound_drag)
     if not np.all(np.isfinite(amp)):
-        raise ValueError("undamped operating point: zeta = c_d = 0 at resonance has no steady state")
+        raise PhysicsError("undamped operating point: zeta = c_d = 0 at resonance has no steady state")
     live = force > 0
     amp = np.where(live, amp, 0.0)
     aa = a * a
@@ -297,13 +298,13 @@ def harmonic_balance(
     numba loop; both run the same Newton iteration and agree to round-off.
     """
     if harmonics < 1:
-        raise ValueError(f"harmonics must be >= 1, got {harmonics}")
+        raise PhysicsError(f"harmonics must be >= 1, got {harmonics}")
     f = np.asarray(frequency_hz, dtype=float)
     vpp = np.asarray(voltage_pp, dtype=float)
     if np.any(~np.isfinite(f)) or np.any(f <= 0):
-        raise ValueError("frequencies must be finite and > 0 Hz")
+        raise PhysicsError("frequencies must be finite and > 0 Hz")
     if np.any(~np.isfinite(vpp)) or np.any(vpp < 0):
-        raise ValueError("peak-to-peak voltages must be finite and >= 0 V")
+        raise PhysicsError("peak-to-peak voltages must be finite and >= 0 V")
     f, vpp = np.broadcast_arrays(f, vpp)
     omega = 2.0 * np.pi * f
     amp_v = 0.5 * vpp
@@ -343,7 +344,7 @@ def residuals(fin: Fin, state: SteadyState) -> FloatArray:
     """
     w = state.omega
     if state.orders != (1,):
-        raise ValueError("Eqs. (15)-(18) are the single-term balance; got harmonics " + str(state.orders))
+        raise PhysicsError("Eqs. (15)-(18) are the single-term balance; got harmonics " + str(state.orders))
     V = 0.5 * state.voltage_pp
     H0, H1, I0, I1 = state.H0, state.H1, state.I0, state.I1
     damp = 2 * fin.zeta * fin.omega_n + DRAG_HARMONIC * fin.gamma * w * np.hypot(H0, H1)
@@ -386,7 +387,7 @@ def harmonic_balance_fsolve(fin: Fin, frequency_hz: ArrayLike, voltage_pp: Array
         x0 = np.array([z.real, z.imag]) / abs(z) if F > 0 else np.zeros(2)
         x, _, ier, _ = optimize.fsolve(eqs, x0, xtol=1e-12, full_output=True)
         if ier != 1 and np.max(np.abs(eqs(x))) > 1e-10:
-            raise RuntimeError(f"fsolve did not converge at {f[idx]} Hz, {vpp[idx]} Vpp")
+            raise PhysicsError(f"fsolve did not converge at {f[idx]} Hz, {vpp[idx]} Vpp")
         h0, h1 = x * scale  # Eqs. (17)-(18) are explicit in the currents once H0, H1 are known.
         out[(slice(None), *idx)] = (h0, h1)
     return SteadyState(fin, f, vpp, out[0][..., None], out[1][..., None], np.zeros(f.shape))

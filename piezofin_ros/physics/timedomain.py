@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..errors import PhysicsError
 from ._compile import njit
 from .fin import Fin
 from .knobs import Knobs
@@ -144,7 +145,7 @@ class Trajectory:
         """
         sel = (self.t >= t_start) & (self.t < t_end)
         if not np.any(sel):
-            raise ValueError(f"window [{t_start}, {t_end}) holds no sample")
+            raise PhysicsError(f"window [{t_start}, {t_end}) holds no sample")
         v = self.voltage[sel]
         i = self.current[sel]
         return WindowStats(
@@ -216,9 +217,9 @@ def simulate_batch(
     ``initial_state`` is ``(n, 2)`` (``eta``, ``deta/dt``) or None for rest.
     """
     if not (math.isfinite(duration) and duration > 0):
-        raise ValueError(f"duration must be finite and > 0 s, got {duration}")
+        raise PhysicsError(f"duration must be finite and > 0 s, got {duration}")
     if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"rate must be finite and > 0 Hz, got {rate_hz}")
+        raise PhysicsError(f"rate must be finite and > 0 Hz, got {rate_hz}")
     n_out = round(duration * rate_hz) + 1
     dt = 1.0 / rate_hz
     drive_hz = max((getattr(w, "frequency_hz", 0.0) for w in waveforms), default=0.0)

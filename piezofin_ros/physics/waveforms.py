@@ -16,6 +16,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
 
+from ..errors import PhysicsError
+
 FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
 
 
@@ -46,9 +48,9 @@ class SineBurst:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.frequency_hz) and self.frequency_hz > 0):
-            raise ValueError(f"frequency must be finite and > 0 Hz, got {self.frequency_hz}")
+            raise PhysicsError(f"frequency must be finite and > 0 Hz, got {self.frequency_hz}")
         if not (math.isfinite(self.voltage_pp) and self.voltage_pp >= 0):
-            raise ValueError(f"peak-to-peak voltage must be finite and >= 0 V, got {self.voltage_pp}")
+            raise PhysicsError(f"peak-to-peak voltage must be finite and >= 0 V, got {self.voltage_pp}")
 
     @property
     def t_end(self) -> float:
@@ -92,11 +94,11 @@ class Sampled:
         t = np.asarray(self.t, dtype=float)
         v = np.asarray(self.v, dtype=float)
         if t.ndim != 1 or t.shape != v.shape or t.size < 2:
-            raise ValueError("t and v must be 1-D arrays of the same length >= 2")
+            raise PhysicsError("t and v must be 1-D arrays of the same length >= 2")
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v))):
-            raise ValueError("sampled waveform contains NaN or infinity")
+            raise PhysicsError("sampled waveform contains NaN or infinity")
         if np.any(np.diff(t) <= 0):
-            raise ValueError("sample times must increase strictly")
+            raise PhysicsError("sample times must increase strictly")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "v", v)
         object.__setattr__(self, "_spline", CubicSpline(t, v))

@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, signal
 
+from ..errors import RigError
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
 from ..physics.timedomain import default_step, integrate_nodes
@@ -70,14 +71,14 @@ class DriveLimits:
                 number and math.isfinite(value) and (value >= 0 if f.name == "voltage_pp_max" else value > 0)
             ):
                 bound = ">= 0" if f.name == "voltage_pp_max" else "> 0"
-                raise ValueError(f"{f.name} must be a finite number {bound}, got {value!r}")
+                raise RigError(f"{f.name} must be a finite number {bound}, got {value!r}")
         if self.frequency_min_hz >= self.frequency_max_hz:
-            raise ValueError(
+            raise RigError(
                 f"frequency_min_hz ({self.frequency_min_hz}) must be below frequency_max_hz "
                 f"({self.frequency_max_hz})"
             )
         if self.voltage_pp_max > HARD_VOLTAGE_PP_MAX:
-            raise ValueError(
+            raise RigError(
                 f"voltage_pp_max {self.voltage_pp_max} V exceeds the hard cap of {HARD_VOLTAGE_PP_MAX} V "
                 "(MFC P1 rating -500..+1500 V, symmetric drive)"
             )
@@ -271,12 +272,12 @@ class RigConfig:
         for f in fields(self):
             value = getattr(self, f.name)
             if not (isinstance(value, (int, float)) and math.isfinite(value)):
-                raise ValueError(f"rig.{f.name} must be a finite number, got {value!r}")
+                raise RigError(f"rig.{f.name} must be a finite number, got {value!r}")
             if f.name == "loadcell_drift_m_per_s":
                 continue  # either sign
             may_be_zero = "noise" in f.name or f.name == "swim_speed_m_s"
             if value < 0 or (value == 0 and not may_be_zero):
-                raise ValueError(f"rig.{f.name} must be {'>= 0' if may_be_zero else '> 0'}, got {value!r}")
+                raise RigError(f"rig.{f.name} must be {'>= 0' if may_be_zero else '> 0'}, got {value!r}")
 
     @property
     def loadcell_stiffness(self) -> float:
@@ -312,7 +313,7 @@ class Protocol:
         for name in ("off_s", "on_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"protocol {name} must be finite and > 0 s, got {value!r}")
+                raise RigError(f"protocol {name} must be finite and > 0 s, got {value!r}")
 
 
 @dataclass
@@ -408,7 +409,7 @@ class SimulatedRig:
         that would be relaxed: loosening needs a restart, with the new value checked at start."""
         looser = loosened(limits, self.drive.limits)
         if looser:
-            raise ValueError("only tighter limits are taken while running: " + ", ".join(looser))
+            raise RigError("only tighter limits are taken while running: " + ", ".join(looser))
         d = self.drive
         d.limits = limits
         in_band = limits.frequency_min_hz <= d.frequency_hz <= limits.frequency_max_hz
