@@ -5,7 +5,8 @@ The package is read bottom-up::
     physics  <  bags  <  rig  <  estimation  <  control  <  diagnosis  <  cli  <  nodes
 
 A module may import from its own package and from the packages below it, never from one above
-(``errors`` is below everything).  Only ``nodes/`` imports rclpy or any other ROS client code, so the
+(``errors`` and ``config``, the error base and the declare-once settings, are below everything).
+Only ``nodes/`` imports rclpy or any other ROS client code, so the
 science runs, and is tested, without ROS.  Every package says in its ``__init__`` docstring what it
 is for, and every error the package raises on purpose derives from :class:`PiezofinError`.
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import ast
 import builtins
+import re
 from pathlib import Path
 
 import pytest
@@ -22,7 +24,7 @@ import piezofin_ros
 from piezofin_ros import errors
 
 PACKAGE = Path(piezofin_ros.__file__).parent
-LAYERS = ("errors", "physics", "bags", "rig", "estimation", "control", "diagnosis", "cli", "nodes")
+LAYERS = ("base", "physics", "bags", "rig", "estimation", "control", "diagnosis", "cli", "nodes")
 ROS_CLIENT = (
     "rclpy",
     "launch",
@@ -40,7 +42,7 @@ def _modules() -> list[Path]:
 
 def _layer_of(path: Path) -> str:
     rel = path.relative_to(PACKAGE)
-    return rel.parts[0] if len(rel.parts) > 1 else "errors"  # the top level sits at the bottom
+    return rel.parts[0] if len(rel.parts) > 1 else "base"  # errors.py and config.py: the bottom
 
 
 def _imports(path: Path) -> list[tuple[int, str]]:
@@ -65,13 +67,15 @@ def _imports(path: Path) -> list[tuple[int, str]]:
 
 
 def test_the_top_level_holds_only_the_packages() -> None:
-    loose = sorted(p.name for p in PACKAGE.glob("*.py") if p.name not in ("__init__.py", "errors.py"))
+    loose = sorted(
+        p.name for p in PACKAGE.glob("*.py") if p.name not in ("__init__.py", "errors.py", "config.py")
+    )
     assert loose == [], f"modules outside the layer packages: {loose}"
     packages = sorted(p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists())
-    assert sorted(set(LAYERS) - {"errors"}) == packages
+    assert sorted(set(LAYERS) - {"base"}) == packages
 
 
-@pytest.mark.parametrize("layer", [x for x in LAYERS if x != "errors"])
+@pytest.mark.parametrize("layer", [x for x in LAYERS if x != "base"])
 def test_every_package_says_what_it_is_for(layer: str) -> None:
     doc = ast.get_docstring(ast.parse((PACKAGE / layer / "__init__.py").read_text()))
     assert doc is not None and len(doc.split()) >= 25, f"{layer}/__init__.py needs a paragraph"
@@ -86,7 +90,7 @@ def test_nothing_imports_from_a_layer_above_it() -> None:
             if parts[0] != "piezofin_ros" or len(parts) < 2:
                 continue
             target = parts[1]
-            if target in LAYERS and LAYERS.index(target) > own:
+            if target in LAYERS and LAYERS.index(target) > own:  # errors and config are "base" modules
                 bad.append(f"{path.relative_to(PACKAGE)}:{line} imports {name}")
     assert bad == []
 
@@ -147,3 +151,43 @@ def test_each_layer_has_its_error_and_every_error_class_derives_from_the_base() 
                 assert issubclass(obj, errors.PiezofinError), f"{mod.__name__}.{obj.__name__}"
     for name in ("PhysicsError", "BagError", "EstimationError", "RigError", "ControlError", "DiagnosisError"):
         assert issubclass(getattr(errors, name), errors.PiezofinError)
+
+
+def test_every_node_parameter_is_declared_once_and_documented() -> None:
+    """Each node's parameters come from one config dataclass, and docs/reference.md lists them all."""
+    from piezofin_ros.config import settings_of
+    from piezofin_ros.estimation.estimator import EstimatorConfig
+    from piezofin_ros.nodes.controller import ControllerConfig
+    from piezofin_ros.nodes.fin_sim import FinSimConfig
+    from piezofin_ros.nodes.player import PlayerConfig
+    from piezofin_ros.nodes.recorder import RecorderConfig
+    from piezofin_ros.nodes.thrust_estimator import ThrustEstimatorConfig
+    from piezofin_ros.rig.simulated import DriveLimits, RigConfig
+
+    reference = (PACKAGE.parent / "docs" / "reference.md").read_text()
+    rows = {line.split("|")[1].strip(" `"): line for line in reference.splitlines() if line.startswith("| `")}
+    nodes = {
+        "fin_sim": [FinSimConfig, RigConfig, DriveLimits],
+        "thrust_estimator": [ThrustEstimatorConfig, EstimatorConfig],
+        "controller": [ControllerConfig],
+        "recorder": [RecorderConfig],
+        "player": [PlayerConfig],
+    }
+    for node, configs in nodes.items():
+        for cls in configs:
+            for f, _default, s in settings_of(cls):  # every field is a setting with a description
+                assert s.description, f"{cls.__name__}.{f.name}"
+                if cls in (
+                    FinSimConfig,
+                    ThrustEstimatorConfig,
+                    ControllerConfig,
+                    RecorderConfig,
+                    PlayerConfig,
+                ):
+                    assert f"`{f.name}`" in rows[node], f"docs/reference.md: {node} row lacks `{f.name}`"
+    for node in nodes:  # nothing the nodes do not declare
+        declared = {f.name for cls in nodes[node] for f, _, _ in settings_of(cls)}
+        listed = set(re.findall(r"`([a-z_]+)`", rows[node].split("|")[2]))
+        stray = listed - declared - {"rig", "limits", "estimator", "self", "vibrometer", "stop", "hold"}
+        stray -= {"protocol", "continuous", "optimise", "thrust_estimator", "diagnose", "ros2", "launch"}
+        assert not stray, f"docs/reference.md: {node} row lists {sorted(stray)}, not parameters"

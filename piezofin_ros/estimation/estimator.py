@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..config import setting
 from ..errors import EstimationError
 from ..physics.fin import Fin
 
@@ -112,18 +113,32 @@ OPTIONAL_FIELDS = ("tip_phase_rad",)
 class EstimatorConfig:
     """Windowing and baseline settings (s, V)."""
 
-    on_threshold_v: float = 10.0  # |v| above this means the drive is on
-    off_hold_s: float = 0.5  # the drive is off after this long below the threshold
-    settle_s: float = 3.0  # transient skipped at the start of a segment
-    window_s: float = 5.0  # running estimates every this much settled time
-    max_window_s: float = 60.0  # a final estimate uses at most the last this-much of its segment
-    min_periods: int = 3
-    tolerance: float = 0.03  # relative change of period or amplitude that starts a new segment
-    baseline_s: float = 5.0  # load-cell pre/post baseline length
-    post_delay_s: float = 1.0  # wait after the drive stops before the post baseline
-    channel_timeout_s: float = 2.0  # how long (drive time) to wait for a lagging channel
-    harmonics: int = 3  # number of odd harmonics in the lock-in (1, 3, 5)
-    loadcell_stiffness_n_per_m: float = 6846.09375  # the paper's cantilever, 3 E I / l^3
+    on_threshold_v: float = setting(10.0, "estimator: |v| above this means the drive is on, V", 0.01, 1000.0)
+    off_hold_s: float = setting(
+        0.5, "estimator: the drive is off after this long below the threshold, s", 0.01, 60.0
+    )
+    settle_s: float = setting(3.0, "estimator: transient skipped at the start of a segment, s", 0.0, 600.0)
+    window_s: float = setting(
+        5.0, "estimator: running estimates every this much settled time, s", 0.1, 3600.0
+    )
+    max_window_s: float = setting(
+        60.0, "estimator: a final estimate uses at most the last this-much of its segment, s", 0.1, 3600.0
+    )
+    min_periods: int = setting(3, "estimator: fewest whole periods in a window", 1, 10000)
+    tolerance: float = setting(
+        0.03, "estimator: relative change of period or amplitude that starts a new segment", 1e-4, 0.5
+    )
+    baseline_s: float = setting(5.0, "estimator: load-cell pre/post baseline length, s", 0.1, 600.0)
+    post_delay_s: float = setting(
+        1.0, "estimator: wait after the drive stops before the post baseline, s", 0.0, 600.0
+    )
+    channel_timeout_s: float = setting(
+        2.0, "estimator: how long (drive time) to wait for a lagging channel, s", 0.01, 600.0
+    )
+    harmonics: int = setting(3, "estimator: number of odd harmonics in the lock-in (1, 3, 5)", 1, 10)
+    loadcell_stiffness_n_per_m: float = setting(
+        6846.09375, "estimator: load cell stiffness, N/m (the paper's cantilever, 3 E I / l^3)", 1e-3, 1e9
+    )
 
     def __post_init__(self) -> None:
         for f in fields(self):

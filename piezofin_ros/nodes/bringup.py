@@ -32,7 +32,8 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 from ..cli.plots import plot_trials, trial_table
-from ..physics.fin import FinConfigError, config_dir
+from ..errors import PiezofinError
+from ..physics.fin import config_dir
 from ._common import StartupError, StopFlag
 from .controller import Controller
 from .fin_sim import FinSim, Pacer
@@ -234,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
                     done = sum(c.runner.index for c in suite.controllers)
                     total = sum(len(c.runner.plan.points) for c in suite.controllers)
                     print(f"  {elapsed:5.1f} s: trial {done}/{total}", file=sys.stderr, flush=True)
-    except (StartupError, FinConfigError, ValueError, ParameterException) as exc:
+    except (PiezofinError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):

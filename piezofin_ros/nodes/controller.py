@@ -18,18 +18,20 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..bags.blocks import Block, BlockFormatError
+from ..config import setting
 from ..control.optimise import DriveLoop, Limits, Optimiser
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialRunner, choose
+from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
 from ..physics.effects import ModelError
-from ..physics.fin import FinConfigError, load_fin
+from ..physics.fin import load_fin
 from ..physics.model import load_model
 from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from ._common import (
@@ -41,90 +43,77 @@ from ._common import (
     TOPIC_STATUS,
     SilenceWatch,
     StartupError,
-    array_param,
     block_msg,
-    float_param,
+    declare,
     freeze_parameters,
-    int_param,
     msg_block,
     run_node,
-    str_param,
 )
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """``controller``'s parameters."""
+
+    mode: str = setting(
+        "protocol",
+        "protocol or continuous (trials of a grid), or optimise (thrust per watt)",
+        choices=(*(m.value for m in Mode), "optimise"),
+    )
+    frequencies: tuple[float, ...] = setting((5.5,), "trial frequencies, Hz", items=float)
+    voltages: tuple[float, ...] = setting((800.0,), "trial voltages, Vpp", items=float)
+    off_s: float = setting(10.0, "protocol: time without voltage before and after, s", 0.5, 600.0)
+    on_s: float = setting(10.0, "protocol: time of sine drive, s", 1.0, 600.0)
+    voltage_pp_max: float = setting(800.0, "never command more than this, Vpp", 0.0, HARD_VOLTAGE_PP_MAX)
+    frequency_min_hz: float = setting(1.0, "lowest frequency, Hz", 0.01, 1000.0)
+    frequency_max_hz: float = setting(40.0, "highest frequency, Hz", 0.01, 1000.0)
+    heartbeat_hz: float = setting(10.0, "command repetition rate, Hz", 1.0, 1000.0)
+    min_thrust_n: float = setting(1e-3, "least thrust of the chosen point, N", 0.0, 10.0)
+    source: str = setting("self", f"estimate that ranks points: {', '.join(SOURCES)}", choices=SOURCES)
+    after: str = setting(
+        "stop", "after the trials: stop (0 V) or hold (drive the chosen point)", choices=("stop", "hold")
+    )
+    max_missing: int = setting(2, "missing estimates in a row that stop the run", 1, 1000)
+    wait_estimator_s: float = setting(
+        20.0, "wall time to wait for a thrust_estimator before the first trial, s (0: none)", 0.0, 3600.0
+    )
+    fin: str = setting("M8528-P1", "fin preset name or YAML path (the optimiser's model)")
+    model: str = setting(
+        "", "optimise: augmented model YAML from `piezofin diagnose --report` (replaces fin)"
+    )
+    demand_n: float = setting(0.0, "optimise: thrust demand, N (0: none)", 0.0, 10.0)
+    voltage_pp: float = setting(
+        800.0, "optimise, no demand: the drive voltage, Vpp", 1.0, HARD_VOLTAGE_PP_MAX
+    )
+    slew_vpp_per_s: float = setting(400.0, "optimise: voltage slew limit, Vpp/s", 1.0, 1e5)
+    estimate_timeout_s: float = setting(
+        10.0, "optimise: hold after this long without estimates, s", 0.5, 600.0
+    )
+    duration_s: float = setting(0.0, "optimise: stop after this long (0: never)", 0.0, 1e7)
 
 
 class Controller(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "controller", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
-        freqs = array_param(self, "frequencies", [5.5], Parameter.Type.DOUBLE_ARRAY, "trial frequencies, Hz")
-        volts = array_param(self, "voltages", [800.0], Parameter.Type.DOUBLE_ARRAY, "trial voltages, Vpp")
-        mode = str_param(
-            self,
-            "mode",
-            "protocol",
-            "protocol or continuous (trials of a grid), or optimise (thrust per watt)",
+        c = self.config = declare(self, ControllerConfig)
+        freqs, volts, mode, off_s, on_s = c.frequencies, c.voltages, c.mode, c.off_s, c.on_s
+        self.voltage_limit, self.frequency_max, heartbeat = (
+            c.voltage_pp_max,
+            c.frequency_max_hz,
+            c.heartbeat_hz,
         )
-        off_s = float_param(
-            self, "off_s", 10.0, 0.5, 600.0, "protocol: time without voltage before and after, s"
+        self.min_thrust, self.source, self.after, self.max_missing = (
+            c.min_thrust_n,
+            c.source,
+            c.after,
+            c.max_missing,
         )
-        on_s = float_param(self, "on_s", 10.0, 1.0, 600.0, "protocol: time of sine drive, s")
-        self.voltage_limit = float_param(
-            self, "voltage_pp_max", 800.0, 0.0, HARD_VOLTAGE_PP_MAX, "never command more than this, Vpp"
-        )
-        self.frequency_max = float_param(
-            self, "frequency_max_hz", 40.0, 0.01, 1000.0, "highest frequency, Hz"
-        )
-        heartbeat = float_param(self, "heartbeat_hz", 10.0, 1.0, 1000.0, "command repetition rate, Hz")
-        self.min_thrust = float_param(
-            self, "min_thrust_n", 1e-3, 0.0, 10.0, "least thrust of the chosen point, N"
-        )
-        self.source = str_param(self, "source", "self", f"estimate that ranks points: {', '.join(SOURCES)}")
-        self.after = str_param(
-            self, "after", "stop", "after the trials: stop (0 V) or hold (drive the chosen point)"
-        )
-        self.max_missing = int_param(
-            self, "max_missing", 2, 1, 1000, "missing estimates in a row that stop the run"
-        )
-        fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path (the optimiser's model)")
-        model_path = str_param(
-            self,
-            "model",
-            "",
-            "optimise: augmented model YAML from `piezofin diagnose --report` (replaces fin)",
-        )
-        demand = float_param(self, "demand_n", 0.0, 0.0, 10.0, "optimise: thrust demand, N (0: none)")
-        self.voltage_pp = float_param(
-            self, "voltage_pp", 800.0, 1.0, HARD_VOLTAGE_PP_MAX, "optimise, no demand: the drive voltage, Vpp"
-        )
-        f_min = float_param(self, "frequency_min_hz", 1.0, 0.01, 1000.0, "lowest frequency, Hz")
-        slew = float_param(self, "slew_vpp_per_s", 400.0, 1.0, 1e5, "optimise: voltage slew limit, Vpp/s")
-        timeout = float_param(
-            self,
-            "estimate_timeout_s",
-            10.0,
-            0.5,
-            600.0,
-            "optimise: hold after this long without estimates, s",
-        )
-        self.duration_s = float_param(
-            self, "duration_s", 0.0, 0.0, 1e7, "optimise: stop after this long (0: never)"
-        )
-        self.wait_estimator_s = float_param(
-            self,
-            "wait_estimator_s",
-            20.0,
-            0.0,
-            3600.0,
-            "wall time to wait for a thrust_estimator before the first trial, s (0: none)",
-        )
+        fin_name, model_path, demand, self.voltage_pp = c.fin, c.model, c.demand_n, c.voltage_pp
+        f_min, slew, timeout = c.frequency_min_hz, c.slew_vpp_per_s, c.estimate_timeout_s
+        self.duration_s, self.wait_estimator_s = c.duration_s, c.wait_estimator_s
         freeze_parameters(self)
         self._created = time.monotonic()
         self._waiting_logged = False
-        if mode != "optimise" and mode not in {m.value for m in Mode}:
-            raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous, optimise")
-        if self.source not in SOURCES:
-            raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
-        if self.after not in ("stop", "hold"):
-            raise StartupError(f"parameter after: {self.after!r} is not one of stop, hold")
         self.loop: DriveLoop | None = None
         self._reported_missing: set[int] = set()
         self.chosen = None
@@ -140,7 +129,7 @@ class Controller(Node):
                 optimiser = Optimiser(
                     fin, limits, self.voltage_pp, demand or None, min_thrust_n=self.min_thrust, model=model
                 )
-            except (ValueError, FinConfigError) as exc:
+            except PiezofinError as exc:
                 raise StartupError(f"optimiser: {exc}") from None
             if model is not None:
                 self.get_logger().info(

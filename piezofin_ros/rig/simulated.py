@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, signal
 
+from ..config import setting
 from ..errors import RigError
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
@@ -56,11 +57,17 @@ STOP_SLEW_VPP_PER_S = 4000.0
 class DriveLimits:
     """Limits every command is checked against (SI units)."""
 
-    frequency_min_hz: float = 0.5
-    frequency_max_hz: float = 40.0
-    voltage_pp_max: float = 800.0  # V, configurable up to HARD_VOLTAGE_PP_MAX; 0: no drive at all
-    slew_vpp_per_s: float = 4000.0  # V/s of peak-to-peak amplitude (0 -> 800 Vpp in 0.2 s)
-    command_timeout_s: float = 1.0  # watchdog: ramp to zero after this long without a command
+    frequency_min_hz: float = setting(0.5, "drive limits: lowest frequency, Hz", 0.01, 1000.0)
+    frequency_max_hz: float = setting(40.0, "drive limits: highest frequency, Hz", 0.01, 1000.0)
+    voltage_pp_max: float = setting(
+        800.0, "drive limits: highest voltage, Vpp (0: no drive at all)", 0.0, HARD_VOLTAGE_PP_MAX
+    )
+    slew_vpp_per_s: float = setting(
+        4000.0, "drive limits: amplitude slew on the way up, Vpp/s (0 -> 800 Vpp in 0.2 s)", 1.0, 1e6
+    )
+    command_timeout_s: float = setting(
+        1.0, "drive limits: watchdog, ramp to zero after this long without a command, s", 0.01, 60.0
+    )
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -254,19 +261,19 @@ class RigConfig:
     current monitor 1 uA, vibrometer 1 mm/s, optical displacement sensor 0.1 um, drift 2 nm/s.
     """
 
-    sample_rate_hz: float = 1000.0
-    voltage_noise_v: float = 0.2
-    current_noise_a: float = 1e-6
-    vibrometer_noise_m_s: float = 1e-3
-    displacement_noise_m: float = 1e-7
-    loadcell_length_m: float = 0.254
-    loadcell_width_m: float = 0.0254
-    loadcell_thickness_m: float = 0.00635
-    loadcell_modulus_pa: float = 69e9
-    loadcell_fn_hz: float = 60.0
-    loadcell_zeta: float = 0.05
-    loadcell_drift_m_per_s: float = 2e-9
-    swim_speed_m_s: float = 0.0  # U of Eq. (19); 0 on the tethered rig
+    sample_rate_hz: float = setting(1000.0, "rig: sample rate of every channel, Hz", 100.0, 20000.0)
+    voltage_noise_v: float = setting(0.2, "rig: voltage monitor noise, V RMS", 0.0, 100.0)
+    current_noise_a: float = setting(1e-6, "rig: current monitor noise, A RMS", 0.0, 1e-2)
+    vibrometer_noise_m_s: float = setting(1e-3, "rig: vibrometer noise, m/s RMS", 0.0, 1.0)
+    displacement_noise_m: float = setting(1e-7, "rig: load-cell displacement sensor noise, m RMS", 0.0, 1e-3)
+    loadcell_length_m: float = setting(0.254, "rig: thrust cantilever length, m", 1e-3, 10.0)
+    loadcell_width_m: float = setting(0.0254, "rig: thrust cantilever width, m", 1e-4, 1.0)
+    loadcell_thickness_m: float = setting(0.00635, "rig: thrust cantilever thickness, m", 1e-5, 0.1)
+    loadcell_modulus_pa: float = setting(69e9, "rig: thrust cantilever Young's modulus, Pa", 1e6, 1e12)
+    loadcell_fn_hz: float = setting(60.0, "rig: load cell natural frequency, Hz", 1.0, 5000.0)
+    loadcell_zeta: float = setting(0.05, "rig: load cell damping ratio", 1e-4, 2.0)
+    loadcell_drift_m_per_s: float = setting(2e-9, "rig: load cell drift, m/s (either sign)", -1e-6, 1e-6)
+    swim_speed_m_s: float = setting(0.0, "rig: U of Eq. (19), m/s (0 on the tethered rig)", 0.0, 10.0)
 
     def __post_init__(self) -> None:
         for f in fields(self):
