@@ -244,7 +244,8 @@ def test_fin_sim_and_controller_load_a_diagnosed_model(tmp_path: Any) -> None:
             Controller(context=g.context, parameter_overrides=params(mode="optimise", model=str(path)))
         )
         assert ctl.loop is not None and ctl.loop.optimiser.model is not None
-        ctl._tick_optimise()  # its first tick publishes a JSON status (it raised TypeError with a model)
+        ctl.strategy.command(1.0)  # its first tick publishes a JSON status (it raised TypeError with a model)
+        ctl._publish_status()
         assert json.loads(json.dumps(ctl.status()))["correction"]["resonance_scale"] == 1.0
         with pytest.raises(StartupError, match=r"parameter model: .*bad\.yaml"):
             Controller(

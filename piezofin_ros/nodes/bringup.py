@@ -228,13 +228,8 @@ def main(argv: list[str] | None = None) -> int:
                 break
             if elapsed - last >= 5.0:
                 last = elapsed
-                if any(c.loop is not None for c in suite.controllers):
-                    done = sum(c.loop.trials for c in suite.controllers if c.loop is not None)
-                    print(f"  {elapsed:5.1f} s: {done} optimiser trials", file=sys.stderr, flush=True)
-                else:
-                    done = sum(c.runner.index for c in suite.controllers)
-                    total = sum(len(c.runner.plan.points) for c in suite.controllers)
-                    print(f"  {elapsed:5.1f} s: trial {done}/{total}", file=sys.stderr, flush=True)
+                line = ", ".join(c.strategy.progress() for c in suite.controllers)
+                print(f"  {elapsed:5.1f} s: {line}", file=sys.stderr, flush=True)
     except (PiezofinError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

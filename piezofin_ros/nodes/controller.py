@@ -27,7 +27,8 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 from ..bags.blocks import Block, BlockFormatError
 from ..config import setting
 from ..control.optimise import DriveLoop, Limits, Optimiser
-from ..control.trials import SOURCES, Mode, TrialPlan, TrialRunner, choose
+from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
+from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
 from ..physics.effects import ModelError
@@ -114,10 +115,7 @@ class Controller(Node):
         freeze_parameters(self)
         self._created = time.monotonic()
         self._waiting_logged = False
-        self.loop: DriveLoop | None = None
-        self._reported_missing: set[int] = set()
-        self.chosen = None
-        self.finished = False
+        self.strategy: Strategy
         if mode == "optimise":
             try:
                 model = load_model(model_path) if model_path else None
@@ -135,9 +133,8 @@ class Controller(Node):
                 self.get_logger().info(
                     f"optimiser starts from the augmented model {model_path} ({', '.join(model.names)})"
                 )
-            self.loop = DriveLoop(optimiser, self.source, slew, timeout)
-            self._start_t: float | None = None
-            self._last_status_t = -math.inf
+            loop = DriveLoop(optimiser, self.source, slew, timeout)
+            self.strategy = OptimiseStrategy(loop, self.duration_s, self.after)
             goal = f"demand {demand * 1e3:.2f} mN" if demand else f"best frequency at {self.voltage_pp:g} Vpp"
             summary = f"optimising thrust per watt from {self.source} estimates, {goal}"
         else:
@@ -152,30 +149,45 @@ class Controller(Node):
                 plan = TrialPlan.grid(freqs, volts, mode=Mode(mode), off_s=off_s, on_s=on_s)
             except ValueError as exc:
                 raise StartupError(f"trial plan: {exc}") from None
-            self.runner = TrialRunner(plan)
+            self.strategy = TrialStrategy(
+                TrialRunner(plan), self.source, self.min_thrust, self.max_missing, self.after
+            )
             n = len(plan.points)
             fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
             summary = f"{n} {mode} trials{fin_time}"
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
         self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
         self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
-        if self.loop is not None:
+        if self.strategy.takes_demand:
             self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
-        tick = self._tick_optimise if self.loop is not None else self._tick
-        self._timer = self.create_timer(1.0 / heartbeat, tick)
+        self._timer = self.create_timer(1.0 / heartbeat, self._tick)
         # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
         self._silence = SilenceWatch(
             self, "time (the heartbeat)", "with use_sim_time: is fin_sim publishing /clock?"
         )
         self.get_logger().info(summary)
 
+    # what tests, bringup and users look at: the strategy's own state
+    @property
+    def finished(self) -> bool:
+        return self.strategy.finished
+
+    @property
+    def loop(self) -> DriveLoop | None:
+        return self.strategy.loop if isinstance(self.strategy, OptimiseStrategy) else None
+
+    @property
+    def runner(self) -> TrialRunner:
+        assert isinstance(self.strategy, TrialStrategy), "the optimiser runs no plan of trials"
+        return self.strategy.runner
+
+    @property
+    def chosen(self) -> TrialResult | None:
+        return self.strategy.chosen if isinstance(self.strategy, TrialStrategy) else None
+
     def planned_s(self) -> float | None:
         """Fin time the run needs (None: an optimiser without ``duration_s`` runs until stopped)."""
-        if self.loop is not None:
-            return self.duration_s or None
-        plan = self.runner.plan
-        per_trial = plan.trial_s if plan.mode is Mode.PROTOCOL else plan.settle_timeout_s
-        return len(plan.points) * (per_trial + plan.estimate_timeout_s)
+        return self.strategy.planned_s()
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -210,94 +222,24 @@ class Controller(Node):
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         self._silence.heard()
-        if self.runner.t_begin is None and not self.runner.done and not self._estimator_ready():
+        strategy = self.strategy
+        if not strategy.started() and not self._estimator_ready():
             return
-        if not self.runner.done:
-            before = self.runner.index
-            self._send(*self.runner.command(t))
-            if self.runner.index != before:
-                self._publish_status()
-        if not self.finished:  # the last trials' estimates may go missing after the plan has run
-            missing = [r for r in self.runner.missing(t) if r.index not in self._reported_missing]
-            for r in missing:
-                self._reported_missing.add(r.index)
-                self.get_logger().warning(
-                    f"no estimate for trial {r.index} ({r.frequency_hz:g} Hz, {r.voltage_pp:g} Vpp): "
-                    "is thrust_estimator running?"
-                )
-            if self.runner.aborted is None and self._missing_in_a_row() >= self.max_missing:
-                self.runner.aborted = f"{self.max_missing} trials in a row without an estimate"
-                self.get_logger().error(f"stopping the run and the drive: {self.runner.aborted}")
-        if self.runner.done and not self.finished and (self.runner.aborted or self._all_settled()):
-            self._finish()  # an aborted run does not wait for the trial it was in
-        if self.finished:
-            c = self.chosen
-            if self.after == "hold" and c is not None and self.runner.aborted is None:
-                self._send(c.frequency_hz, c.voltage_pp, 1.0)
-            else:
-                self._send(0.0, 0.0, 0.0)
-
-    def _missing_in_a_row(self) -> int:
-        n = 0
-        for r in reversed(self.runner.results):
-            if r.index in self._reported_missing and r.estimate is None:
-                n += 1
-            elif r.estimate is not None:
-                break
-        return n
-
-    def _all_settled(self) -> bool:
-        return all(r.estimate is not None or r.index in self._reported_missing for r in self.runner.results)
-
-    def _finish(self) -> None:
-        self.finished = True
-        self.chosen = choose(self.runner.results, self.source, self.min_thrust)
-        if self.chosen is not None:
-            e = self.chosen.estimate
-            assert e is not None
-            tkey, pkey = SOURCES[self.source]
-            self.get_logger().info(
-                f"chosen: {self.chosen.frequency_hz:g} Hz, {self.chosen.voltage_pp:g} Vpp: "
-                f"{getattr(e, tkey) * 1e3:.3f} mN, {e.power_w * 1e3:.3f} mW, "
-                f"{getattr(e, pkey) * 1e3:.1f} mN/W"
-            )
-        self._publish_status()
+        command = strategy.command(t)
+        for event in strategy.events:
+            getattr(self.get_logger(), event.level)(event.text)
+        strategy.events.clear()
+        self._send(*command)
+        if strategy.status_due(t):
+            self._publish_status()
 
     def _on_demand(self, msg: Float64) -> None:
-        assert self.loop is not None
         d = float(msg.data)
         if not (math.isfinite(d) and 0.0 <= d <= 10.0):
             self.get_logger().warning(f"ignored thrust demand {d!r} N (must be within [0, 10] N)")
             return
-        self.loop.optimiser.set_demand(d or None)
+        self.strategy.set_demand(d or None)
         self.get_logger().info(f"thrust demand {d * 1e3:.2f} mN" if d else "no thrust demand")
-
-    def _tick_optimise(self) -> None:
-        loop = self.loop
-        assert loop is not None
-        t = self._now()
-        if t == 0.0:
-            return
-        self._silence.heard()
-        if self._start_t is None:
-            if not self._estimator_ready():
-                return
-            self._start_t = t
-        if self.duration_s and t - self._start_t >= self.duration_s and not self.finished:
-            self.finished = True
-            c = loop.optimiser.choice
-            self.get_logger().info(f"done after {self.duration_s:g} s: {c}")
-            self._publish_status()
-        if self.finished and self.after == "stop":
-            loop.state = "ramping down" if loop.state != "stopped" else "stopped"
-        f, v, on = loop.tick(t)
-        for event in loop.events:
-            self.get_logger().warning(event)
-        loop.events.clear()
-        self._send(f, v, on)
-        if t - self._last_status_t >= 1.0:
-            self._last_status_t = t
-            self._publish_status()
 
     def _on_estimate(self, msg: Float64MultiArray) -> None:
         try:
@@ -305,26 +247,11 @@ class Controller(Node):
         except (BlockFormatError, KeyError) as exc:
             self.get_logger().warning(f"ignored an estimate: {exc}", throttle_duration_sec=5.0)
             return
-        if self.loop is not None:
-            self.loop.add_estimate(self._now(), e)
-            return
-        if self.runner.add_estimate(e):
+        if self.strategy.add_estimate(self._now(), e):
             self._publish_status()
 
     def status(self) -> dict[str, object]:
-        if self.loop is not None:
-            return {"mode": "optimise", "finished": self.finished, **self.loop.status()}
-        r = self.runner
-        state = "aborted" if r.aborted else ("done" if self.finished else "running")
-        return {
-            "state": state,
-            "reason": r.aborted,
-            "trial": min(r.index, len(r.plan.points)),
-            "n_trials": len(r.plan.points),
-            "source": self.source,
-            "results": [x.record() for x in r.results],
-            "chosen": self.chosen.record() if self.chosen is not None else None,
-        }
+        return self.strategy.status()
 
     def _publish_status(self) -> None:
         self._status_pub.publish(String(data=json.dumps(self.status(), allow_nan=True)))
