@@ -13,7 +13,7 @@ import pytest
 import yaml
 from numpy.testing import assert_allclose
 
-from piezofin_ros.diagnosis.attribute import diagnose, largest_move, summary_json
+from piezofin_ros.diagnosis.attribute import diagnose, fit, largest_move, summary_json
 from piezofin_ros.diagnosis.data import DataError, from_csv
 from piezofin_ros.diagnosis.paper import fit_facts, quantities
 from piezofin_ros.diagnosis.stages import stage_gaps
@@ -363,3 +363,33 @@ def test_paper_cli() -> None:
     assert "electroelastic_softening + leakage" in run.stdout
     assert "swim_speed (quiescent water" in run.stdout  # not tried, with the reason
     assert "(66/66)" in run.stderr  # progress
+
+
+@pytest.mark.parametrize(
+    ("name", "true", "fin"), [("drag_offset", 2.5, "M8528-P1"), ("dielectric_loss", 0.05, "M8507-P1")]
+)
+def test_fitted_parameters_carry_an_uncertainty_that_covers_the_truth(
+    name: str, true: float, fin: str
+) -> None:
+    """The +- of a fitted parameter (the fit's Jacobian, with each channel's sigma) covers the true
+    value on data generated in the time domain, for several noise draws; and it is not vacuous."""
+    for seed in (500, 501, 502):
+        m = fit(load_fin(fin), [name], simulate_case(Case(fin, {name: true}, seed)).trials)
+        ((param, value),) = m.parameters()[name].items()
+        sigma = m.uncertainties[name][param]
+        assert 0 < sigma < 0.05 * true, (seed, value, sigma)
+        assert abs(value - true) <= 3 * sigma, (seed, value, sigma)
+
+
+def test_uncertainties_reach_the_report_the_json_and_the_saved_model(tmp_path: Path) -> None:
+    d = diagnose(simulate_case(Case("M8528-P1", {"drag_offset": 2.5}, 104)).trials, FIN)
+    sigma = d.final_model.uncertainties["drag_offset"]["scale"]
+    assert sigma > 0
+    assert f"+- {sigma:.2g}" in d.final_model.parameters_text("drag_offset")
+    j = summary_json(d)
+    assert j["augmented_model"]["uncertainties"]["drag_offset"]["scale"] == sigma
+    assert j["which"]["chosen"]["uncertainties"]["drag_offset"]["scale"] > 0
+    back = Model.from_mapping(yaml.safe_load(yaml.safe_dump(d.final_model.to_mapping())))
+    assert back.uncertainties == d.final_model.uncertainties
+    with pytest.raises(ModelError, match=r"uncertainties\.drag_offset"):
+        Model.from_mapping({**d.final_model.to_mapping(), "uncertainties": {"drag_offset": {"scale": -1.0}}})

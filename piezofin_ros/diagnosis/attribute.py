@@ -135,7 +135,32 @@ def fit(
         if sol.cost < best_cost:
             best, best_cost = sol, sol.cost
     assert best is not None
-    return space.model(best.x)
+    return space.model(best.x, uncertainties(space, best, n_res))
+
+
+def uncertainties(space: ParamSpace, sol: optimize.OptimizeResult, n_res: int) -> dict[str, dict[str, float]]:
+    """One standard deviation of each fitted parameter, from the fit's Jacobian.
+
+    The residuals are in units of the noise, so the covariance of the scaled parameters is
+    ``(J^T J)^-1`` (the prior rows included, as in the fit), inflated by the reduced ``chi^2``
+    when the fit is worse than the noise (as lmfit and ``scipy.optimize.curve_fit`` do); mapped to
+    physical units by each parameter's scale.  A parameter the data do not constrain has a large
+    one (the prior's width, ten times its typical size); one at a bound, NaN.
+    """
+    jac = np.asarray(sol.jac, float)
+    k = jac.shape[1]
+    dof = max(n_res - k, 1)
+    red = float(np.sum(sol.fun[:n_res] ** 2)) / dof
+    cov = np.linalg.pinv(jac.T @ jac) * max(red, 1.0)
+    sigma = space.scale * np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    lo, hi = space.z_bounds
+    sigma[(sol.active_mask != 0) | (sol.x <= lo) | (sol.x >= hi)] = math.nan
+    out, j = {}, 0
+    for name, size in zip(space.names, space.sizes, strict=True):
+        params = effect_class(name).params
+        out[name] = {q.name: float(sigma[j + i]) for i, q in enumerate(params)}
+        j += size
+    return out
 
 
 def split(trials: Trials) -> tuple[NDArray[np.bool_], str]:
@@ -255,7 +280,7 @@ def largest_move(model: Model, effect: str, trials: Trials) -> float:
 
 
 def _params_text(model: Model, effect: str) -> str:
-    return ", ".join(f"{k} = {v:.3g}" for k, v in model.parameters()[effect].items())
+    return model.parameters_text(effect)
 
 
 @dataclass(frozen=True)
@@ -422,6 +447,7 @@ def summary_json(d: Diagnosis) -> dict[str, Any]:
         return {
             "effects": list(c.effects),
             "parameters": c.model.parameters(),
+            "uncertainties": {k: dict(v) for k, v in c.model.uncertainties.items()},
             "chi2_train": c.chi2_train,
             "chi2_heldout": c.chi2_test,
             "heldout_residuals": c.n_test,

@@ -6,6 +6,7 @@ The model itself (a fin plus effects, its steady state, persistence) is
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,5 +69,6 @@ class ParamSpace:
             j += size
         return tuple(out)
 
-    def model(self, z: ArrayLike) -> Model:
-        return Model(self.fin, self.effects(self.to_x(z)))
+    def model(self, z: ArrayLike, uncertainties: Mapping[str, Mapping[str, float]] | None = None) -> Model:
+        """The model at scaled vector ``z`` (with the fit's ``uncertainties``, if given)."""
+        return Model(self.fin, self.effects(self.to_x(z)), uncertainties=uncertainties or {})

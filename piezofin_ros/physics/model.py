@@ -69,6 +69,9 @@ class Model:
     fin: Fin
     effects: tuple[Effect, ...] = ()
     notes: Mapping[str, Any] = field(default_factory=dict)
+    #: one standard deviation of fitted parameters, ``{effect: {parameter: sigma}}`` (from the fit's
+    #: Jacobian, :func:`piezofin_ros.diagnosis.attribute.fit`); empty for a model nobody fitted
+    uncertainties: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "effects", Effects(self.effects))
@@ -78,7 +81,7 @@ class Model:
 
     def __add__(self, other: Effect | Iterable[Effect]) -> Model:
         more = (other,) if isinstance(other, Effect) else tuple(other)
-        return Model(self.fin, Effects(self.effects) + more, self.notes)
+        return Model(self.fin, Effects(self.effects) + more, self.notes, self.uncertainties)
 
     @classmethod
     def of(cls, fin: Fin, params: Mapping[str, Sequence[float]] | None = None) -> Model:
@@ -94,10 +97,21 @@ class Model:
         return tuple(e.values for e in self.effects)
 
     def without(self, name: str) -> Model:
-        return Model(self.fin, tuple(e for e in self.effects if e.name != name), self.notes)
+        kept = tuple(e for e in self.effects if e.name != name)
+        sigma = {k: v for k, v in self.uncertainties.items() if k != name}
+        return Model(self.fin, kept, self.notes, sigma)
 
     def parameters(self) -> dict[str, dict[str, float]]:
         return {e.name: e.parameters() for e in self.effects}
+
+    def parameters_text(self, name: str, digits: int = 3) -> str:
+        """``"scale = 2.03 +- 0.04"``: an effect's parameters, with their uncertainty when fitted."""
+        sigma = self.uncertainties.get(name, {})
+        out = []
+        for k, v in self.parameters()[name].items():
+            pm = f" +- {sigma[k]:.2g}" if k in sigma and math.isfinite(sigma[k]) else ""
+            out.append(f"{k} = {v:.{digits}g}{pm}")
+        return ", ".join(out)
 
     def predict(
         self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, drive_pp: ArrayLike | None = None
@@ -123,6 +137,11 @@ class Model:
         return {
             "fin": self.fin.inputs(),
             "effects": self.parameters(),
+            **(
+                {"uncertainties": {k: dict(v) for k, v in self.uncertainties.items()}}
+                if self.uncertainties
+                else {}
+            ),
             **({"notes": dict(self.notes)} if self.notes else {}),
         }
 
@@ -152,7 +171,18 @@ class Model:
                 out.append(ecls.at(vals))
             except ModelError as exc:
                 raise ModelError(f"{source}: {exc}") from None
-        return cls(fin, tuple(out), dict(data.get("notes") or {}))
+        sigma = data.get("uncertainties") or {}
+        if not isinstance(sigma, Mapping):
+            raise ModelError(f"{source}: 'uncertainties' must map effect names to parameter mappings")
+        known = {e.name: {q.name for q in e.params} for e in out}
+        for name, params in sigma.items():
+            if name not in known or not isinstance(params, Mapping) or set(params) - known[name]:
+                raise ModelError(f"{source}: uncertainties.{name} names no fitted parameter of the model")
+            for q, v in params.items():
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+                    raise ModelError(f"{source}: uncertainties.{name}.{q} must be a number >= 0, got {v!r}")
+        unc = {str(k): {str(q): float(v) for q, v in ps.items()} for k, ps in sigma.items()}
+        return cls(fin, tuple(out), dict(data.get("notes") or {}), unc)
 
 
 def load_model(path: str) -> Model:
