@@ -28,15 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-from piezofin_ros.control.optimise import (
+from piezofin_ros.control.evaluation import (
     TRIAL_S_CONTINUOUS,
     TRIAL_S_PROTOCOL,
-    Limits,
-    Optimiser,
+    campaign,
     run_trial,
     score,
     true_optimum,
 )
+from piezofin_ros.control.optimise import Limits, Optimiser
 from piezofin_ros.control.plants import Plant
 from piezofin_ros.physics.fin import load_fin
 
@@ -91,13 +91,7 @@ def best_measured(
 
 def run_ours(fin_name: str, plant: Plant, demand: float | None, best: float, seed: int, n: int) -> Run:
     opt = Optimiser(load_fin(fin_name), LIMITS, demand_n=demand)
-    rng = np.random.default_rng(seed)
-    fr, t = [], 0.0
-    for _ in range(n):
-        t = run_trial(opt, plant, t, rng)
-        c = opt.choice
-        assert c is not None
-        fr.append(score(plant, c.frequency_hz, c.voltage_pp, demand) / best)
+    fr, _ = campaign(opt, plant, n, np.random.default_rng(seed), best=best)
     return Run("ours", fr, TRIAL_S_CONTINUOUS)
 
 

@@ -60,7 +60,7 @@ def bench_writers(n: int) -> dict[str, dict[str, float]]:
     from rosbags.rosbag2.writer import CompressionFormat, CompressionMode
     from rosbags.typesys import Stores, get_typestore
 
-    from piezofin_ros.bags.mcapio import BagWriter, message_definition
+    from piezofin_ros.bags import BagWriter, message_definition
 
     data = serialised_blocks(n)
     store = get_typestore(Stores.ROS2_JAZZY)

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from piezofin_ros.bags.mcapio import BagError, BagWriter, read_messages
+from piezofin_ros.bags import BagError, BagWriter, read_messages
 from piezofin_ros.diagnosis.data import DataError, from_bags, scan_bag
 from piezofin_ros.estimation.offline import replay_estimates
 from piezofin_ros.physics.fin import load_fin

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
+from piezofin_ros.bags import BagError, BagWriter, block_of, read_messages, typestore
 from piezofin_ros.bags.blocks import Block, to_layout
-from piezofin_ros.bags.mcapio import BagError, BagWriter, block_of, read_messages, typestore
 
 
 def cdr_block(block: Block) -> bytes:
@@ -92,7 +92,7 @@ def test_a_killed_writer_leaves_rosbag2_metadata_and_recover_keeps_the_qos(tmp_p
     from mcap.records import Metadata
     from mcap.stream_reader import StreamReader
 
-    from piezofin_ros.bags.mcapio import qos_profile, recover
+    from piezofin_ros.bags import qos_profile, recover
 
     path = tmp_path / "killed.mcap"
     bag = BagWriter(path, flush_s=1e-9)

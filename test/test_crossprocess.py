@@ -210,7 +210,7 @@ def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Pat
         [str(BIN / "piezofin"), "bag", "recover", str(bag)], capture_output=True, text=True, timeout=60
     )
     assert run.returncode == 0, run.stderr
-    from piezofin_ros.bags.mcapio import block_of, read_messages
+    from piezofin_ros.bags import block_of, read_messages
 
     out = tmp_path / "killed.recovered.mcap"
     got = [float(block_of(m.type_name, m.data)["t_s"][-1]) for m in read_messages(out, ["/kill/drive"])]

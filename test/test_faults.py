@@ -17,7 +17,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.highlevel import AnyReader
 
-from piezofin_ros.bags.mcapio import BagError, read_messages, recover
+from piezofin_ros.bags import BagError, read_messages, recover
 
 from .fuzz import KINDS, base_bag, run
 
@@ -183,7 +183,7 @@ def test_recover_a_cut_bag_into_a_complete_one(base: Path, tmp_path: Path) -> No
 
 
 def test_bags_without_the_expected_topics_say_so(tmp_path: Path, base: Path) -> None:
-    from piezofin_ros.bags.mcapio import BagWriter
+    from piezofin_ros.bags import BagWriter
     from piezofin_ros.diagnosis.data import DataError, from_bags
     from piezofin_ros.estimation.offline import replay_estimates
     from piezofin_ros.physics.fin import load_fin

@@ -396,7 +396,7 @@ def test_a_recorder_killed_at_any_moment_leaves_a_recoverable_bag(tmp_path) -> N
     of flush_s is measured mid-run by test_crossprocess, against a witness subscribed all along:
     here the unrecorded tail also holds DDS's time to match the new recorder, seconds on a busy
     machine, which is not a loss.)"""
-    from piezofin_ros.bags.mcapio import block_of, read_messages, recover
+    from piezofin_ros.bags import block_of, read_messages, recover
 
     sim = start("fin_sim", "-r", "__ns:=/rk")
     lost: list[float] = []
@@ -429,7 +429,7 @@ def test_a_full_disk_stops_the_recorder_with_one_line_and_a_recoverable_bag(tmp_
     """The file-size limit (RLIMIT_FSIZE) makes writes fail as a full disk does (EFBIG, like ENOSPC)."""
     import resource
 
-    from piezofin_ros.bags.mcapio import recover
+    from piezofin_ros.bags import recover
 
     def small_disk() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, 400_000))

@@ -21,7 +21,7 @@ import lz4.frame
 import pytest
 import zstandard
 
-from piezofin_ros.bags.mcapio import MCAP_MAGIC, message_definition
+from piezofin_ros.bags import MCAP_MAGIC, message_definition
 
 from .rosutil import BIN, clean_env
 

@@ -16,8 +16,8 @@ from rclpy.parameter import Parameter
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import Float64MultiArray
 
+from piezofin_ros.bags import block_of, read_messages
 from piezofin_ros.bags.blocks import Block
-from piezofin_ros.bags.mcapio import block_of, read_messages
 from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg
 from piezofin_ros.nodes.controller import Controller

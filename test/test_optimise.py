@@ -9,14 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from piezofin_ros.control.optimise import (
-    DriveLoop,
-    Limits,
-    Optimiser,
-    run_trial,
-    score,
-    true_optimum,
-)
+from piezofin_ros.control import evaluation
+from piezofin_ros.control.driveloop import DriveLoop
+from piezofin_ros.control.evaluation import score, true_optimum
+from piezofin_ros.control.optimise import Limits, Optimiser
 from piezofin_ros.control.plants import Plant
 from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.physics.fin import Fin, load_fin
@@ -27,17 +23,10 @@ LIMITS = Limits(1.0, 20.0, 50.0, 800.0)
 def campaign(
     opt: Optimiser, plant: Plant, n: int, seed: int = 0, t0: float = 0.0
 ) -> tuple[list[float], float]:
-    rng = np.random.default_rng(seed)
-    t = t0
-    fractions = []
-    for _ in range(n):
-        t = run_trial(opt, plant, t, rng)
-        o = opt.observations[-1]
+    fractions, t = evaluation.campaign(opt, plant, n, np.random.default_rng(seed), t0)
+    for o in opt.observations:
         assert LIMITS.frequency_min_hz <= o.frequency_hz <= LIMITS.frequency_max_hz
         assert LIMITS.voltage_pp_min <= o.voltage_pp <= LIMITS.voltage_pp_max
-        c = opt.choice
-        _, _, best = true_optimum(plant, LIMITS, opt.demand_n, t=t)
-        fractions.append(score(plant, c.frequency_hz, c.voltage_pp, opt.demand_n, t=t) / best)
     return fractions, t
 
 

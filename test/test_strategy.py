@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from piezofin_ros.control.optimise import DriveLoop, Limits, Optimiser
+from piezofin_ros.control.driveloop import DriveLoop
+from piezofin_ros.control.optimise import Limits, Optimiser
 from piezofin_ros.control.strategy import OFF, OptimiseStrategy, Strategy, TrialStrategy
 from piezofin_ros.control.trials import Mode, TrialPlan, TrialRunner
 from piezofin_ros.physics.fin import load_fin

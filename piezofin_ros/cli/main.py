@@ -251,7 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run_bag_recover(args: argparse.Namespace) -> int:
-    from ..bags.mcapio import BagError, recover
+    from ..bags import BagError, recover
 
     try:
         report = recover(args.bag, args.output)
@@ -264,7 +264,7 @@ def run_bag_recover(args: argparse.Namespace) -> int:
 
 
 def run_estimate(args: argparse.Namespace) -> int:
-    from ..bags.mcapio import BagError
+    from ..bags import BagError
     from ..estimation.offline import replay_estimates
 
     fin = _load(args.fin, None)
@@ -340,7 +340,7 @@ def _refuse_existing(args: argparse.Namespace) -> None:
 def run_diagnose(args: argparse.Namespace) -> int:
     import time
 
-    from ..bags.mcapio import BagError
+    from ..bags import BagError
     from ..diagnosis.attribute import diagnose, summary_json
     from ..diagnosis.data import DataError, from_bags, from_csv
     from ..diagnosis.report import text, write

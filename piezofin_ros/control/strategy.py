@@ -7,7 +7,7 @@ publishes its status when the strategy says so.  Two strategies implement it:
 * :class:`TrialStrategy` runs a :class:`~.trials.TrialPlan` (the paper's protocol or continuous
   trials), notices trials whose estimate does not come, aborts after ``max_missing`` in a row, and
   at the end chooses the point with the most thrust per watt, then holds it or stops;
-* :class:`OptimiseStrategy` runs the thrust-per-watt :class:`~.optimise.DriveLoop` (trials chosen
+* :class:`OptimiseStrategy` runs the thrust-per-watt :class:`~.driveloop.DriveLoop` (trials chosen
   by the optimiser, settling, slew, estimate watchdog) until ``duration_s``, and takes a thrust
   demand.
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from ..estimation.estimator import Estimate
-from .optimise import DriveLoop
+from .driveloop import DriveLoop
 from .trials import SOURCES, Mode, TrialResult, TrialRunner, choose
 
 Command = tuple[float, float, float]  # (frequency_hz, voltage_pp, on)

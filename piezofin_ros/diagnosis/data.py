@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..bags import block_of, read_messages
 from ..bags.blocks import (
     COMMAND_FIELDS,
     DRIVE_CHANNELS,
@@ -32,7 +33,6 @@ from ..bags.blocks import (
     BlockFormatError,
     check_samples,
 )
-from ..bags.mcapio import block_of, read_messages
 from ..errors import DiagnosisError
 from ..estimation.estimator import Estimate, EstimatorConfig
 from ..estimation.offline import replay_estimates, topic_prefix

@@ -10,8 +10,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from ..bags import BagError, block_of, decode, read_messages
 from ..bags.blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
-from ..bags.mcapio import BagError, block_of, decode, read_messages
 from ..physics.fin import Fin
 from .estimator import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
 

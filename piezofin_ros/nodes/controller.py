@@ -26,7 +26,8 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..bags.blocks import Block, BlockFormatError
 from ..config import setting
-from ..control.optimise import DriveLoop, Limits, Optimiser
+from ..control.driveloop import DriveLoop
+from ..control.optimise import Limits, Optimiser
 from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError

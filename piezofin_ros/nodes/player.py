@@ -22,7 +22,7 @@ from rclpy.node import Node
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from ..bags.mcapio import BagError, BagMessage, bag_topics, read_messages
+from ..bags import BagError, BagMessage, bag_topics, read_messages
 from ..config import setting
 from ..physics.fin import config_dir
 from ._common import (

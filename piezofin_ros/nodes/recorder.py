@@ -1,7 +1,7 @@
 """``recorder``: the suite's topics (or a chosen set) to an MCAP file rosbag2 can play.
 
 Subscriptions are *raw* (rclpy hands over the CDR bytes), so nothing is deserialised or
-serialised again: each message goes straight into :class:`~piezofin_ros.bags.mcapio.BagWriter` with
+serialised again: each message goes straight into :class:`~piezofin_ros.bags.writer.BagWriter` with
 the node clock's time (the simulated time under ``use_sim_time``).  A topic's channel is written
 at its first message, with the QoS its publishers offer then (``ros2 bag play`` offers the same).
 Chunks are flushed every ``flush_s`` of log time; SIGINT or SIGTERM closes the file with its
@@ -27,7 +27,7 @@ from typing import Any
 from rclpy.context import Context
 from rclpy.node import Node
 
-from ..bags.mcapio import BagWriter, block_of, message_definition, normalise_type, qos_profile
+from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
 from ..config import setting
 from ._common import (
     QOS_CLOCK,
