@@ -391,5 +391,8 @@ def test_uncertainties_reach_the_report_the_json_and_the_saved_model(tmp_path: P
     assert j["which"]["chosen"]["uncertainties"]["drag_offset"]["scale"] > 0
     back = Model.from_mapping(yaml.safe_load(yaml.safe_dump(d.final_model.to_mapping())))
     assert back.uncertainties == d.final_model.uncertainties
+    at_bound = Model(FIN, d.final_model.effects, uncertainties={"drag_offset": {"scale": math.nan}})
+    back = Model.from_mapping(yaml.safe_load(yaml.safe_dump(at_bound.to_mapping())))  # NaN: at a bound
+    assert math.isnan(back.uncertainties["drag_offset"]["scale"])
     with pytest.raises(ModelError, match=r"uncertainties\.drag_offset"):
         Model.from_mapping({**d.final_model.to_mapping(), "uncertainties": {"drag_offset": {"scale": -1.0}}})

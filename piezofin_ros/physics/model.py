@@ -153,36 +153,45 @@ class Model:
         effects = data.get("effects") or {}
         if not isinstance(effects, Mapping):
             raise ModelError(f"{source}: 'effects' must map effect names to parameter mappings")
-        out = []
-        for name, params in effects.items():
-            ecls = effect_class(str(name), source)
-            if not isinstance(params, Mapping):
-                raise ModelError(f"{source}: effects.{name} must map parameter names to numbers")
-            unknown = set(params) - {q.name for q in ecls.params}
-            if unknown:
-                raise ModelError(f"{source}: effects.{name} has unknown parameter(s) {sorted(unknown)}")
-            vals = []
-            for q in ecls.params:
-                v = params.get(q.name, q.neutral)
-                if isinstance(v, bool) or not isinstance(v, (int, float)):
-                    raise ModelError(f"{source}: effects.{name}.{q.name} must be a number, got {v!r}")
-                vals.append(float(v))
-            try:
-                out.append(ecls.at(vals))
-            except ModelError as exc:
-                raise ModelError(f"{source}: {exc}") from None
-        sigma = data.get("uncertainties") or {}
-        if not isinstance(sigma, Mapping):
-            raise ModelError(f"{source}: 'uncertainties' must map effect names to parameter mappings")
-        known = {e.name: {q.name for q in e.params} for e in out}
-        for name, params in sigma.items():
-            if name not in known or not isinstance(params, Mapping) or set(params) - known[name]:
-                raise ModelError(f"{source}: uncertainties.{name} names no fitted parameter of the model")
-            for q, v in params.items():
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
-                    raise ModelError(f"{source}: uncertainties.{name}.{q} must be a number >= 0, got {v!r}")
-        unc = {str(k): {str(q): float(v) for q, v in ps.items()} for k, ps in sigma.items()}
-        return cls(fin, tuple(out), dict(data.get("notes") or {}), unc)
+        out = tuple(_effect_from_mapping(str(name), params, source) for name, params in effects.items())
+        unc = _uncertainties_from_mapping(data.get("uncertainties") or {}, out, source)
+        return cls(fin, out, dict(data.get("notes") or {}), unc)
+
+
+def _effect_from_mapping(name: str, params: Any, source: str) -> Effect:
+    """``effects.<name>: {param: value}`` of a saved model (missing parameters: neutral)."""
+    ecls = effect_class(name, source)
+    if not isinstance(params, Mapping):
+        raise ModelError(f"{source}: effects.{name} must map parameter names to numbers")
+    unknown = set(params) - {q.name for q in ecls.params}
+    if unknown:
+        raise ModelError(f"{source}: effects.{name} has unknown parameter(s) {sorted(unknown)}")
+    vals = []
+    for q in ecls.params:
+        v = params.get(q.name, q.neutral)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ModelError(f"{source}: effects.{name}.{q.name} must be a number, got {v!r}")
+        vals.append(float(v))
+    try:
+        return ecls.at(vals)
+    except ModelError as exc:
+        raise ModelError(f"{source}: {exc}") from None
+
+
+def _uncertainties_from_mapping(
+    sigma: Any, effects: Sequence[Effect], source: str
+) -> dict[str, dict[str, float]]:
+    """``uncertainties.<effect>: {param: sigma}`` of a saved model: numbers >= 0, or NaN (at a bound)."""
+    if not isinstance(sigma, Mapping):
+        raise ModelError(f"{source}: 'uncertainties' must map effect names to parameter mappings")
+    known = {e.name: {q.name for q in e.params} for e in effects}
+    for name, params in sigma.items():
+        if name not in known or not isinstance(params, Mapping) or set(params) - known[name]:
+            raise ModelError(f"{source}: uncertainties.{name} names no fitted parameter of the model")
+        for q, v in params.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v >= 0 or math.isnan(v)):
+                raise ModelError(f"{source}: uncertainties.{name}.{q} must be a number >= 0, got {v!r}")
+    return {str(k): {str(q): float(v) for q, v in ps.items()} for k, ps in sigma.items()}
 
 
 def load_model(path: str) -> Model:
