@@ -13,7 +13,7 @@ from rosbags.highlevel import AnyReader
 from piezofin_ros.estimation.offline import replay_estimates
 from piezofin_ros.physics.fin import load_fin
 
-SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_M8528-P1.mcap"
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_M8528-P1.mcap"
 
 
 def test_rosbags_reads_the_sample_bag_completely() -> None:

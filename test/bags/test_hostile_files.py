@@ -23,7 +23,7 @@ import zstandard
 
 from piezofin_ros.bags import MCAP_MAGIC, message_definition
 
-from .rosutil import BIN, clean_env
+from ..rosutil import BIN, clean_env
 
 TOPIC = "/fin/drive"
 TYPE = "std_msgs/msg/Float64MultiArray"

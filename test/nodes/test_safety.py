@@ -17,9 +17,9 @@ from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg, msg_block
 from piezofin_ros.nodes.fin_sim import FinSim
 
-from .rosutil import graph
+from ..rosutil import graph
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 V_MAX = 600.0  # Vpp: a configured limit below the hard cap, so clamping shows
 F_MIN, F_MAX = 0.5, 40.0
 SLEW = 4000.0  # Vpp/s

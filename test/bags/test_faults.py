@@ -19,7 +19,7 @@ from rosbags.highlevel import AnyReader
 
 from piezofin_ros.bags import BagError, read_messages, recover
 
-from .fuzz import KINDS, base_bag, run
+from ..fuzz import KINDS, base_bag, run
 
 BIN = Path(sys.executable).parent
 

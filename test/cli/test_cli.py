@@ -69,7 +69,7 @@ def test_ros2_run_alias_and_plot(tmp_path: Path) -> None:
 
 
 def test_fin_file_path(tmp_path: Path) -> None:
-    text = (Path(__file__).parents[1] / "config" / "fins" / "M8514-P1.yaml").read_text()
+    text = (Path(__file__).parents[2] / "config" / "fins" / "M8514-P1.yaml").read_text()
     fin_file = tmp_path / "my_fin.yaml"
     fin_file.write_text(text.replace("name: M8514-P1", "name: my-fin"))
     proc = run("piezofin", "sweep", "--fin", str(fin_file), "--freq", "10", "--json")

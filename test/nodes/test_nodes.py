@@ -27,7 +27,7 @@ from piezofin_ros.nodes.recorder import Recorder
 from piezofin_ros.nodes.thrust_estimator import ThrustEstimator
 from piezofin_ros.physics.steady import harmonic_balance
 
-from .rosutil import graph
+from ..rosutil import graph
 
 pytestmark = pytest.mark.ros
 

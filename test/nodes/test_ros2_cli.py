@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from .rosutil import Launch
+from ..rosutil import Launch
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def ros2(env: dict[str, str], *args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:

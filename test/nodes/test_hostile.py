@@ -29,7 +29,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_CLOCK, QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
-from .rosutil import Graph, graph, start, start_driving_controller, stop
+from ..rosutil import Graph, graph, start, start_driving_controller, stop
 
 pytestmark = pytest.mark.ros
 QUIET = 8.0  # V: 1 % of the 800 Vpp drive's amplitude (400 V)
@@ -465,7 +465,7 @@ def test_several_fins_in_bringup_share_one_clock_drop_nothing_and_exit() -> None
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from bench_fins import run
 
     r = run(3, ["--frequencies", "5", "9", "--voltages", "800"])

@@ -20,7 +20,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
-from .rosutil import BIN, graph, start, start_driving_controller, stop
+from ..rosutil import BIN, graph, start, start_driving_controller, stop
 
 pytestmark = pytest.mark.ros
 
@@ -277,7 +277,7 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
 def test_short_soak_has_no_drops_and_flat_memory(tmp_path: Path) -> None:
     """`benchmarks/bench_soak.py` for 40 s: four processes at the default rate; no sample dropped
     live or in the bag, resident memory flat after warm-up, running estimates within a block or two."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from bench_soak import soak
 
     r = soak(40.0, 15.0, tmp_path, progress=False)
