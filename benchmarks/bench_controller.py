@@ -36,11 +36,11 @@ from piezofin_ros.control.evaluation import (
     score,
     true_optimum,
 )
-from piezofin_ros.control.optimise import Limits, Optimiser
+from piezofin_ros.control.optimise import OperatingBox, Optimiser
 from piezofin_ros.control.plants import Plant
 from piezofin_ros.physics.fin import load_fin
 
-LIMITS = Limits(1.0, 20.0, 50.0, 800.0)
+LIMITS = OperatingBox(1.0, 20.0, 50.0, 800.0)
 GRID = [(float(f), float(v)) for v in (400.0, 600.0, 800.0) for f in range(1, 12)]
 
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .optimise import Limits, Optimiser
+from .optimise import OperatingBox, Optimiser
 from .plants import Plant
 
 FloatArray = NDArray[Any]
@@ -47,7 +47,7 @@ def score(
 
 def true_optimum(
     plant: Plant,
-    limits: Limits,
+    limits: OperatingBox,
     demand_n: float | None,
     voltage_pp: float = 800.0,
     min_thrust_n: float = 1e-3,

@@ -2,7 +2,7 @@ r"""Thrust-per-watt optimiser: the model's map, corrected by what the fin measur
 
 The problem
 -----------
-Choose the drive frequency ``f`` and peak-to-peak voltage ``V`` within :class:`Limits`:
+Choose the drive frequency ``f`` and peak-to-peak voltage ``V`` within :class:`OperatingBox`:
 
 * with a thrust demand ``D``: deliver ``T(f, V) >= D`` with the least electrical power (the most
   thrust per watt at that thrust).  ``T`` increases strictly with ``V`` at any ``f`` (a property
@@ -49,14 +49,20 @@ from ..physics.effects import DielectricLoss, DragOffset, Electroelastic, Resona
 from ..physics.fin import Fin
 from ..physics.model import Model
 from ..rig.simulated import HARD_VOLTAGE_PP_MAX
-from .plants import Noise, PlantResponse
+from .plants import EstimateNoise, PlantResponse
 
 FloatArray = NDArray[Any]
 
 
 @dataclass(frozen=True)
-class Limits:
-    """The operating box.  ``voltage_pp_max`` can never exceed the MFC's hard cap."""
+class OperatingBox:
+    """Where the optimiser may search: a band of frequencies and a range of voltages.
+
+    Not the drive's safety limits (:class:`~piezofin_ros.rig.simulated.DriveLimits`, enforced by the
+    rig on every command whatever the controller says): the box the optimiser proposes points in,
+    which the controller node sets inside its own ``voltage_pp_max``.  ``voltage_pp_max`` can never
+    exceed the MFC's hard cap.
+    """
 
     frequency_min_hz: float = 1.0
     frequency_max_hz: float = 20.0
@@ -151,7 +157,7 @@ class Choice:
 def best_point(
     fin: Fin,
     correction: Correction,
-    limits: Limits,
+    limits: OperatingBox,
     demand_n: float | None,
     voltage_pp: float,
     min_thrust_n: float = 1e-3,
@@ -213,12 +219,12 @@ class Optimiser:
     """Propose operating points, learn from their estimates; pure Python (the node drives it)."""
 
     fin: Fin
-    limits: Limits = field(default_factory=Limits)
+    limits: OperatingBox = field(default_factory=OperatingBox)
     voltage_pp: float = 800.0  # the configured voltage (no demand)
     demand_n: float | None = None
     min_thrust_n: float = 1e-3  # without a demand: the least thrust worth having
     demand_margin: float = 0.005  # aim this much above the demand, so noise and drift rarely miss it
-    noise: Noise = field(default_factory=Noise)
+    noise: EstimateNoise = field(default_factory=EstimateNoise)
     memory_s: float = 300.0  # forget measurements older than this
     change_sigma: float = 3.0  # a measurement this many sigma off the fit means the fin changed
     changes: int = 0

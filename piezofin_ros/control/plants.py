@@ -50,7 +50,7 @@ class PlantResponse:
 
 
 @dataclass(frozen=True)
-class Noise:
+class EstimateNoise:
     """Measurement noise of one trial's estimate: relative (1 sigma) plus absolute floors."""
 
     thrust_rel: float = 0.005
@@ -65,7 +65,7 @@ class Plant:
     softening: float = 0.0
     loss_tan_delta: float = 0.0
     resonance_scale: float | Callable[[float], float] = 1.0
-    noise: Noise = field(default_factory=Noise)
+    noise: EstimateNoise = field(default_factory=EstimateNoise)
     name: str = "plant"
 
     def _scale(self, t: float) -> float:

@@ -18,6 +18,7 @@ from enum import Enum
 
 from ..errors import ControlError
 from ..estimation.estimator import Estimate
+from ..physics.waveforms import ProtocolTiming
 
 #: Which estimate ranks the operating points (a fish has only ``self``).
 SOURCES = {
@@ -35,8 +36,8 @@ class Mode(str, Enum):
 class TrialPlan:
     points: tuple[tuple[float, float], ...]  # (frequency Hz, peak-to-peak V)
     mode: Mode = Mode.PROTOCOL
-    off_s: float = 10.0
-    on_s: float = 10.0
+    off_s: float = ProtocolTiming.off_s
+    on_s: float = ProtocolTiming.on_s
     settle_timeout_s: float = 30.0  # continuous: give up on a point after this long
     estimate_timeout_s: float = 10.0  # protocol: wait this long after a trial for its estimate
 

@@ -37,7 +37,7 @@ from ..physics.model import Model
 from ..physics.steady import harmonic_balance
 from ..physics.timedomain import simulate_law
 from ..rig.simulated import RigConfig
-from .data import Noise, Trials, loadcell_sigma, make_trials, window_sigmas
+from .data import SignalNoise, Trials, loadcell_sigma, make_trials, window_sigmas
 
 FloatArray = NDArray[Any]
 
@@ -196,7 +196,7 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     gain = np.broadcast_to(np.asarray(law.thrust_gain, float), f.shape)
     bias = np.broadcast_to(np.asarray(law.thrust_bias_n, float), f.shape)
     cfg = EstimatorConfig()
-    levels = Noise(
+    levels = SignalNoise(
         rig.voltage_noise_v, rig.current_noise_a, rig.vibrometer_noise_m_s, rig.displacement_noise_m
     )
     rate = 1000.0

@@ -27,7 +27,7 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 from ..bags.blocks import Block, BlockFormatError
 from ..config import setting
 from ..control.driveloop import DriveLoop
-from ..control.optimise import Limits, Optimiser
+from ..control.optimise import OperatingBox, Optimiser
 from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
@@ -35,6 +35,7 @@ from ..estimation.estimator import Estimate
 from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model
+from ..physics.waveforms import ProtocolTiming
 from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from ._common import (
     QOS_COMMAND,
@@ -64,8 +65,10 @@ class ControllerConfig:
     )
     frequencies: tuple[float, ...] = setting((5.5,), "trial frequencies, Hz", items=float)
     voltages: tuple[float, ...] = setting((800.0,), "trial voltages, Vpp", items=float)
-    off_s: float = setting(10.0, "protocol: time without voltage before and after, s", 0.5, 600.0)
-    on_s: float = setting(10.0, "protocol: time of sine drive, s", 1.0, 600.0)
+    off_s: float = setting(
+        ProtocolTiming.off_s, "protocol: time without voltage before and after, s", 0.5, 600.0
+    )
+    on_s: float = setting(ProtocolTiming.on_s, "protocol: time of sine drive, s", 1.0, 600.0)
     voltage_pp_max: float = setting(800.0, "never command more than this, Vpp", 0.0, HARD_VOLTAGE_PP_MAX)
     frequency_min_hz: float = setting(1.0, "lowest frequency, Hz", 0.01, 1000.0)
     frequency_max_hz: float = setting(40.0, "highest frequency, Hz", 0.01, 1000.0)
@@ -123,7 +126,7 @@ class Controller(Node):
             except ModelError as exc:
                 raise StartupError(f"parameter model: {exc}") from None
             try:
-                limits = Limits(f_min, self.frequency_max, 50.0, self.voltage_limit)
+                limits = OperatingBox(f_min, self.frequency_max, 50.0, self.voltage_limit)
                 fin = model.fin if model is not None else load_fin(fin_name)
                 optimiser = Optimiser(
                     fin, limits, self.voltage_pp, demand or None, min_thrust_n=self.min_thrust, model=model

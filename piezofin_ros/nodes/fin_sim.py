@@ -53,10 +53,10 @@ from ..config import setting
 from ..physics.effects import ModelError
 from ..physics.fin import Fin, FinConfigError, load_fin
 from ..physics.model import load_model
+from ..physics.waveforms import ProtocolTiming
 from ..rig.simulated import (
     STOP_SLEW_VPP_PER_S,
     DriveLimits,
-    Protocol,
     RigConfig,
     SimulatedRig,
     loosened,
@@ -97,8 +97,8 @@ class FinSimConfig:
         0.0, "time of the first sample, s (0: the node clock at configure)", 0.0, 1e10
     )
     protocol: bool = setting(False, "run the paper's trial (off, on, off) on each new on-command")
-    protocol_off_s: float = setting(10.0, "protocol: time off, s", 0.1, 600.0)
-    protocol_on_s: float = setting(10.0, "protocol: time on, s", 0.1, 600.0)
+    protocol_off_s: float = setting(ProtocolTiming.off_s, "protocol: time off, s", 0.1, 600.0)
+    protocol_on_s: float = setting(ProtocolTiming.on_s, "protocol: time on, s", 0.1, 600.0)
     autostart: bool = setting(True, "configure and activate at start (ros2 run)")
 
 
@@ -155,7 +155,7 @@ class FinSim(LifecycleNode):
             self.get_logger().error(f"cannot configure (parameter {key}): {exc}")
             return TransitionCallbackReturn.FAILURE
         t0 = self._start_time or self.get_clock().now().nanoseconds * 1e-9
-        protocol = Protocol(self._protocol_off, self._protocol_on) if self._protocol else None
+        protocol = ProtocolTiming(self._protocol_off, self._protocol_on) if self._protocol else None
         self._rig = SimulatedRig(
             self._fin,
             self._rig_config,

@@ -74,7 +74,34 @@ class SineBurst:
         return np.where(self._gate(t), 0.5 * self.voltage_pp * w * np.cos(w * (t - self.t_start)), 0.0)
 
 
-def protocol(frequency_hz: float, voltage_pp: float, off_s: float = 10.0, on_s: float = 10.0) -> SineBurst:
+@dataclass(frozen=True)
+class ProtocolTiming:
+    """The paper's trial: ``off_s`` without voltage, ``on_s`` of sine, ``off_s`` without voltage.
+
+    The one definition of the protocol's times: the rig's protocol mode, the controller's trial
+    plan and the nodes' parameters take their defaults from here.
+    """
+
+    off_s: float = 10.0
+    on_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("off_s", "on_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise PhysicsError(f"protocol {name} must be finite and > 0 s, got {value!r}")
+
+    @property
+    def trial_s(self) -> float:
+        return 2 * self.off_s + self.on_s
+
+
+def protocol(
+    frequency_hz: float,
+    voltage_pp: float,
+    off_s: float = ProtocolTiming.off_s,
+    on_s: float = ProtocolTiming.on_s,
+) -> SineBurst:
     """The paper's per-point protocol: ``off_s`` without voltage, ``on_s`` of sine, then off."""
     return SineBurst(frequency_hz, voltage_pp, t_start=off_s, duration=on_s)
 

@@ -39,6 +39,7 @@ from ..errors import RigError
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
 from ..physics.timedomain import default_step, integrate_nodes
+from ..physics.waveforms import ProtocolTiming
 
 FloatArray = NDArray[Any]
 
@@ -309,20 +310,6 @@ class RigBlock:
     events: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True)
-class Protocol:
-    """The paper's trial: ``off_s`` without voltage, ``on_s`` of sine, ``off_s`` without voltage."""
-
-    off_s: float = 10.0
-    on_s: float = 10.0
-
-    def __post_init__(self) -> None:
-        for name in ("off_s", "on_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise RigError(f"protocol {name} must be finite and > 0 s, got {value!r}")
-
-
 @dataclass
 class _Trial:
     command: DriveCommand
@@ -352,7 +339,7 @@ class SimulatedRig:
         *,
         seed: int = 0,
         t0: float = 0.0,
-        protocol: Protocol | None = None,
+        protocol: ProtocolTiming | None = None,
         model: Callable[[float, float], Knobs] | None = None,
     ) -> None:
         self.fin = fin

@@ -12,12 +12,12 @@ from hypothesis import strategies as st
 from piezofin_ros.control import evaluation
 from piezofin_ros.control.driveloop import DriveLoop
 from piezofin_ros.control.evaluation import score, true_optimum
-from piezofin_ros.control.optimise import Limits, Optimiser
+from piezofin_ros.control.optimise import OperatingBox, Optimiser
 from piezofin_ros.control.plants import Plant
 from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.physics.fin import Fin, load_fin
 
-LIMITS = Limits(1.0, 20.0, 50.0, 800.0)
+LIMITS = OperatingBox(1.0, 20.0, 50.0, 800.0)
 
 
 def campaign(
@@ -96,7 +96,7 @@ def test_loop_never_commands_beyond_the_limits(
 ) -> None:
     """Random estimates, NaN, infinities and negative values included: every command stays inside."""
     fin = load_fin("M8528-P1")
-    limits = Limits(1.0, 20.0, 50.0, 600.0)
+    limits = OperatingBox(1.0, 20.0, 50.0, 600.0)
     loop = DriveLoop(Optimiser(fin, limits), slew_vpp_per_s=400.0)
     t, v_prev = 0.0, 0.0
     for f, v, thrust, power, final in estimates:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from piezofin_ros.control.driveloop import DriveLoop
-from piezofin_ros.control.optimise import Limits, Optimiser
+from piezofin_ros.control.optimise import OperatingBox, Optimiser
 from piezofin_ros.control.strategy import OFF, OptimiseStrategy, Strategy, TrialStrategy
 from piezofin_ros.control.trials import Mode, TrialPlan, TrialRunner
 from piezofin_ros.physics.fin import load_fin
@@ -37,7 +37,7 @@ def test_a_plan_without_estimates_aborts_after_max_missing_and_stays_off() -> No
 
 def test_the_optimiser_strategy_takes_a_demand_and_stops_after_its_duration() -> None:
     fin = load_fin("M8528-P1")
-    loop = DriveLoop(Optimiser(fin, Limits(1.0, 20.0, 50.0, 800.0), 800.0, None), "self", 400.0, 10.0)
+    loop = DriveLoop(Optimiser(fin, OperatingBox(1.0, 20.0, 50.0, 800.0), 800.0, None), "self", 400.0, 10.0)
     s = OptimiseStrategy(loop, duration_s=5.0, after="stop")
     assert s.takes_demand and not _plan_strategy().takes_demand and s.planned_s() == 5.0
     s.set_demand(2e-3)

@@ -116,9 +116,9 @@ def test_rig_config_rejects_bad_values() -> None:
 
 
 def test_protocol_mode_runs_the_papers_trial_on_one_command(m8528: Fin) -> None:
-    from piezofin_ros.rig.simulated import Protocol
+    from piezofin_ros.physics.waveforms import ProtocolTiming
 
-    rig = SimulatedRig(m8528, QUIET, protocol=Protocol(off_s=2.0, on_s=3.0))
+    rig = SimulatedRig(m8528, QUIET, protocol=ProtocolTiming(off_s=2.0, on_s=3.0))
     rig.command(9.0, 800.0, 1)  # one command only: the watchdog must not stop the burst
     blocks = [rig.step(50) for _ in range(200)]  # 10 s
     t = np.concatenate([b.t for b in blocks])
@@ -138,9 +138,9 @@ def test_protocol_mode_runs_the_papers_trial_on_one_command(m8528: Fin) -> None:
 
 def bursting(fin: Fin) -> SimulatedRig:
     """A protocol-mode rig 1 s into a 9 Hz, 800 Vpp trial (0.5 s off, then the burst)."""
-    from piezofin_ros.rig.simulated import Protocol
+    from piezofin_ros.physics.waveforms import ProtocolTiming
 
-    rig = SimulatedRig(fin, QUIET, protocol=Protocol(off_s=0.5, on_s=5.0))
+    rig = SimulatedRig(fin, QUIET, protocol=ProtocolTiming(off_s=0.5, on_s=5.0))
     rig.command(9.0, 800.0, 1)
     for _ in range(30):
         rig.step(50)
@@ -205,8 +205,10 @@ def test_every_stop_is_fast_whatever_the_settings(slew: float, cap: float, f: fl
         rig.tighten(replace(limits, voltage_pp_max=0.0))
     elif kind == "stop (deactivate)":
         rig.stop()
-    else:
+    elif f + 1.0 <= limits.frequency_max_hz:  # a band above the running frequency
         rig.tighten(replace(limits, frequency_min_hz=f + 0.1, frequency_max_hz=f + 1.0))
+    else:  # at the top of the band (hypothesis found f = 40 Hz): a band below it
+        rig.tighten(replace(limits, frequency_min_hz=f - 1.0, frequency_max_hz=f - 0.1))
     amps = []
     for _ in range(round((wait + 0.5) / 0.01) + 1):
         rig.step(10)
