@@ -101,75 +101,70 @@ class Controller(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "controller", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         c = self.config = declare(self, ControllerConfig)
-        freqs, volts, mode, off_s, on_s = c.frequencies, c.voltages, c.mode, c.off_s, c.on_s
-        self.voltage_limit, self.frequency_max, heartbeat = (
-            c.voltage_pp_max,
-            c.frequency_max_hz,
-            c.heartbeat_hz,
-        )
-        self.min_thrust, self.source, self.after, self.max_missing = (
-            c.min_thrust_n,
-            c.source,
-            c.after,
-            c.max_missing,
-        )
-        fin_name, model_path, demand, self.voltage_pp = c.fin, c.model, c.demand_n, c.voltage_pp
-        f_min, slew, timeout = c.frequency_min_hz, c.slew_vpp_per_s, c.estimate_timeout_s
-        self.duration_s, self.wait_estimator_s = c.duration_s, c.wait_estimator_s
+        self.voltage_limit = c.voltage_pp_max  # every command is clamped to it (_send)
+        self.wait_estimator_s = c.wait_estimator_s
         freeze_parameters(self)
         self._created = time.monotonic()
         self._waiting_logged = False
         self.strategy: Strategy
-        if mode == "optimise":
-            try:
-                model = load_model(model_path) if model_path else None
-            except ModelError as exc:
-                raise StartupError(f"parameter model: {exc}") from None
-            try:
-                limits = OperatingBox(f_min, self.frequency_max, 50.0, self.voltage_limit)
-                fin = model.fin if model is not None else load_fin(fin_name)
-                optimiser = Optimiser(
-                    fin, limits, self.voltage_pp, demand or None, min_thrust_n=self.min_thrust, model=model
-                )
-            except PiezofinError as exc:
-                raise StartupError(f"optimiser: {exc}") from None
-            if model is not None:
-                self.get_logger().info(
-                    f"optimiser starts from the augmented model {model_path} ({', '.join(model.names)})"
-                )
-            loop = DriveLoop(optimiser, self.source, slew, timeout)
-            self.strategy = OptimiseStrategy(loop, self.duration_s, self.after)
-            goal = f"demand {demand * 1e3:.2f} mN" if demand else f"best frequency at {self.voltage_pp:g} Vpp"
-            summary = f"optimising thrust per watt from {self.source} estimates, {goal}"
+        if c.mode == "optimise":
+            self.strategy, summary = self._optimiser(c)
         else:
-            bad = [f for f in freqs if not (math.isfinite(f) and 0 < f <= self.frequency_max)]
-            bad += [v for v in volts if not (math.isfinite(v) and 0 <= v <= self.voltage_limit)]
-            if bad:
-                raise StartupError(
-                    f"parameters frequencies/voltages: {bad} outside (0, {self.frequency_max:g}] Hz / "
-                    f"[0, {self.voltage_limit:g}] Vpp"
-                )
-            try:
-                plan = TrialPlan.grid(freqs, volts, mode=Mode(mode), off_s=off_s, on_s=on_s)
-            except ValueError as exc:
-                raise StartupError(f"trial plan: {exc}") from None
-            self.strategy = TrialStrategy(
-                TrialRunner(plan), self.source, self.min_thrust, self.max_missing, self.after
-            )
-            n = len(plan.points)
-            fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
-            summary = f"{n} {mode} trials{fin_time}"
+            self.strategy, summary = self._trials(c)
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
         self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
         self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
         if self.strategy.takes_demand:
             self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
-        self._timer = self.create_timer(1.0 / heartbeat, self._tick)
+        self._timer = self.create_timer(1.0 / c.heartbeat_hz, self._tick)
         # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
         self._silence = SilenceWatch(
             self, "time (the heartbeat)", "with use_sim_time: is fin_sim publishing /clock?"
         )
         self.get_logger().info(summary)
+
+    def _optimiser(self, c: ControllerConfig) -> tuple[Strategy, str]:
+        """The thrust-per-watt optimiser's strategy (``mode:=optimise``), and what it says at start."""
+        try:
+            model = load_model(c.model) if c.model else None
+        except ModelError as exc:
+            raise StartupError(f"parameter model: {exc}") from None
+        try:
+            box = OperatingBox(c.frequency_min_hz, c.frequency_max_hz, 50.0, c.voltage_pp_max)
+            fin = model.fin if model is not None else load_fin(c.fin)
+            optimiser = Optimiser(
+                fin, box, c.voltage_pp, c.demand_n or None, min_thrust_n=c.min_thrust_n, model=model
+            )
+        except PiezofinError as exc:
+            raise StartupError(f"optimiser: {exc}") from None
+        if model is not None:
+            self.get_logger().info(
+                f"optimiser starts from the augmented model {c.model} ({', '.join(model.names)})"
+            )
+        loop = DriveLoop(optimiser, c.source, c.slew_vpp_per_s, c.estimate_timeout_s)
+        goal = (
+            f"demand {c.demand_n * 1e3:.2f} mN" if c.demand_n else f"best frequency at {c.voltage_pp:g} Vpp"
+        )
+        summary = f"optimising thrust per watt from {c.source} estimates, {goal}"
+        return OptimiseStrategy(loop, c.duration_s, c.after), summary
+
+    def _trials(self, c: ControllerConfig) -> tuple[Strategy, str]:
+        """A plan of trials (``mode:=protocol`` or ``continuous``), and what it says at start."""
+        bad = [f for f in c.frequencies if not (math.isfinite(f) and 0 < f <= c.frequency_max_hz)]
+        bad += [v for v in c.voltages if not (math.isfinite(v) and 0 <= v <= c.voltage_pp_max)]
+        if bad:
+            raise StartupError(
+                f"parameters frequencies/voltages: {bad} outside (0, {c.frequency_max_hz:g}] Hz / "
+                f"[0, {c.voltage_pp_max:g}] Vpp"
+            )
+        try:
+            plan = TrialPlan.grid(c.frequencies, c.voltages, mode=Mode(c.mode), off_s=c.off_s, on_s=c.on_s)
+        except PiezofinError as exc:
+            raise StartupError(f"trial plan: {exc}") from None
+        strategy = TrialStrategy(TrialRunner(plan), c.source, c.min_thrust_n, c.max_missing, c.after)
+        n = len(plan.points)
+        fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
+        return strategy, f"{n} {c.mode} trials{fin_time}"
 
     # what tests, bringup and users look at: the strategy's own state
     @property
