@@ -216,22 +216,47 @@ def make(name: str, values: Iterable[float]) -> Effect:
     return effect_class(name).at(values)
 
 
+class Coefficient(Effect):
+    """An effect that changes one coefficient alike in the time-domain law and in the balance.
+
+    For these (linear) effects the describing function *is* the law: ``target`` names the field of
+    both :class:`TimeLaw` and :class:`~.knobs.Knobs`, ``how`` says whether :meth:`amount` multiplies
+    it (``scale``), adds to it (``add``) or replaces it (``set``).  Subclasses define :meth:`amount`.
+    """
+
+    target: ClassVar[str] = ""
+    how: ClassVar[str] = "scale"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        raise NotImplementedError
+
+    def _apply(self, obj: Any, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> Any:
+        old, x = getattr(obj, self.target), self.amount(fin, omega, voltage_pp)
+        new = old * x if self.how == "scale" else (old + x if self.how == "add" else x)
+        return replace(obj, **{self.target: new})
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        return self._apply(k, op.fin, op.omega, op.voltage_pp)  # type: ignore[no-any-return]
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        omega = 2 * math.pi * np.asarray(frequency_hz, float)
+        return self._apply(law, fin, omega, voltage_pp)  # type: ignore[no-any-return]
+
+
 # --- the library -------------------------------------------------------------------------------
 
 
 @register
 @dataclass(frozen=True)
-class ResonanceOffset(Effect):
+class ResonanceOffset(Coefficient):
     name = "resonance_offset"
     title = "stiffness off (in-water resonance shifted, linear)"
     params = (Param("scale", "-", 1.0, 0.3, 2.0, 0.1, "natural frequency x scale"),)
     scale: float = 1.0
+    target = "stiffness"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, stiffness=k.stiffness * self.scale**2)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, stiffness=law.stiffness * self.scale**2)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.scale**2
 
 
 @register
@@ -256,20 +281,15 @@ class Duffing(Effect):
 
 @register
 @dataclass(frozen=True)
-class Electroelastic(Effect):
+class Electroelastic(Coefficient):
     name = "electroelastic_softening"
     title = "electroelastic softening (stiffness falls with the field)"
     params = (Param("softening", "-", 0.0, -0.5, 0.9, 0.1, "wn x (1 - s Vpp/800)"),)
     softening: float = 0.0
+    target = "stiffness"
 
-    def _factor(self, voltage_pp: FloatArray) -> FloatArray:
-        return np.maximum(1.0 - self.softening * voltage_pp / V_REF, 0.05) ** 2
-
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, stiffness=k.stiffness * self._factor(op.voltage_pp))
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, stiffness=law.stiffness * self._factor(voltage_pp))
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return np.maximum(1.0 - self.softening * np.asarray(voltage_pp, float) / V_REF, 0.05) ** 2
 
 
 @register
@@ -293,17 +313,15 @@ class NonlinearDamping(Effect):
 
 @register
 @dataclass(frozen=True)
-class AddedMassOffset(Effect):
+class AddedMassOffset(Coefficient):
     name = "added_mass_offset"
     title = "inertia coefficient c_m off the curve of Eq. (21)"
     params = (Param("scale", "-", 1.0, 0.1, 4.0, 0.2, "c_m x scale"),)
     scale: float = 1.0
+    target = "mass"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, mass=k.mass * self.scale)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, mass=law.mass * self.scale)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.scale
 
 
 @register
@@ -327,17 +345,15 @@ class AddedMassKC(Effect):
 
 @register
 @dataclass(frozen=True)
-class DragOffset(Effect):
+class DragOffset(Coefficient):
     name = "drag_offset"
     title = "drag coefficient c_d off the assumed value"
     params = (Param("scale", "-", 1.0, 0.0, 20.0, 0.5, "c_d x scale"),)
     scale: float = 1.0
+    target = "drag"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, drag=k.drag * self.scale)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, drag=law.drag * self.scale)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.scale
 
 
 @register
@@ -358,48 +374,44 @@ class DragKC(Effect):
 
 @register
 @dataclass(frozen=True)
-class DielectricLoss(Effect):
+class DielectricLoss(Coefficient):
     name = "dielectric_loss"
     title = "dielectric loss of the piezoceramic (tan delta)"
     params = (Param("tan_delta", "-", 0.0, 0.0, 0.5, 0.02, "P += tan(delta) C_eq w V^2 / 2"),)
     tan_delta: float = 0.0
+    target = "loss_conductance"
+    how = "add"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, loss_conductance=k.loss_conductance + self.tan_delta * op.fin.C_eq * op.omega)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        g = self.tan_delta * fin.C_eq * 2 * math.pi * frequency_hz
-        return replace(law, loss_conductance=law.loss_conductance + g)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.tan_delta * fin.C_eq * omega
 
 
 @register
 @dataclass(frozen=True)
-class Leakage(Effect):
+class Leakage(Coefficient):
     name = "leakage"
     title = "resistive leakage of the drive (frequency-independent loss)"
     params = (Param("conductance", "uS", 0.0, 0.0, 50.0, 1.0, "P += G V^2 / 2"),)
     conductance: float = 0.0
+    target = "loss_conductance"
+    how = "add"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, loss_conductance=k.loss_conductance + self.conductance * 1e-6)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, loss_conductance=law.loss_conductance + self.conductance * 1e-6)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.conductance * 1e-6
 
 
 @register
 @dataclass(frozen=True)
-class SwimSpeed(Effect):
+class SwimSpeed(Coefficient):
     name = "swim_speed"
     title = "flow past the fin (U != 0 in Eq. 19)"
     params = (Param("U", "m/s", 0.0, 0.0, 5.0, 0.05, "free-stream speed"),)
     U: float = 0.0
+    target = "swim_speed"
+    how = "set"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, swim_speed=self.U)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, swim_speed=self.U)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.U
 
 
 def amplifier_clip(inv_i_max: float, fin: Fin, omega: FloatArray) -> FloatArray:
@@ -456,29 +468,26 @@ class AmplifierLimit(Effect):
 
 @register
 @dataclass(frozen=True)
-class LoadcellOffset(Effect):
+class LoadcellOffset(Coefficient):
     name = "loadcell_offset"
     title = "thrust transducer drift not cancelled by the baselines (offset)"
     params = (Param("bias", "mN", 0.0, -50.0, 50.0, 0.2, "added to the load-cell thrust"),)
     bias: float = 0.0
+    target = "thrust_bias_n"
+    how = "add"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, thrust_bias_n=k.thrust_bias_n + self.bias * 1e-3)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, thrust_bias_n=law.thrust_bias_n + self.bias * 1e-3)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.bias * 1e-3
 
 
 @register
 @dataclass(frozen=True)
-class LoadcellGain(Effect):
+class LoadcellGain(Coefficient):
     name = "loadcell_gain"
     title = "thrust transducer calibration (gain)"
     params = (Param("gain", "-", 1.0, 0.1, 5.0, 0.2, "load-cell thrust x gain"),)
     gain: float = 1.0
+    target = "thrust_gain"
 
-    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
-        return replace(k, thrust_gain=k.thrust_gain * self.gain)
-
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
-        return replace(law, thrust_gain=law.thrust_gain * self.gain)
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.gain
