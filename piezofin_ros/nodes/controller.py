@@ -225,8 +225,14 @@ class Controller(Node):
         if not strategy.started() and not self._estimator_ready():
             return
         command = strategy.command(t)
-        for event in strategy.events:
-            getattr(self.get_logger(), event.level)(event.text)
+        log = self.get_logger()
+        for event in strategy.events:  # one call site per severity: rclpy's logger requires it
+            if event.level == "error":
+                log.error(event.text)
+            elif event.level == "warning":
+                log.warning(event.text)
+            else:
+                log.info(event.text)
         strategy.events.clear()
         self._send(*command)
         if strategy.status_due(t):

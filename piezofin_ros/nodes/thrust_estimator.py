@@ -81,6 +81,10 @@ class ThrustEstimator(Node):
         self._silence = SilenceWatch(
             self, f"{self.resolve_topic_name(TOPIC_DRIVE)}", "is fin_sim (or the rig driver) running?"
         )
+        self.get_logger().info(
+            f"{self.fin.name} (psi {self.fin.psi:.2f}, c_m {self.fin.c_m:.3f}): estimating from "
+            f"{self.resolve_topic_name(TOPIC_DRIVE)} to {self.resolve_topic_name(TOPIC_ESTIMATE)}"
+        )
 
     def _decode(self, msg: Float64MultiArray, channels: tuple[str, ...], topic: str) -> Block | None:
         self.received[topic] += 1
