@@ -28,9 +28,9 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "piezofin = piezofin_ros.cli:main",
-            "sweep = piezofin_ros.cli:sweep_main",
-            "diagnose = piezofin_ros.cli:diagnose_main",
+            "piezofin = piezofin_ros.cli.main:main",
+            "sweep = piezofin_ros.cli.main:sweep_main",
+            "diagnose = piezofin_ros.cli.main:diagnose_main",
             "fin_sim = piezofin_ros.nodes.fin_sim:main",
             "fin_sims = piezofin_ros.nodes.fin_sim:fins_main",
             "thrust_estimator = piezofin_ros.nodes.thrust_estimator:main",

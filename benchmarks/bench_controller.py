@@ -2,13 +2,13 @@
 
     python benchmarks/bench_controller.py [--seeds 6] [--plot docs/controller.png]
 
-Plants (``piezofin_ros.plants``), each with measurement noise, parameters drawn per seed: the
+Plants (``piezofin_ros.control.plants``), each with measurement noise, parameters drawn per seed: the
 nominal model; electroelastic softening (resonance down by 10-40 % at 800 Vpp); dielectric loss
 (tan delta 0.05-0.3); and softening, loss and a resonance off by up to 15 % together.  Two tasks:
 a thrust demand of 30 % of the fin's nominal maximum, and the paper's convention (best frequency
 at 800 Vpp, at least 1 mN).  Three fins.  Methods, on the same plants and noise seeds:
 
-* ``ours``: :class:`~piezofin_ros.optimise.Optimiser`, continuous trials of 6 s of fin time;
+* ``ours``: :class:`~piezofin_ros.control.optimise.Optimiser`, continuous trials of 6 s of fin time;
 * ``grid``: the paper's 11 frequencies (1-11 Hz) x 3 voltages (400/600/800 Vpp), 30 s protocol
   trials, best measured point so far;
 * ``random``: uniform random points, 6 s continuous trials, best measured point so far.
@@ -28,19 +28,19 @@ from pathlib import Path
 
 import numpy as np
 
-from piezofin_ros.fin import load_fin
-from piezofin_ros.optimise import (
+from piezofin_ros.control.evaluation import (
     TRIAL_S_CONTINUOUS,
     TRIAL_S_PROTOCOL,
-    Limits,
-    Optimiser,
+    campaign,
     run_trial,
     score,
     true_optimum,
 )
-from piezofin_ros.plants import Plant
+from piezofin_ros.control.optimise import OperatingBox, Optimiser
+from piezofin_ros.control.plants import Plant
+from piezofin_ros.physics.fin import load_fin
 
-LIMITS = Limits(1.0, 20.0, 50.0, 800.0)
+LIMITS = OperatingBox(1.0, 20.0, 50.0, 800.0)
 GRID = [(float(f), float(v)) for v in (400.0, 600.0, 800.0) for f in range(1, 12)]
 
 
@@ -91,13 +91,7 @@ def best_measured(
 
 def run_ours(fin_name: str, plant: Plant, demand: float | None, best: float, seed: int, n: int) -> Run:
     opt = Optimiser(load_fin(fin_name), LIMITS, demand_n=demand)
-    rng = np.random.default_rng(seed)
-    fr, t = [], 0.0
-    for _ in range(n):
-        t = run_trial(opt, plant, t, rng)
-        c = opt.choice
-        assert c is not None
-        fr.append(score(plant, c.frequency_hz, c.voltage_pp, demand) / best)
+    fr, _ = campaign(opt, plant, n, np.random.default_rng(seed), best=best)
     return Run("ours", fr, TRIAL_S_CONTINUOUS)
 
 

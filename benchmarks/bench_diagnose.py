@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from piezofin_ros.diagnosis.attribute import diagnose
 from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, draw_strength, random_case, simulate_case
-from piezofin_ros.fin import load_fin
+from piezofin_ros.physics.fin import load_fin
 
 
 def cases(per_effect: int, outside: int, double: int, clean: int, seed: int) -> list[tuple[str, Case]]:

@@ -32,8 +32,8 @@ def main() -> int:
     ap.add_argument("--files", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
-    logging.getLogger("piezofin_ros.bagio").setLevel(logging.ERROR)  # damage lines: thousands
-    from piezofin_ros.bagio import read_messages
+    logging.getLogger("piezofin_ros.bags.reader").setLevel(logging.ERROR)  # damage lines: thousands
+    from piezofin_ros.bags import read_messages
 
     with tempfile.TemporaryDirectory() as d:
         directory = Path(d)

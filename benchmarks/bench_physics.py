@@ -20,10 +20,10 @@ from collections.abc import Callable
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from piezofin_ros.fin import load_fin
-from piezofin_ros.steady import harmonic_balance, harmonic_balance_fsolve
-from piezofin_ros.timedomain import simulate, simulate_batch
-from piezofin_ros.waveforms import protocol
+from piezofin_ros.physics.fin import load_fin
+from piezofin_ros.physics.steady import harmonic_balance, harmonic_balance_fsolve
+from piezofin_ros.physics.timedomain import simulate, simulate_batch
+from piezofin_ros.physics.waveforms import protocol
 
 
 def best_of(fn: Callable[[], object], repeat: int) -> float:

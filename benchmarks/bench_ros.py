@@ -33,7 +33,7 @@ BIN = Path(sys.executable).parent
 def serialised_blocks(n: int) -> list[bytes]:
     from rclpy.serialization import serialize_message
 
-    from piezofin_ros.blocks import Block
+    from piezofin_ros.bags.blocks import Block
     from piezofin_ros.nodes._common import block_msg
 
     rng = np.random.default_rng(0)
@@ -60,7 +60,7 @@ def bench_writers(n: int) -> dict[str, dict[str, float]]:
     from rosbags.rosbag2.writer import CompressionFormat, CompressionMode
     from rosbags.typesys import Stores, get_typestore
 
-    from piezofin_ros.bagio import BagWriter, message_definition
+    from piezofin_ros.bags import BagWriter, message_definition
 
     data = serialised_blocks(n)
     store = get_typestore(Stores.ROS2_JAZZY)

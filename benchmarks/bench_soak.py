@@ -102,7 +102,7 @@ def soak(seconds: float, warmup_s: float, directory: Path, progress: bool = True
     from rclpy.experimental import EventsExecutor
     from std_msgs.msg import Float64MultiArray
 
-    from piezofin_ros.bagio import block_of, read_messages
+    from piezofin_ros.bags import block_of, read_messages
     from piezofin_ros.nodes._common import QOS_DATA, msg_block
 
     bag = directory / "soak.mcap"

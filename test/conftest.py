@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from piezofin_ros.fin import Fin, load_fin
+from piezofin_ros.physics.fin import Fin, load_fin
 
 from .rosutil import BIN, clean_env
 

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from piezofin_ros.bagio import BagError, BagWriter, read_messages
+from piezofin_ros.bags import BagError, BagWriter, read_messages
 from piezofin_ros.diagnosis.data import DataError, from_bags, scan_bag
-from piezofin_ros.fin import load_fin
-from piezofin_ros.offline import replay_estimates
+from piezofin_ros.estimation.offline import replay_estimates
+from piezofin_ros.physics.fin import load_fin
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_M8528-P1.mcap"
 KINDS = ("truncate", "flip", "zero", "garbage", "delete", "duplicate", "swap", "append", "header", "random")

@@ -4,8 +4,9 @@ Lines run in the order written, in one scratch directory holding a copy of ``bag
 placeholders the text names (``mine.yaml``, ``my_fin.yaml``, ``bags/run.mcap``, ``trials.csv``), so a
 line may use what an earlier one wrote (``out/diag/augmented_model.yaml``).  Three kinds:
 
-- a node or a launch (runs until Ctrl-C): still running, or exited 0, after a few seconds; then
-  SIGINT, and it must exit 0;
+- a node or a launch (runs until Ctrl-C): still running, or exited 0, after a few seconds and once
+  it is up (every process it started has logged its first line: a user presses Ctrl-C on a suite
+  that runs, not on one still importing numpy); then SIGINT, and it must exit 0;
 - a line talking to a running suite (``ros2 node|topic|param|lifecycle|service``): run while
   ``ros2 launch piezofin_ros piezofin.launch.py realtime_factor:=10`` runs in the background;
 - anything else: exits 0 within its time limit.
@@ -21,6 +22,8 @@ import re
 import shutil
 import signal
 import subprocess
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -39,6 +42,7 @@ TALKS_TO_THE_SUITE = re.compile(r"^ros2 (node|topic|param|lifecycle|service) ")
 NEEDS_ROS = re.compile(r"^(ros2|colcon|rosdep) ")
 #: Seconds a node or launch must survive before it is stopped; the limit for everything else.
 ALIVE_S = 12.0
+UP_S = 120.0  # a loaded machine: the processes may take this long to import and start
 LIMIT_S = 600.0
 
 
@@ -116,6 +120,14 @@ def plain_env() -> dict[str, str]:
     )
 
 
+def _up(out: str) -> bool:
+    """Every process the line started has logged a line of its own (its imports are done)."""
+    started = re.findall(r"\[INFO\] \[([\w.-]+)\]: process started", out)
+    if started:  # ros2 launch: "[controller-3] [INFO] [...]" once the node runs
+        return all(re.search(rf"^\[{re.escape(p)}\] ", out, re.M) for p in started)
+    return bool(out.strip())  # ros2 run: the node's first log line
+
+
 def _run_until_stopped(command: str, env: dict[str, str], cwd: Path) -> str:
     proc = subprocess.Popen(
         ["bash", "-c", command],
@@ -128,18 +140,28 @@ def _run_until_stopped(command: str, env: dict[str, str], cwd: Path) -> str:
         start_new_session=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
+    assert proc.stdout is not None
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")), daemon=True)
+    reader.start()
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < ALIVE_S or (not _up("".join(lines)) and time.monotonic() - t0 < UP_S):
+        if proc.poll() is not None:
+            reader.join(10)
+            out = "".join(lines)
+            assert proc.returncode == 0, f"exited {proc.returncode} before it was stopped:\n{out[-3000:]}"
+            return out
+        time.sleep(0.2)
+    assert _up("".join(lines)), f"not up after {UP_S:.0f} s:\n{''.join(lines)[-3000:]}"
+    os.killpg(proc.pid, signal.SIGINT)  # still running, as it should: Ctrl-C
     try:
-        out, _ = proc.communicate(timeout=ALIVE_S)
-        assert proc.returncode == 0, f"exited {proc.returncode} before it was stopped:\n{out[-3000:]}"
-        return out
-    except subprocess.TimeoutExpired:
-        pass  # still running, as it should: Ctrl-C
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=30)
+        proc.wait(timeout=30)
+        reader.join(10)
+        out = "".join(lines)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
-        out, _ = proc.communicate()
+        proc.wait()
+        out = "".join(lines)
         raise AssertionError(f"did not stop on Ctrl-C within 30 s:\n{out[-3000:]}") from None
     assert proc.returncode == 0, f"exit {proc.returncode} on Ctrl-C:\n{out[-3000:]}"
     return out

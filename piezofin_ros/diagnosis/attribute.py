@@ -1,7 +1,8 @@
 r"""Which effect causes the gap, and how far adding it closes the gap on held-out trials.
 
-Procedure (:func:`diagnose`)
-----------------------------
+Procedure (:func:`diagnose`: the named steps of :data:`PIPELINE`, each a function of a :class:`Work`)
+-----------------------------------------------------------------------------------------------------
+0. **Where.**  The gap in each stage of the chain (:mod:`.stages`) and the resonances.
 1. **Split.**  With several voltages, the highest is held out and the rest train (the model must
    *extrapolate* in amplitude, where nonlinear effects differ most); with one voltage, every third
    frequency is held out.
@@ -41,9 +42,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, stats
 
-from ..fin import Fin
+from ..physics.effects import LIBRARY, effect_class
+from ..physics.fin import Fin
+from ..physics.model import Model
 from .data import CHANNELS, Trials
-from .model import LIBRARY, Augmented, ParamSpace, effect_class
+from .space import ParamSpace
 from .stages import Resonance, StageGap, resonances, stage_gaps
 
 FloatArray = NDArray[Any]
@@ -54,13 +57,13 @@ def _wrap(x: FloatArray) -> FloatArray:
     return np.angle(np.exp(1j * x))
 
 
-def predicted_channels(model: Augmented, trials: Trials) -> dict[str, FloatArray]:
+def predicted_channels(model: Model, trials: Trials) -> dict[str, FloatArray]:
     """The model's value of every channel for the table's trials (measured voltage as input where known)."""
     pred = model.predict(trials.frequency_hz, trials.voltage_pp, drive_pp=trials.measured_drive())
     return {name: np.asarray(getattr(pred, name), float) for name in FIT_CHANNELS}
 
 
-def residuals(model: Augmented, trials: Trials) -> dict[str, FloatArray]:
+def residuals(model: Model, trials: Trials) -> dict[str, FloatArray]:
     """``(measured - predicted) / sigma`` per channel (NaN where not measured)."""
     pred = predicted_channels(model, trials)
     out = {}
@@ -77,7 +80,7 @@ def _stack(res: dict[str, FloatArray]) -> FloatArray:
     return r[np.isfinite(r)]
 
 
-def chi2(model: Augmented, trials: Trials) -> tuple[float, int]:
+def chi2(model: Model, trials: Trials) -> tuple[float, int]:
     r = _stack(residuals(model, trials))
     return float(np.sum(r * r)), int(r.size)
 
@@ -85,7 +88,7 @@ def chi2(model: Augmented, trials: Trials) -> tuple[float, int]:
 @dataclass(frozen=True)
 class Candidate:
     effects: tuple[str, ...]
-    model: Augmented
+    model: Model
     chi2_train: float
     chi2_test: float
     n_test: int
@@ -99,7 +102,7 @@ class Candidate:
 
 def fit(
     fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[float, ...]] | None = None
-) -> Augmented:
+) -> Model:
     """Least-squares parameters of ``names`` on ``train`` (bounded, two starts, weak prior)."""
     space = ParamSpace(fin, tuple(names))
     params = space.params
@@ -114,7 +117,7 @@ def fit(
             return np.full(n_res, 1e6)
         return np.concatenate([r, z / 10.0])
 
-    n_res = _stack(residuals(Augmented(fin), train)).size
+    n_res = _stack(residuals(Model(fin), train)).size
     starts = []
     if start:
         x0 = np.concatenate([np.asarray(start.get(n, effect_class(n).neutral()), float) for n in names])
@@ -133,7 +136,32 @@ def fit(
         if sol.cost < best_cost:
             best, best_cost = sol, sol.cost
     assert best is not None
-    return space.model(best.x)
+    return space.model(best.x, uncertainties(space, best, n_res))
+
+
+def uncertainties(space: ParamSpace, sol: optimize.OptimizeResult, n_res: int) -> dict[str, dict[str, float]]:
+    """One standard deviation of each fitted parameter, from the fit's Jacobian.
+
+    The residuals are in units of the noise, so the covariance of the scaled parameters is
+    ``(J^T J)^-1`` (the prior rows included, as in the fit), inflated by the reduced ``chi^2``
+    when the fit is worse than the noise (as lmfit and ``scipy.optimize.curve_fit`` do); mapped to
+    physical units by each parameter's scale.  A parameter the data do not constrain has a large
+    one (the prior's width, ten times its typical size); one at a bound, NaN.
+    """
+    jac = np.asarray(sol.jac, float)
+    k = jac.shape[1]
+    dof = max(n_res - k, 1)
+    red = float(np.sum(sol.fun[:n_res] ** 2)) / dof
+    cov = np.linalg.pinv(jac.T @ jac) * max(red, 1.0)
+    sigma = space.scale * np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    lo, hi = space.z_bounds
+    sigma[(sol.active_mask != 0) | (sol.x <= lo) | (sol.x >= hi)] = math.nan
+    out, j = {}, 0
+    for name, size in zip(space.names, space.sizes, strict=True):
+        params = effect_class(name).params
+        out[name] = {q.name: float(sigma[j + i]) for i, q in enumerate(params)}
+        j += size
+    return out
 
 
 def split(trials: Trials) -> tuple[NDArray[np.bool_], str]:
@@ -159,7 +187,7 @@ class ChannelGap:
     n: int
 
 
-def channel_gaps(before: Augmented, after: Augmented, trials: Trials) -> list[ChannelGap]:
+def channel_gaps(before: Model, after: Model, trials: Trials) -> list[ChannelGap]:
     """Per channel, the RMS gap in units and relative to the RMS of the measurement (percent)."""
     pb, pa = predicted_channels(before, trials), predicted_channels(after, trials)
     out = []
@@ -236,14 +264,10 @@ def separating_experiment(
     return Experiment(float(ff[best[1]]), float(vv[best[1]]), best[2], best[0], a.label, b.label)
 
 
-def largest_move(model: Augmented, effect: str, trials: Trials) -> float:
+def largest_move(model: Model, effect: str, trials: Trials) -> float:
     """The largest change of any prediction, in units of its noise, when ``effect`` is taken out of
     ``model`` (the other effects kept as fitted)."""
-    rest = Augmented(
-        model.fin,
-        tuple(e for e in model.effects if e != effect),
-        tuple(v for e, v in zip(model.effects, model.values, strict=True) if e != effect),
-    )
+    rest = model.without(effect)
     full, without = predicted_channels(model, trials), predicted_channels(rest, trials)
     moves = [0.0]
     for name in FIT_CHANNELS:
@@ -256,8 +280,8 @@ def largest_move(model: Augmented, effect: str, trials: Trials) -> float:
     return max(moves)
 
 
-def _params_text(model: Augmented, effect: str) -> str:
-    return ", ".join(f"{k} = {v:.3g}" for k, v in model.parameters()[effect].items())
+def _params_text(model: Model, effect: str) -> str:
+    return model.parameters_text(effect)
 
 
 @dataclass(frozen=True)
@@ -276,7 +300,7 @@ class Diagnosis:
     experiments: list[Experiment]
     gaps: list[ChannelGap]  # held out, before/after the best candidate
     shrink: float
-    final_model: Augmented  # refitted on all trials
+    final_model: Model  # refitted on all trials
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -286,6 +310,213 @@ class Diagnosis:
     @property
     def named(self) -> tuple[str, ...]:
         return self.chosen.effects if self.chosen else ()
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The decision rules' thresholds (module docstring, step 4)."""
+
+    library: tuple[str, ...] = tuple(LIBRARY)
+    pairs_of: int = 3
+    ambiguity: float = 6.0
+    close_fraction: float = 0.95
+    max_reduced_chi2: float = 3.0
+    material_sigma: float = 3.0
+
+
+@dataclass
+class Work:
+    """What flows through the pipeline: the inputs, and what each step adds."""
+
+    trials: Trials
+    fin: Fin
+    settings: Settings
+    say: Callable[[str], None]
+    nominal_model: Model = field(init=False)
+    stages: list[StageGap] = field(default_factory=list)
+    resonances: list[Resonance] = field(default_factory=list)
+    test: NDArray[np.bool_] = field(init=False)
+    test_text: str = ""
+    train: Trials = field(init=False)
+    held: Trials = field(init=False)
+    nominal: Candidate = field(init=False)
+    n_train: int = 0
+    penalty: float = 0.0
+    singles: list[Candidate] = field(default_factory=list)
+    candidates: list[Candidate] = field(default_factory=list)
+    fitting: list[Candidate] = field(default_factory=list)
+    best: Candidate = field(init=False)
+    verdict: str = ""
+    chosen: Candidate | None = None
+    ambiguous: list[Candidate] = field(default_factory=list)
+    experiments: list[Experiment] = field(default_factory=list)
+    gaps: list[ChannelGap] = field(default_factory=list)
+    shrink: float = math.nan
+    final: Model = field(init=False)
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.nominal_model = Model(self.fin)
+
+    def candidate(
+        self, combo: tuple[str, ...], start: dict[str, tuple[float, ...]] | None = None
+    ) -> Candidate:
+        """Fit ``combo`` on the training trials and score it on the held-out ones."""
+        m = fit(self.fin, combo, self.train, start)
+        c_tr, _ = chi2(m, self.train)
+        c_te, n = chi2(m, self.held)
+        k = sum(len(effect_class(e).params) for e in combo)
+        return Candidate(combo, m, c_tr, c_te, n, k, c_te + k * self.penalty)
+
+    def adequate(self, c: Candidate) -> bool:
+        """The candidate explains the held-out gap (module docstring, step 4)."""
+        s, nominal = self.settings, self.nominal
+        if not c.n_test or c.criterion >= nominal.criterion:
+            return False
+        if float(stats.chi2.sf(c.chi2_test, c.n_test)) >= 1e-3:
+            return True
+        return (
+            c.chi2_test <= (1 - s.close_fraction) * nominal.chi2_test
+            and c.chi2_test / c.n_test <= s.max_reduced_chi2
+        )
+
+
+def where(w: Work) -> None:
+    """Step 0: where the gap lies (each stage of the chain, the resonances)."""
+    w.stages = stage_gaps(w.trials, w.nominal_model)
+    w.resonances = resonances(w.trials, w.nominal_model)
+
+
+def split_trials(w: Work) -> None:
+    """Step 1: training and held-out trials, and the nominal model's scores on them."""
+    w.test, w.test_text = split(w.trials)
+    w.train, w.held = w.trials.subset(~w.test), w.trials.subset(w.test)
+    c_tr0, w.n_train = chi2(w.nominal_model, w.train)
+    c_te0, n_te = chi2(w.nominal_model, w.held)
+    w.penalty = math.log(max(n_te, 2))
+    w.nominal = Candidate((), w.nominal_model, c_tr0, c_te0, n_te, 0, c_te0)
+
+
+def fit_singles(w: Work) -> None:
+    """Step 2a: every effect of the library alone, ranked."""
+    names = w.settings.library
+    for j, name in enumerate(names):
+        w.say(f"fitting {name} ({j + 1}/{len(names)})")
+        w.singles.append(w.candidate((name,)))
+    w.singles.sort(key=lambda c: c.criterion)
+
+
+def fit_pairs(w: Work) -> None:
+    """Step 2b: the best single with every other effect (forward selection), the best few together."""
+    singles = w.singles
+    combos = {tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1:]}
+    combos |= {
+        tuple(sorted((a.effects[0], b.effects[0])))
+        for a, b in itertools.combinations(singles[: w.settings.pairs_of], 2)
+    }
+    by_name = {c.effects[0]: c for c in singles}
+    w.candidates = list(singles)
+    for j, (a, b) in enumerate(sorted(combos)):
+        w.say(f"fitting {a} + {b} (pair {j + 1}/{len(combos)})")
+        w.candidates.append(
+            w.candidate((a, b), {a: by_name[a].model.values[0], b: by_name[b].model.values[0]})
+        )
+    w.candidates.sort(key=lambda c: c.criterion)
+
+
+def choose_explanation(w: Work) -> None:
+    """Step 3: the smallest adequate explanation (one effect if one suffices, else a pair), and a
+    pair only if each member is material."""
+    w.fitting = [c for c in w.singles if w.adequate(c)] or [
+        c for c in w.candidates if len(c.effects) == 2 and w.adequate(c)
+    ]
+    w.best = w.fitting[0] if w.fitting else w.candidates[0]
+    if not (w.fitting and len(w.best.effects) == 2):
+        return
+    # A pair names two causes only if each is material: without it (the other kept as fitted),
+    # some trial's prediction must move by more than `material_sigma` of its noise.  Otherwise the
+    # small member is a correction to the other's form (e.g. a describing function's error at
+    # large amplitude), not a second cause.
+    moves = {e: largest_move(w.best.model, e, w.trials) for e in w.best.effects}
+    minor = [e for e in w.best.effects if moves[e] < w.settings.material_sigma]
+    if len(minor) == 1:
+        (keep,) = [e for e in w.best.effects if e != minor[0]]
+        pair = w.best
+        w.best = next(c for c in w.singles if c.effects == (keep,))
+        w.notes.append(
+            f"{minor[0]} ({_params_text(pair.model, minor[0])}) lowers the held-out chi2 of {keep} from "
+            f"{w.best.chi2_test:.0f} to {pair.chi2_test:.0f} but moves no prediction by more than "
+            f"{moves[minor[0]]:.1f} sigma: a correction to the form of {keep}, not a second cause, so it "
+            "is not named"
+        )
+
+
+def decide(w: Work) -> None:
+    """Step 4: the verdict (no gap, explained, unexplained), with the reasons."""
+    nominal, best = w.nominal, w.best
+    has_gap = any(s.significant for s in w.stages)
+    if not has_gap and float(stats.chi2.sf(nominal.chi2_test, nominal.n_test)) >= 1e-3:
+        w.verdict, w.chosen = "no gap", None
+    elif w.fitting:
+        w.verdict, w.chosen = "explained", best
+    else:
+        w.verdict, w.chosen = "unexplained", None
+        w.notes.append(
+            f"no candidate closes the gap: the best, {best.label}, leaves a held-out chi2 of "
+            f"{best.chi2_test:.0f} over {best.n_test} residuals (nominal model: {nominal.chi2_test:.0f})"
+        )
+        if w.n_train and float(stats.chi2.sf(nominal.chi2_train, w.n_train)) >= 1e-3:
+            w.notes.append(
+                f"the training trials show no gap (nominal chi2 {nominal.chi2_train:.0f} over {w.n_train} "
+                f"residuals; {w.test_text}): the gap is only in the held-out trials, so no effect could be "
+                "learnt from the others. Trials between the training and the held-out conditions, where the "
+                "gap starts, would let it be fitted"
+            )
+
+
+def separate(w: Work) -> None:
+    """Step 5: candidates that cannot be told apart, and the experiments that would."""
+    if w.chosen is None:
+        return
+    best = w.best
+    for c in w.candidates:
+        if (
+            c is best
+            or len(c.effects) != len(best.effects)
+            or c.criterion - best.criterion > w.settings.ambiguity
+        ):
+            continue
+        w.ambiguous.append(c)  # as simple as the chosen one and (almost) as good
+    w.experiments = [separating_experiment(best, c, w.trials) for c in w.ambiguous[:3]]
+
+
+def how_far(w: Work) -> None:
+    """Step 6: the held-out gap per channel before and after the best candidate."""
+    w.gaps = channel_gaps(w.nominal_model, w.best.model, w.held)
+    w.shrink = shrink(w.nominal.chi2_test, w.best.chi2_test)
+
+
+def refit(w: Work) -> None:
+    """Step 7: the chosen effects refitted on all trials (the saved model, with +-)."""
+    w.final = w.best.model
+    if w.chosen is not None:
+        w.say("refitting the chosen effect(s) on all trials")
+        start = dict(zip(w.best.effects, w.best.model.values, strict=True))
+        w.final = fit(w.fin, w.best.effects, w.trials, start)
+
+
+#: The diagnosis, step by step (each reads and adds to a :class:`Work`).
+PIPELINE: tuple[tuple[str, Callable[[Work], None]], ...] = (
+    ("where", where),
+    ("split", split_trials),
+    ("fit singles", fit_singles),
+    ("fit pairs", fit_pairs),
+    ("choose", choose_explanation),
+    ("decide", decide),
+    ("separate", separate),
+    ("how far", how_far),
+    ("refit", refit),
+)
 
 
 def diagnose(
@@ -300,120 +531,30 @@ def diagnose(
     material_sigma: float = 3.0,
     progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
-    """Where, which and how far; see the module docstring."""
-    say = progress or (lambda _msg: None)
-    names = list(library or LIBRARY)
-    nominal_model = Augmented(fin)
-    stages = stage_gaps(trials, nominal_model)
-    res = resonances(trials, nominal_model)
-    test, test_text = split(trials)
-    train, held = trials.subset(~test), trials.subset(test)
-    c_tr0, n_tr = chi2(nominal_model, train)
-    c_te0, n_te = chi2(nominal_model, held)
-    pen = math.log(max(n_te, 2))
-    nominal = Candidate((), nominal_model, c_tr0, c_te0, n_te, 0, c_te0)
-    has_gap = any(s.significant for s in stages)
-
-    def candidate(combo: tuple[str, ...], start: dict[str, tuple[float, ...]] | None = None) -> Candidate:
-        m = fit(fin, combo, train, start)
-        c_tr, _ = chi2(m, train)
-        c_te, n = chi2(m, held)
-        k = sum(len(effect_class(e).params) for e in combo)
-        return Candidate(combo, m, c_tr, c_te, n, k, c_te + k * pen)
-
-    singles = []
-    for j, name in enumerate(names):
-        say(f"fitting {name} ({j + 1}/{len(names)})")
-        singles.append(candidate((name,)))
-    singles.sort(key=lambda c: c.criterion)
-    cands = list(singles)
-    # Pairs: the best single with every other effect (forward selection), and the best few together.
-    combos = {tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1:]}
-    combos |= {
-        tuple(sorted((a.effects[0], b.effects[0]))) for a, b in itertools.combinations(singles[:pairs_of], 2)
-    }
-    by_name = {c.effects[0]: c for c in singles}
-    for j, (a, b) in enumerate(sorted(combos)):
-        say(f"fitting {a} + {b} (pair {j + 1}/{len(combos)})")
-        cands.append(candidate((a, b), {a: by_name[a].model.values[0], b: by_name[b].model.values[0]}))
-    cands.sort(key=lambda c: c.criterion)
-
-    def adequate(c: Candidate) -> bool:
-        if not c.n_test or c.criterion >= nominal.criterion:
-            return False
-        if float(stats.chi2.sf(c.chi2_test, c.n_test)) >= 1e-3:
-            return True
-        return c.chi2_test <= (1 - close_fraction) * c_te0 and c.chi2_test / c.n_test <= max_reduced_chi2
-
-    # The smallest adequate explanation: one effect if one suffices, else a pair.
-    fitting = [c for c in singles if adequate(c)] or [c for c in cands if len(c.effects) == 2 and adequate(c)]
-    best = fitting[0] if fitting else cands[0]
-    notes: list[str] = []
-    if fitting and len(best.effects) == 2:
-        # A pair names two causes only if each is material: without it (the other kept as fitted),
-        # some trial's prediction must move by more than `material_sigma` of its noise.  Otherwise the
-        # small member is a correction to the other's form (e.g. a describing function's error at
-        # large amplitude), not a second cause.
-        moves = {e: largest_move(best.model, e, trials) for e in best.effects}
-        minor = [e for e in best.effects if moves[e] < material_sigma]
-        if len(minor) == 1:
-            (keep,) = [e for e in best.effects if e != minor[0]]
-            pair, best = best, by_name[keep]
-            notes.append(
-                f"{minor[0]} ({_params_text(pair.model, minor[0])}) lowers the held-out chi2 of {keep} from "
-                f"{best.chi2_test:.0f} to {pair.chi2_test:.0f} but moves no prediction by more than "
-                f"{moves[minor[0]]:.1f} sigma: a correction to the form of {keep}, not a second cause, so it "
-                "is not named"
-            )
-    if not has_gap and float(stats.chi2.sf(c_te0, n_te)) >= 1e-3:
-        verdict, chosen = "no gap", None
-    elif fitting:
-        verdict, chosen = "explained", best
-    else:
-        verdict, chosen = "unexplained", None
-        notes.append(
-            f"no candidate closes the gap: the best, {best.label}, leaves a held-out chi2 of "
-            f"{best.chi2_test:.0f} over {best.n_test} residuals (nominal model: {c_te0:.0f})"
-        )
-        if n_tr and float(stats.chi2.sf(c_tr0, n_tr)) >= 1e-3:
-            notes.append(
-                f"the training trials show no gap (nominal chi2 {c_tr0:.0f} over {n_tr} residuals; "
-                f"{test_text}): the gap is only in the held-out trials, so no effect could be learnt "
-                "from the others. Trials between the training and the held-out conditions, where the "
-                "gap starts, would let it be fitted"
-            )
-    ambiguous = []
-    experiments = []
-    if chosen is not None:
-        for c in cands:
-            if c is best or len(c.effects) != len(best.effects) or c.criterion - best.criterion > ambiguity:
-                continue
-            ambiguous.append(c)  # as simple as the chosen one and (almost) as good
-        for c in ambiguous[:3]:
-            experiments.append(separating_experiment(best, c, trials))
-    gaps = channel_gaps(nominal_model, best.model, held)
-    shrunk = shrink(c_te0, best.chi2_test)
-    final = best.model
-    if chosen is not None:
-        say("refitting the chosen effect(s) on all trials")
-        final = fit(fin, best.effects, trials, dict(zip(best.effects, best.model.values, strict=True)))
+    """Where, which and how far: the steps of :data:`PIPELINE`; see the module docstring."""
+    settings = Settings(
+        tuple(library or LIBRARY), pairs_of, ambiguity, close_fraction, max_reduced_chi2, material_sigma
+    )
+    w = Work(trials, fin, settings, progress or (lambda _msg: None))
+    for _name, step in PIPELINE:
+        step(w)
     return Diagnosis(
         fin,
         trials,
-        stages,
-        res,
-        test,
-        test_text,
-        cands,
-        nominal,
-        verdict,
-        chosen,
-        ambiguous,
-        experiments,
-        gaps,
-        shrunk,
-        final,
-        notes,
+        w.stages,
+        w.resonances,
+        w.test,
+        w.test_text,
+        w.candidates,
+        w.nominal,
+        w.verdict,
+        w.chosen,
+        w.ambiguous,
+        w.experiments,
+        w.gaps,
+        w.shrink,
+        w.final,
+        w.notes,
     )
 
 
@@ -424,6 +565,7 @@ def summary_json(d: Diagnosis) -> dict[str, Any]:
         return {
             "effects": list(c.effects),
             "parameters": c.model.parameters(),
+            "uncertainties": {k: dict(v) for k, v in c.model.uncertainties.items()},
             "chi2_train": c.chi2_train,
             "chi2_heldout": c.chi2_test,
             "heldout_residuals": c.n_test,

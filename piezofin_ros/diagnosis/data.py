@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..bagio import block_of, read_messages
-from ..blocks import (
+from ..bags import block_of, read_messages
+from ..bags.blocks import (
     COMMAND_FIELDS,
     DRIVE_CHANNELS,
     LOADCELL_CHANNELS,
@@ -33,9 +33,10 @@ from ..blocks import (
     BlockFormatError,
     check_samples,
 )
-from ..estimation import Estimate, EstimatorConfig
-from ..fin import Fin
-from ..offline import replay_estimates, topic_prefix
+from ..errors import DiagnosisError
+from ..estimation.estimator import Estimate, EstimatorConfig
+from ..estimation.offline import replay_estimates, topic_prefix
+from ..physics.fin import Fin
 
 FloatArray = NDArray[Any]
 
@@ -61,7 +62,7 @@ CSV_COLUMNS = {
 }
 
 
-class DataError(ValueError):
+class DataError(DiagnosisError):
     """Input data that cannot be diagnosed; the message names the file and the problem."""
 
 
@@ -169,7 +170,7 @@ def make_trials(
 
 
 @dataclass(frozen=True)
-class Noise:
+class SignalNoise:
     """1-sigma white noise of each signal (V, A, m/s, m) and the load cell's residual drift (N)."""
 
     voltage: float
@@ -179,14 +180,16 @@ class Noise:
     loadcell_drift: float = 0.0
 
 
-def loadcell_sigma(noise: Noise, stiffness: float, n_on: ArrayLike, n_baseline: ArrayLike) -> FloatArray:
+def loadcell_sigma(
+    noise: SignalNoise, stiffness: float, n_on: ArrayLike, n_baseline: ArrayLike
+) -> FloatArray:
     """Thrust sigma (N) of a mean over ``n_on`` samples minus a baseline over ``n_baseline``."""
     on, base = np.asarray(n_on, float), np.asarray(n_baseline, float)
     return np.asarray(stiffness * noise.loadcell * np.sqrt(1 / on + 1 / base) + noise.loadcell_drift)
 
 
 def window_sigmas(
-    noise: Noise,
+    noise: SignalNoise,
     n_samples: ArrayLike,
     n_baseline: ArrayLike,
     voltage_pp_drive: ArrayLike,
@@ -213,7 +216,7 @@ def window_sigmas(
 
 def from_estimates(
     estimates: Iterable[Estimate],
-    noise: Noise,
+    noise: SignalNoise,
     sample_rate_hz: float = 1000.0,
     commands: Sequence[tuple[float, float, float]] = (),
     source: str = "",
@@ -267,7 +270,7 @@ def _merge(a: Trials, b: Trials) -> Trials:
 
 def scan_bag(
     path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0
-) -> tuple[Noise, list[tuple[float, float, float]]]:
+) -> tuple[SignalNoise, list[tuple[float, float, float]]]:
     """One pass over a fin's raw topics: the noise of each signal where the drive is off (more than
     2 s after and 0.5 s before any ``|v| >= threshold``), and the commands ``(t, f, Vpp)`` that
     switched the drive on."""
@@ -329,7 +332,7 @@ def scan_bag(
     lc = quiet(cat["tl"], cat["d"])
     # the load cell drifts: its white noise from first differences, which a slow drift does not reach
     lc_white = float(np.std(np.diff(lc)) / math.sqrt(2)) if lc.size > 10 else math.nan
-    noise = Noise(
+    noise = SignalNoise(
         voltage=std(v[quiet_mask]),
         current=std(cat["i"][quiet_mask]),
         tip=std(quiet(cat["tt"], cat["u"])),
@@ -404,7 +407,7 @@ def _floats(path: str | os.PathLike[str], rows: list[dict[str, str]], column: st
 __all__ = [
     "CHANNELS",
     "DataError",
-    "Noise",
+    "SignalNoise",
     "Trials",
     "from_bags",
     "from_csv",

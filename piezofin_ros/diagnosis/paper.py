@@ -22,8 +22,10 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
-from ..fin import Fin
-from .model import LIBRARY, Augmented, ParamSpace
+from ..physics.effects import LIBRARY
+from ..physics.fin import Fin
+from ..physics.model import Model
+from .space import ParamSpace
 
 
 @dataclass(frozen=True)
@@ -63,7 +65,7 @@ NOT_IN_THE_PAPERS_SETUP = {
 CANDIDATES = tuple(n for n in LIBRARY if n not in NOT_IN_THE_PAPERS_SETUP)
 
 
-def quantities(model: Augmented, voltage_pp: float) -> dict[str, float]:
+def quantities(model: Model, voltage_pp: float) -> dict[str, float]:
     p = model.predict(GRID, np.full(GRID.size, voltage_pp))
     tpw = np.divide(p.thrust_n, p.power_w, out=np.zeros(GRID.size), where=p.power_w > 0)
     return {
@@ -112,7 +114,7 @@ def paper_gap(
     """Fit the paper's facts with every effect and every pair, on ``workers`` processes (default:
     one per core; 1 runs in this process)."""
     say = progress or (lambda _m: None)
-    nominal = quantities(Augmented(fin), 800.0)
+    nominal = quantities(Model(fin), 800.0)
     combos = [(n,) for n in CANDIDATES] + list(itertools.combinations(CANDIDATES, 2))
     workers = workers or os.cpu_count() or 1
     fits: list[FactFit] = []

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from ..physics.effects import effect_class
 from .attribute import Diagnosis
 from .data import CHANNELS
-from .model import effect_class
 
 
 def text(d: Diagnosis) -> str:
@@ -63,8 +63,7 @@ def text(d: Diagnosis) -> str:
     else:
         assert d.chosen is not None
         params = "; ".join(
-            f"{name}: " + ", ".join(f"{k} = {v:.4g}" for k, v in ps.items())
-            for name, ps in d.final_model.parameters().items()
+            f"{name}: {d.final_model.parameters_text(name, 4)}" for name in d.final_model.names
         )
         titles = "; ".join(effect_class(n).title for n in d.chosen.effects)
         lines.append(f"**Explained by {d.chosen.label}** ({titles}). Refitted on all trials: {params}.")
@@ -85,7 +84,7 @@ def text(d: Diagnosis) -> str:
         f"| - | nominal model | - | {d.nominal.chi2_test:.1f} / {d.nominal.n_test} | {d.nominal.criterion:.1f} |"  # noqa: E501
     )
     for j, c in enumerate(d.candidates[:10]):
-        ps = "; ".join(", ".join(f"{k}={v:.3g}" for k, v in p.items()) for p in c.model.parameters().values())
+        ps = "; ".join(c.model.parameters_text(name) for name in c.model.names)
         lines.append(f"| {j + 1} | {c.label} | {ps} | {c.chi2_test:.1f} / {c.n_test} | {c.criterion:.1f} |")
     lines += ["", "## How far: held-out gap before and after", ""]
     lines += [f"After adding {who_short(d)}; shrink of the normalised gap: {d.shrink:.0%}.", ""]

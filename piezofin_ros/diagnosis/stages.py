@@ -30,9 +30,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
-from ..steady import DRAG_HARMONIC
+from ..physics.model import Model
+from ..physics.steady import DRAG_HARMONIC
 from .data import Trials
-from .model import Augmented
 
 FloatArray = NDArray[Any]
 ALPHA = 1e-3
@@ -129,7 +129,7 @@ class StageGap:
         return out
 
 
-def stage_gaps(trials: Trials, model: Augmented) -> list[StageGap]:
+def stage_gaps(trials: Trials, model: Model) -> list[StageGap]:
     """Every stage that the table's channels allow, in the order of the signal chain."""
     fin = model.fin
     f = trials.frequency_hz
@@ -248,7 +248,7 @@ def _peak(f: FloatArray, y: FloatArray) -> tuple[float, bool]:
     return float(f[j]), False
 
 
-def resonances(trials: Trials, model: Augmented, fine: int = 400) -> list[Resonance]:
+def resonances(trials: Trials, model: Model, fine: int = 400) -> list[Resonance]:
     """Per voltage, the frequency of the largest measured ``u / V`` and the model's (on a fine grid)."""
     out: list[Resonance] = []
     if not trials.has("tip_velocity_rms"):

@@ -6,8 +6,7 @@ import math
 import signal
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import fields
-from typing import Any
+from typing import Any, TypeVar
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -18,7 +17,11 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ..blocks import Block, from_layout, to_layout
+from ..bags.blocks import Block, from_layout, to_layout
+from ..config import settings_of
+from ..errors import NodeError, PiezofinError
+
+T = TypeVar("T")
 
 #: High-rate sample blocks and estimates: reliable (nothing dropped), 200 blocks of history.
 QOS_DATA = QoSProfile(
@@ -44,7 +47,7 @@ TOPIC_DEMAND = "thrust_demand"
 
 
 def block_msg(block: Block) -> Float64MultiArray:
-    """A :class:`Block` as a ``Float64MultiArray`` (see :mod:`piezofin_ros.blocks`)."""
+    """A :class:`Block` as a ``Float64MultiArray`` (see :mod:`piezofin_ros.bags.blocks`)."""
     dims, data = to_layout(block)
     msg = Float64MultiArray()
     msg.layout.dim = [
@@ -133,42 +136,41 @@ def array_param(
     return list(value)
 
 
-def field_docs(cls: type) -> dict[str, str]:
-    """Each dataclass field's trailing comment in its source (``name: float = 1.0  # what it is``)."""
-    import inspect
-    import re
+def declare(node: Node, cls: type[T], prefix: str = "", base: T | None = None) -> T:
+    """Declare a ROS parameter for every field of the settings dataclass ``cls``; return the instance.
 
-    try:
-        source = inspect.getsource(cls)
-    except (OSError, TypeError):
-        return {}
-    return dict(re.findall(r"^\s+(\w+)\s*:[^#\n]*#\s*(.+?)\s*$", source, re.MULTILINE))
-
-
-def dataclass_params(
-    node: Node, prefix: str, instance: Any, ranges: dict[str, tuple[float, float]], docs: str
-) -> Any:
-    """Declare ``prefix.<field>`` for every float field of a frozen dataclass; return the configured copy.
-
-    Each parameter's description is ``docs`` and the field's own comment in the dataclass.  The
-    dataclass's own validation runs on the result, so an inconsistent combination fails with the
-    dataclass's message (which names the field).
+    Each field's :func:`~piezofin_ros.config.setting` gives the default (or ``base``'s value), the
+    range, the choices and the description, so a node's parameters are declared once, in its
+    config dataclass.  Values outside the range or the choices stop the node with one line naming
+    the parameter; the dataclass's own validation then runs on the result (its message names the
+    field), so an inconsistent combination fails too.
     """
-    values = {}
-    comments = field_docs(type(instance))
-    for f in fields(instance):
-        lo, hi = ranges.get(f.name, (-math.inf, math.inf))
-        default = getattr(instance, f.name)
-        if isinstance(default, bool) or not isinstance(default, (int, float)):
-            continue
-        text = f"{docs}: {comments[f.name]}" if f.name in comments else f"{docs}: {f.name.replace('_', ' ')}"
-        if isinstance(default, int):  # bools were skipped above
-            values[f.name] = int_param(
-                node, f"{prefix}.{f.name}", default, int(lo), int(min(hi, 2**31 - 1)), text
+    values: dict[str, Any] = {}
+    for f, default, s in settings_of(cls):
+        name = f"{prefix}.{f.name}" if prefix else f.name
+        if base is not None:
+            default = getattr(base, f.name)
+        lo = -math.inf if s.lo is None else s.lo
+        hi = math.inf if s.hi is None else s.hi
+        if isinstance(default, bool):
+            value: Any = bool_param(node, name, default, s.description)
+        elif isinstance(default, int):
+            value = int_param(
+                node, name, default, int(max(lo, -(2**31))), int(min(hi, 2**31 - 1)), s.description
             )
+        elif isinstance(default, float):
+            value = float_param(node, name, default, lo, hi, s.description, read_only=s.read_only)
+        elif isinstance(default, str):
+            value = str_param(node, name, default, s.description, read_only=s.read_only)
+            if s.choices and value not in s.choices:
+                raise StartupError(f"parameter {name}: {value!r} is not one of {', '.join(s.choices)}")
+        elif isinstance(default, tuple):
+            kind = Parameter.Type.DOUBLE_ARRAY if s.items is float else Parameter.Type.STRING_ARRAY
+            value = tuple(array_param(node, name, list(default), kind, s.description))
         else:
-            values[f.name] = float_param(node, f"{prefix}.{f.name}", default, lo, hi, text)
-    return type(instance)(**{**{f.name: getattr(instance, f.name) for f in fields(instance)}, **values})
+            raise TypeError(f"{cls.__name__}.{f.name}: no ROS parameter type for {default!r}")
+        values[f.name] = value
+    return cls(**values)
 
 
 def freeze_parameters(
@@ -241,7 +243,7 @@ class SilenceWatch:
 
 
 # --------------------------------------------------------------------------------------- main
-class StartupError(RuntimeError):
+class StartupError(NodeError):
     """A node cannot start (bad configuration); the text is shown without a traceback."""
 
 
@@ -357,7 +359,7 @@ def run_node(
             code = next((n.exit_code for n in nodes if getattr(n, "exit_code", None) is not None), None)
             if code is not None:
                 break
-    except (StartupError, ValueError, ParameterException) as exc:
+    except (PiezofinError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):

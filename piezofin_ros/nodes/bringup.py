@@ -31,12 +31,13 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from ..fin import FinConfigError, config_dir
-from ..params import load_parameter_file, node_parameters
-from ..report import plot_trials, trial_table
+from ..cli.plots import plot_trials, trial_table
+from ..errors import PiezofinError
+from ..physics.fin import config_dir
 from ._common import StartupError, StopFlag
 from .controller import Controller
 from .fin_sim import FinSim, Pacer
+from .params import load_parameter_file, node_parameters
 from .recorder import Recorder, default_bag_path
 from .thrust_estimator import ThrustEstimator
 
@@ -95,6 +96,22 @@ def consumer_lag(suite: Suite) -> int:
     return worst
 
 
+def _controller_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The controller parameters the command line sets (the file's values otherwise)."""
+    out: dict[str, Any] = {}
+    if args.frequencies:
+        out["frequencies"] = [float(f) for f in args.frequencies]
+    if args.voltages:
+        out["voltages"] = [float(v) for v in args.voltages]
+    if args.mode:
+        out["mode"] = args.mode
+    if args.demand is not None:
+        out["demand_n"] = float(args.demand)
+    if args.duration is not None:
+        out["duration_s"] = float(args.duration)
+    return out
+
+
 class Suite:
     """The nodes of one bring-up, built in one context (usable from tests)."""
 
@@ -122,17 +139,7 @@ class Suite:
             est = ThrustEstimator(
                 context=context, namespace=ns, parameter_overrides=params("thrust_estimator", sim_time)
             )
-            ctl_extra: dict[str, Any] = dict(sim_time)
-            if args.frequencies:
-                ctl_extra["frequencies"] = [float(f) for f in args.frequencies]
-            if args.voltages:
-                ctl_extra["voltages"] = [float(v) for v in args.voltages]
-            if args.mode:
-                ctl_extra["mode"] = args.mode
-            if args.demand is not None:
-                ctl_extra["demand_n"] = float(args.demand)
-            if args.duration is not None:
-                ctl_extra["duration_s"] = float(args.duration)
+            ctl_extra = {**sim_time, **_controller_options(args)}
             ctl = Controller(
                 context=context, namespace=ns, parameter_overrides=params("controller", ctl_extra)
             )
@@ -184,6 +191,84 @@ class Suite:
         self.recorder.close()
 
 
+def _why_stop(suite: Suite, pacer: Pacer, budget: float | None) -> str | None:
+    """Why the run must stop now (past the fin-time budget, or fin time stalled), or None."""
+    fin_s = suite.fin_sims[0].rig.elapsed if suite.fin_sims[0].rig is not None else 0.0
+    if budget is not None and fin_s > budget:
+        late = [c.get_namespace() for c in suite.controllers if not c.finished]
+        return (
+            f"stopping after {fin_s:.0f} s of fin time, past the {budget:.0f} s the work "
+            f"needs; not finished: {', '.join(late)}"
+        )
+    if pacer.stalled_s() > STALL_S:
+        return (
+            f"stopping: fin time has not advanced for {pacer.stalled_s():.0f} s "
+            f"(a consumer is {consumer_lag(suite)} blocks behind)"
+        )
+    return None
+
+
+def _spin(suite: Suite, executor: Any, args: argparse.Namespace, stop: StopFlag, wall0: float) -> int:
+    """Run the suite until its controllers finish, a stop, or a reason to stop (exit code 1)."""
+    pacer = Pacer(suite.fin_sims, ready=lambda: consumer_lag(suite) <= MAX_LAG_BLOCKS)
+    suite.activate(executor)
+    budget = args.timeout if args.timeout is not None else suite.fin_time_budget()
+    print(f"bringup: {', '.join(args.namespaces)} -> {suite.bag_path}", file=sys.stderr, flush=True)
+    last = -1.0
+    while suite.recorder.context.ok() and not suite.finished and not stop:
+        executor.spin_once(timeout_sec=0.1)
+        why = _why_stop(suite, pacer, budget)
+        if why is not None:
+            print(f"bringup: {why}", file=sys.stderr)
+            return 1
+        elapsed = time.monotonic() - wall0
+        if elapsed - last >= 5.0:
+            last = elapsed
+            line = ", ".join(c.strategy.progress() for c in suite.controllers)
+            print(f"  {elapsed:5.1f} s: {line}", file=sys.stderr, flush=True)
+    return 0
+
+
+def _report_fin(ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace, several: bool) -> None:
+    """One fin's outcome: the optimiser's choice, or the trial table (and its plot)."""
+    if st.get("mode") == "optimise":
+        demand = st["demand_n"]
+        print(
+            f"\n{ns}: {fin.name}, optimiser {st['state']} after {st['trials']} trials, "
+            f"{'converged' if st['converged'] else 'not converged'}: {st['frequency_hz']:.2f} Hz, "
+            f"{st['voltage_pp']:.0f} Vpp, thrust {st['predicted_thrust_n'] * 1e3:.3f} mN, "
+            f"power {st['predicted_power_w'] * 1e3:.3f} mW"
+            + (f" (demand {demand * 1e3:.2f} mN)" if demand else "")
+            + f"; self-sensed vs vibrometer thrust {st['self_vs_vibrometer'] * 100:+.2f} %"
+        )
+        return
+    print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))
+    print(trial_table(st["results"], st["chosen"]))
+    if args.plot:
+        out = Path(args.plot)
+        if several:
+            out = out.with_name(f"{out.stem}_{ns.strip('/').replace('/', '_')}{out.suffix}")
+        plot_trials(out, fin, st["results"], st["chosen"], f"{fin.name} ({ns}): trials")
+        print(f"plot: {out}")
+
+
+def _report(suite: Suite, statuses: dict[str, dict[str, Any]], args: argparse.Namespace, wall: float) -> int:
+    """Every fin's outcome, the bag, the speed; 1 if a fin's run was aborted."""
+    sim_s = max((s.rig.elapsed for s in suite.fin_sims if s.rig is not None), default=0.0)
+    for (ns, st), fin in zip(statuses.items(), suite.fins, strict=True):
+        _report_fin(ns, st, fin, args, len(statuses) > 1)
+    counts = suite.recorder.counts
+    size_mb = suite.bag_path.stat().st_size / 1e6
+    print(f"\nbag: {suite.bag_path} ({sum(counts.values())} messages, {size_mb:.1f} MB)")
+    print(f"simulated {sim_s:.0f} s in {wall:.1f} s of wall time (x{sim_s / wall:.1f})")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"bag": str(suite.bag_path), "fins": statuses}, indent=1))
+    aborted = [ns for ns, st in statuses.items() if st.get("state") == "aborted"]
+    if aborted:
+        print(f"aborted: {', '.join(aborted)}", file=sys.stderr)
+    return 1 if aborted else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from rclpy.experimental import EventsExecutor
 
@@ -195,46 +280,13 @@ def main(argv: list[str] | None = None) -> int:
     executor = EventsExecutor(context=context)
     wall0 = time.monotonic()
     exit_code = 0
+    statuses: dict[str, dict[str, Any]] = {}
     try:
         suite = Suite(context, args)
         for node in suite.nodes:
             executor.add_node(node)
-        pacer = Pacer(suite.fin_sims, ready=lambda: consumer_lag(suite) <= MAX_LAG_BLOCKS)
-        suite.activate(executor)
-        budget = args.timeout if args.timeout is not None else suite.fin_time_budget()
-        print(f"bringup: {', '.join(args.namespaces)} -> {suite.bag_path}", file=sys.stderr, flush=True)
-        last = -1.0
-        while context.ok() and not suite.finished and not stop:
-            executor.spin_once(timeout_sec=0.1)
-            elapsed = time.monotonic() - wall0
-            fin_s = suite.fin_sims[0].rig.elapsed if suite.fin_sims[0].rig is not None else 0.0
-            if budget is not None and fin_s > budget:
-                late = [c.get_namespace() for c in suite.controllers if not c.finished]
-                print(
-                    f"bringup: stopping after {fin_s:.0f} s of fin time, past the {budget:.0f} s the work "
-                    f"needs; not finished: {', '.join(late)}",
-                    file=sys.stderr,
-                )
-                exit_code = 1
-                break
-            if pacer.stalled_s() > STALL_S:
-                print(
-                    f"bringup: stopping: fin time has not advanced for {pacer.stalled_s():.0f} s "
-                    f"(a consumer is {consumer_lag(suite)} blocks behind)",
-                    file=sys.stderr,
-                )
-                exit_code = 1
-                break
-            if elapsed - last >= 5.0:
-                last = elapsed
-                if any(c.loop is not None for c in suite.controllers):
-                    done = sum(c.loop.trials for c in suite.controllers if c.loop is not None)
-                    print(f"  {elapsed:5.1f} s: {done} optimiser trials", file=sys.stderr, flush=True)
-                else:
-                    done = sum(c.runner.index for c in suite.controllers)
-                    total = sum(len(c.runner.plan.points) for c in suite.controllers)
-                    print(f"  {elapsed:5.1f} s: trial {done}/{total}", file=sys.stderr, flush=True)
-    except (StartupError, FinConfigError, ValueError, ParameterException) as exc:
+        exit_code = _spin(suite, executor, args, stop, wall0)
+    except (PiezofinError, ValueError, ParameterException) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -242,7 +294,6 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if stop:
             print("bringup: interrupted, closing the bag", file=sys.stderr)
-        statuses: dict[str, dict[str, Any]] = {}
         if suite is not None:
             suite.close()
             statuses = {c.get_namespace(): c.status() for c in suite.controllers}
@@ -255,37 +306,7 @@ def main(argv: list[str] | None = None) -> int:
             rclpy.shutdown(context=context)
         stop.restore()
     assert suite is not None
-    sim_s = max((s.rig.elapsed for s in suite.fin_sims if s.rig is not None), default=0.0)
-    for (ns, st), fin in zip(statuses.items(), suite.fins, strict=True):
-        if st.get("mode") == "optimise":
-            demand = st["demand_n"]
-            print(
-                f"\n{ns}: {fin.name}, optimiser {st['state']} after {st['trials']} trials, "
-                f"{'converged' if st['converged'] else 'not converged'}: {st['frequency_hz']:.2f} Hz, "
-                f"{st['voltage_pp']:.0f} Vpp, thrust {st['predicted_thrust_n'] * 1e3:.3f} mN, "
-                f"power {st['predicted_power_w'] * 1e3:.3f} mW"
-                + (f" (demand {demand * 1e3:.2f} mN)" if demand else "")
-                + f"; self-sensed vs vibrometer thrust {st['self_vs_vibrometer'] * 100:+.2f} %"
-            )
-            continue
-        print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))
-        print(trial_table(st["results"], st["chosen"]))  # type: ignore[arg-type]
-        if args.plot:
-            out = Path(args.plot)
-            if len(statuses) > 1:
-                out = out.with_name(f"{out.stem}_{ns.strip('/').replace('/', '_')}{out.suffix}")
-            plot_trials(out, fin, st["results"], st["chosen"], f"{fin.name} ({ns}): trials")  # type: ignore[arg-type]
-            print(f"plot: {out}")
-    counts = suite.recorder.counts
-    size_mb = suite.bag_path.stat().st_size / 1e6
-    print(f"\nbag: {suite.bag_path} ({sum(counts.values())} messages, {size_mb:.1f} MB)")
-    print(f"simulated {sim_s:.0f} s in {wall:.1f} s of wall time (x{sim_s / wall:.1f})")
-    if args.json:
-        Path(args.json).write_text(json.dumps({"bag": str(suite.bag_path), "fins": statuses}, indent=1))
-    aborted = [ns for ns, st in statuses.items() if st.get("state") == "aborted"]
-    if aborted:
-        print(f"aborted: {', '.join(aborted)}", file=sys.stderr)
-    return 1 if aborted else exit_code
+    return _report(suite, statuses, args, wall) or exit_code
 
 
 if __name__ == "__main__":

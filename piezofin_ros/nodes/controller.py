@@ -18,19 +18,25 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray, String
 
-from ..blocks import Block, BlockFormatError
-from ..diagnosis.model import ModelError, load_augmented
-from ..estimation import Estimate
-from ..fin import FinConfigError, load_fin
-from ..optimise import DriveLoop, Limits, Optimiser
-from ..rig import HARD_VOLTAGE_PP_MAX
-from ..trials import SOURCES, Mode, TrialPlan, TrialRunner, choose
+from ..bags.blocks import Block, BlockFormatError
+from ..config import setting
+from ..control.driveloop import DriveLoop
+from ..control.optimise import OperatingBox, Optimiser
+from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
+from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
+from ..errors import PiezofinError
+from ..estimation.estimator import Estimate
+from ..physics.effects import ModelError
+from ..physics.fin import load_fin
+from ..physics.model import load_model
+from ..physics.waveforms import ProtocolTiming
+from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -40,152 +46,147 @@ from ._common import (
     TOPIC_STATUS,
     SilenceWatch,
     StartupError,
-    array_param,
     block_msg,
-    float_param,
+    declare,
     freeze_parameters,
-    int_param,
     msg_block,
     run_node,
-    str_param,
 )
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """``controller``'s parameters."""
+
+    mode: str = setting(
+        "protocol",
+        "protocol or continuous (trials of a grid), or optimise (thrust per watt)",
+        choices=(*(m.value for m in Mode), "optimise"),
+    )
+    frequencies: tuple[float, ...] = setting((5.5,), "trial frequencies, Hz", items=float)
+    voltages: tuple[float, ...] = setting((800.0,), "trial voltages, Vpp", items=float)
+    off_s: float = setting(
+        ProtocolTiming.off_s, "protocol: time without voltage before and after, s", 0.5, 600.0
+    )
+    on_s: float = setting(ProtocolTiming.on_s, "protocol: time of sine drive, s", 1.0, 600.0)
+    voltage_pp_max: float = setting(800.0, "never command more than this, Vpp", 0.0, HARD_VOLTAGE_PP_MAX)
+    frequency_min_hz: float = setting(1.0, "lowest frequency, Hz", 0.01, 1000.0)
+    frequency_max_hz: float = setting(40.0, "highest frequency, Hz", 0.01, 1000.0)
+    heartbeat_hz: float = setting(10.0, "command repetition rate, Hz", 1.0, 1000.0)
+    min_thrust_n: float = setting(1e-3, "least thrust of the chosen point, N", 0.0, 10.0)
+    source: str = setting("self", f"estimate that ranks points: {', '.join(SOURCES)}", choices=SOURCES)
+    after: str = setting(
+        "stop", "after the trials: stop (0 V) or hold (drive the chosen point)", choices=("stop", "hold")
+    )
+    max_missing: int = setting(2, "missing estimates in a row that stop the run", 1, 1000)
+    wait_estimator_s: float = setting(
+        20.0, "wall time to wait for a thrust_estimator before the first trial, s (0: none)", 0.0, 3600.0
+    )
+    fin: str = setting("M8528-P1", "fin preset name or YAML path (the optimiser's model)")
+    model: str = setting(
+        "", "optimise: augmented model YAML from `piezofin diagnose --report` (replaces fin)"
+    )
+    demand_n: float = setting(0.0, "optimise: thrust demand, N (0: none)", 0.0, 10.0)
+    voltage_pp: float = setting(
+        800.0, "optimise, no demand: the drive voltage, Vpp", 1.0, HARD_VOLTAGE_PP_MAX
+    )
+    slew_vpp_per_s: float = setting(400.0, "optimise: voltage slew limit, Vpp/s", 1.0, 1e5)
+    estimate_timeout_s: float = setting(
+        10.0, "optimise: hold after this long without estimates, s", 0.5, 600.0
+    )
+    duration_s: float = setting(0.0, "optimise: stop after this long (0: never)", 0.0, 1e7)
 
 
 class Controller(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "controller", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
-        freqs = array_param(self, "frequencies", [5.5], Parameter.Type.DOUBLE_ARRAY, "trial frequencies, Hz")
-        volts = array_param(self, "voltages", [800.0], Parameter.Type.DOUBLE_ARRAY, "trial voltages, Vpp")
-        mode = str_param(
-            self,
-            "mode",
-            "protocol",
-            "protocol or continuous (trials of a grid), or optimise (thrust per watt)",
-        )
-        off_s = float_param(
-            self, "off_s", 10.0, 0.5, 600.0, "protocol: time without voltage before and after, s"
-        )
-        on_s = float_param(self, "on_s", 10.0, 1.0, 600.0, "protocol: time of sine drive, s")
-        self.voltage_limit = float_param(
-            self, "voltage_pp_max", 800.0, 0.0, HARD_VOLTAGE_PP_MAX, "never command more than this, Vpp"
-        )
-        self.frequency_max = float_param(
-            self, "frequency_max_hz", 40.0, 0.01, 1000.0, "highest frequency, Hz"
-        )
-        heartbeat = float_param(self, "heartbeat_hz", 10.0, 1.0, 1000.0, "command repetition rate, Hz")
-        self.min_thrust = float_param(
-            self, "min_thrust_n", 1e-3, 0.0, 10.0, "least thrust of the chosen point, N"
-        )
-        self.source = str_param(self, "source", "self", f"estimate that ranks points: {', '.join(SOURCES)}")
-        self.after = str_param(
-            self, "after", "stop", "after the trials: stop (0 V) or hold (drive the chosen point)"
-        )
-        self.max_missing = int_param(
-            self, "max_missing", 2, 1, 1000, "missing estimates in a row that stop the run"
-        )
-        fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path (the optimiser's model)")
-        model_path = str_param(
-            self,
-            "model",
-            "",
-            "optimise: augmented model YAML from `piezofin diagnose --report` (replaces fin)",
-        )
-        demand = float_param(self, "demand_n", 0.0, 0.0, 10.0, "optimise: thrust demand, N (0: none)")
-        self.voltage_pp = float_param(
-            self, "voltage_pp", 800.0, 1.0, HARD_VOLTAGE_PP_MAX, "optimise, no demand: the drive voltage, Vpp"
-        )
-        f_min = float_param(self, "frequency_min_hz", 1.0, 0.01, 1000.0, "lowest frequency, Hz")
-        slew = float_param(self, "slew_vpp_per_s", 400.0, 1.0, 1e5, "optimise: voltage slew limit, Vpp/s")
-        timeout = float_param(
-            self,
-            "estimate_timeout_s",
-            10.0,
-            0.5,
-            600.0,
-            "optimise: hold after this long without estimates, s",
-        )
-        self.duration_s = float_param(
-            self, "duration_s", 0.0, 0.0, 1e7, "optimise: stop after this long (0: never)"
-        )
-        self.wait_estimator_s = float_param(
-            self,
-            "wait_estimator_s",
-            20.0,
-            0.0,
-            3600.0,
-            "wall time to wait for a thrust_estimator before the first trial, s (0: none)",
-        )
+        c = self.config = declare(self, ControllerConfig)
+        self.voltage_limit = c.voltage_pp_max  # every command is clamped to it (_send)
+        self.wait_estimator_s = c.wait_estimator_s
         freeze_parameters(self)
         self._created = time.monotonic()
         self._waiting_logged = False
-        if mode != "optimise" and mode not in {m.value for m in Mode}:
-            raise StartupError(f"parameter mode: {mode!r} is not one of protocol, continuous, optimise")
-        if self.source not in SOURCES:
-            raise StartupError(f"parameter source: {self.source!r} is not one of {', '.join(SOURCES)}")
-        if self.after not in ("stop", "hold"):
-            raise StartupError(f"parameter after: {self.after!r} is not one of stop, hold")
-        self.loop: DriveLoop | None = None
-        self._reported_missing: set[int] = set()
-        self.chosen = None
-        self.finished = False
-        if mode == "optimise":
-            try:
-                model = load_augmented(model_path) if model_path else None
-            except ModelError as exc:
-                raise StartupError(f"parameter model: {exc}") from None
-            try:
-                limits = Limits(f_min, self.frequency_max, 50.0, self.voltage_limit)
-                fin = model.fin if model is not None else load_fin(fin_name)
-                optimiser = Optimiser(
-                    fin, limits, self.voltage_pp, demand or None, min_thrust_n=self.min_thrust, model=model
-                )
-            except (ValueError, FinConfigError) as exc:
-                raise StartupError(f"optimiser: {exc}") from None
-            if model is not None:
-                self.get_logger().info(
-                    f"optimiser starts from the augmented model {model_path} ({', '.join(model.effects)})"
-                )
-            self.loop = DriveLoop(optimiser, self.source, slew, timeout)
-            self._start_t: float | None = None
-            self._last_status_t = -math.inf
-            goal = f"demand {demand * 1e3:.2f} mN" if demand else f"best frequency at {self.voltage_pp:g} Vpp"
-            summary = f"optimising thrust per watt from {self.source} estimates, {goal}"
+        self.strategy: Strategy
+        if c.mode == "optimise":
+            self.strategy, summary = self._optimiser(c)
         else:
-            bad = [f for f in freqs if not (math.isfinite(f) and 0 < f <= self.frequency_max)]
-            bad += [v for v in volts if not (math.isfinite(v) and 0 <= v <= self.voltage_limit)]
-            if bad:
-                raise StartupError(
-                    f"parameters frequencies/voltages: {bad} outside (0, {self.frequency_max:g}] Hz / "
-                    f"[0, {self.voltage_limit:g}] Vpp"
-                )
-            try:
-                plan = TrialPlan.grid(freqs, volts, mode=Mode(mode), off_s=off_s, on_s=on_s)
-            except ValueError as exc:
-                raise StartupError(f"trial plan: {exc}") from None
-            self.runner = TrialRunner(plan)
-            n = len(plan.points)
-            fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
-            summary = f"{n} {mode} trials{fin_time}"
+            self.strategy, summary = self._trials(c)
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
         self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
         self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
-        if self.loop is not None:
+        if self.strategy.takes_demand:
             self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
-        tick = self._tick_optimise if self.loop is not None else self._tick
-        self._timer = self.create_timer(1.0 / heartbeat, tick)
+        self._timer = self.create_timer(1.0 / c.heartbeat_hz, self._tick)
         # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
         self._silence = SilenceWatch(
             self, "time (the heartbeat)", "with use_sim_time: is fin_sim publishing /clock?"
         )
         self.get_logger().info(summary)
 
+    def _optimiser(self, c: ControllerConfig) -> tuple[Strategy, str]:
+        """The thrust-per-watt optimiser's strategy (``mode:=optimise``), and what it says at start."""
+        try:
+            model = load_model(c.model) if c.model else None
+        except ModelError as exc:
+            raise StartupError(f"parameter model: {exc}") from None
+        try:
+            box = OperatingBox(c.frequency_min_hz, c.frequency_max_hz, 50.0, c.voltage_pp_max)
+            fin = model.fin if model is not None else load_fin(c.fin)
+            optimiser = Optimiser(
+                fin, box, c.voltage_pp, c.demand_n or None, min_thrust_n=c.min_thrust_n, model=model
+            )
+        except PiezofinError as exc:
+            raise StartupError(f"optimiser: {exc}") from None
+        if model is not None:
+            self.get_logger().info(
+                f"optimiser starts from the augmented model {c.model} ({', '.join(model.names)})"
+            )
+        loop = DriveLoop(optimiser, c.source, c.slew_vpp_per_s, c.estimate_timeout_s)
+        goal = (
+            f"demand {c.demand_n * 1e3:.2f} mN" if c.demand_n else f"best frequency at {c.voltage_pp:g} Vpp"
+        )
+        summary = f"optimising thrust per watt from {c.source} estimates, {goal}"
+        return OptimiseStrategy(loop, c.duration_s, c.after), summary
+
+    def _trials(self, c: ControllerConfig) -> tuple[Strategy, str]:
+        """A plan of trials (``mode:=protocol`` or ``continuous``), and what it says at start."""
+        bad = [f for f in c.frequencies if not (math.isfinite(f) and 0 < f <= c.frequency_max_hz)]
+        bad += [v for v in c.voltages if not (math.isfinite(v) and 0 <= v <= c.voltage_pp_max)]
+        if bad:
+            raise StartupError(
+                f"parameters frequencies/voltages: {bad} outside (0, {c.frequency_max_hz:g}] Hz / "
+                f"[0, {c.voltage_pp_max:g}] Vpp"
+            )
+        try:
+            plan = TrialPlan.grid(c.frequencies, c.voltages, mode=Mode(c.mode), off_s=c.off_s, on_s=c.on_s)
+        except PiezofinError as exc:
+            raise StartupError(f"trial plan: {exc}") from None
+        strategy = TrialStrategy(TrialRunner(plan), c.source, c.min_thrust_n, c.max_missing, c.after)
+        n = len(plan.points)
+        fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
+        return strategy, f"{n} {c.mode} trials{fin_time}"
+
+    # what tests, bringup and users look at: the strategy's own state
+    @property
+    def finished(self) -> bool:
+        return self.strategy.finished
+
+    @property
+    def loop(self) -> DriveLoop | None:
+        return self.strategy.loop if isinstance(self.strategy, OptimiseStrategy) else None
+
+    @property
+    def runner(self) -> TrialRunner:
+        assert isinstance(self.strategy, TrialStrategy), "the optimiser runs no plan of trials"
+        return self.strategy.runner
+
+    @property
+    def chosen(self) -> TrialResult | None:
+        return self.strategy.chosen if isinstance(self.strategy, TrialStrategy) else None
+
     def planned_s(self) -> float | None:
         """Fin time the run needs (None: an optimiser without ``duration_s`` runs until stopped)."""
-        if self.loop is not None:
-            return self.duration_s or None
-        plan = self.runner.plan
-        per_trial = plan.trial_s if plan.mode is Mode.PROTOCOL else plan.settle_timeout_s
-        return len(plan.points) * (per_trial + plan.estimate_timeout_s)
+        return self.strategy.planned_s()
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -220,94 +221,30 @@ class Controller(Node):
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         self._silence.heard()
-        if self.runner.t_begin is None and not self.runner.done and not self._estimator_ready():
+        strategy = self.strategy
+        if not strategy.started() and not self._estimator_ready():
             return
-        if not self.runner.done:
-            before = self.runner.index
-            self._send(*self.runner.command(t))
-            if self.runner.index != before:
-                self._publish_status()
-        if not self.finished:  # the last trials' estimates may go missing after the plan has run
-            missing = [r for r in self.runner.missing(t) if r.index not in self._reported_missing]
-            for r in missing:
-                self._reported_missing.add(r.index)
-                self.get_logger().warning(
-                    f"no estimate for trial {r.index} ({r.frequency_hz:g} Hz, {r.voltage_pp:g} Vpp): "
-                    "is thrust_estimator running?"
-                )
-            if self.runner.aborted is None and self._missing_in_a_row() >= self.max_missing:
-                self.runner.aborted = f"{self.max_missing} trials in a row without an estimate"
-                self.get_logger().error(f"stopping the run and the drive: {self.runner.aborted}")
-        if self.runner.done and not self.finished and (self.runner.aborted or self._all_settled()):
-            self._finish()  # an aborted run does not wait for the trial it was in
-        if self.finished:
-            c = self.chosen
-            if self.after == "hold" and c is not None and self.runner.aborted is None:
-                self._send(c.frequency_hz, c.voltage_pp, 1.0)
+        command = strategy.command(t)
+        log = self.get_logger()
+        for event in strategy.events:  # one call site per severity: rclpy's logger requires it
+            if event.level == "error":
+                log.error(event.text)
+            elif event.level == "warning":
+                log.warning(event.text)
             else:
-                self._send(0.0, 0.0, 0.0)
-
-    def _missing_in_a_row(self) -> int:
-        n = 0
-        for r in reversed(self.runner.results):
-            if r.index in self._reported_missing and r.estimate is None:
-                n += 1
-            elif r.estimate is not None:
-                break
-        return n
-
-    def _all_settled(self) -> bool:
-        return all(r.estimate is not None or r.index in self._reported_missing for r in self.runner.results)
-
-    def _finish(self) -> None:
-        self.finished = True
-        self.chosen = choose(self.runner.results, self.source, self.min_thrust)
-        if self.chosen is not None:
-            e = self.chosen.estimate
-            assert e is not None
-            tkey, pkey = SOURCES[self.source]
-            self.get_logger().info(
-                f"chosen: {self.chosen.frequency_hz:g} Hz, {self.chosen.voltage_pp:g} Vpp: "
-                f"{getattr(e, tkey) * 1e3:.3f} mN, {e.power_w * 1e3:.3f} mW, "
-                f"{getattr(e, pkey) * 1e3:.1f} mN/W"
-            )
-        self._publish_status()
+                log.info(event.text)
+        strategy.events.clear()
+        self._send(*command)
+        if strategy.status_due(t):
+            self._publish_status()
 
     def _on_demand(self, msg: Float64) -> None:
-        assert self.loop is not None
         d = float(msg.data)
         if not (math.isfinite(d) and 0.0 <= d <= 10.0):
             self.get_logger().warning(f"ignored thrust demand {d!r} N (must be within [0, 10] N)")
             return
-        self.loop.optimiser.set_demand(d or None)
+        self.strategy.set_demand(d or None)
         self.get_logger().info(f"thrust demand {d * 1e3:.2f} mN" if d else "no thrust demand")
-
-    def _tick_optimise(self) -> None:
-        loop = self.loop
-        assert loop is not None
-        t = self._now()
-        if t == 0.0:
-            return
-        self._silence.heard()
-        if self._start_t is None:
-            if not self._estimator_ready():
-                return
-            self._start_t = t
-        if self.duration_s and t - self._start_t >= self.duration_s and not self.finished:
-            self.finished = True
-            c = loop.optimiser.choice
-            self.get_logger().info(f"done after {self.duration_s:g} s: {c}")
-            self._publish_status()
-        if self.finished and self.after == "stop":
-            loop.state = "ramping down" if loop.state != "stopped" else "stopped"
-        f, v, on = loop.tick(t)
-        for event in loop.events:
-            self.get_logger().warning(event)
-        loop.events.clear()
-        self._send(f, v, on)
-        if t - self._last_status_t >= 1.0:
-            self._last_status_t = t
-            self._publish_status()
 
     def _on_estimate(self, msg: Float64MultiArray) -> None:
         try:
@@ -315,26 +252,11 @@ class Controller(Node):
         except (BlockFormatError, KeyError) as exc:
             self.get_logger().warning(f"ignored an estimate: {exc}", throttle_duration_sec=5.0)
             return
-        if self.loop is not None:
-            self.loop.add_estimate(self._now(), e)
-            return
-        if self.runner.add_estimate(e):
+        if self.strategy.add_estimate(self._now(), e):
             self._publish_status()
 
     def status(self) -> dict[str, object]:
-        if self.loop is not None:
-            return {"mode": "optimise", "finished": self.finished, **self.loop.status()}
-        r = self.runner
-        state = "aborted" if r.aborted else ("done" if self.finished else "running")
-        return {
-            "state": state,
-            "reason": r.aborted,
-            "trial": min(r.index, len(r.plan.points)),
-            "n_trials": len(r.plan.points),
-            "source": self.source,
-            "results": [x.record() for x in r.results],
-            "chosen": self.chosen.record() if self.chosen is not None else None,
-        }
+        return self.strategy.status()
 
     def _publish_status(self) -> None:
         self._status_pub.publish(String(data=json.dumps(self.status(), allow_nan=True)))

@@ -1,4 +1,5 @@
-"""``fin_sim``: the simulated hardware, a lifecycle node over :class:`~piezofin_ros.rig.SimulatedRig`.
+"""``fin_sim``: the simulated hardware, a lifecycle node over
+:class:`~piezofin_ros.rig.simulated.SimulatedRig`.
 
 The drive is at zero volts unless the node is active.  On deactivate (and on shutdown) the
 drive ramps to zero and the ramp is published, so the last samples show a safe drive.  With
@@ -14,7 +15,7 @@ Safety does not depend on anything another node can change.  The timer that adva
 (and with it the watchdog and every ramp) runs on the steady clock: ``fin_sim`` *is* the time
 source, so ``use_sim_time`` is not taken (ignored with a warning at start, refused at run time)
 and no ``/clock`` publisher can pace or stop it.  Stops ramp at least at
-:data:`~piezofin_ros.rig.STOP_SLEW_VPP_PER_S` whatever the slew setting; a tripped watchdog
+:data:`~piezofin_ros.rig.simulated.STOP_SLEW_VPP_PER_S` whatever the slew setting; a tripped watchdog
 latches until an off command or a lifecycle activate re-arms it.  Simulated faster than real
 time, one second of fin time is a few milliseconds of wall time, less than the scheduling jitter
 of the commanding process: the watchdog then waits at least :data:`WATCHDOG_MIN_WALL_S` of wall
@@ -23,7 +24,8 @@ with a log line).  A lifecycle request that is not a valid transition is refused
 ``success: false``), never a crash.
 With ``model`` (an ``augmented_model.yaml`` written by ``piezofin diagnose --report``) the rig
 simulates that model: its fin, plus the fitted effects linearised at each commanded operating point
-(see :class:`~piezofin_ros.rig.SimulatedRig`), so the node streams what the diagnosed model predicts.
+(see :class:`~piezofin_ros.rig.simulated.SimulatedRig`), so the node streams what the
+diagnosed model predicts.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import collections
 import math
 import sys
 from collections.abc import Callable
-from dataclasses import fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from rclpy.clock import Clock as RosClock
@@ -46,14 +48,15 @@ from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
-from ..blocks import COMMAND_FIELDS, Block, BlockFormatError
-from ..diagnosis.model import ModelError, load_augmented
-from ..fin import Fin, FinConfigError, load_fin
-from ..rig import (
-    HARD_VOLTAGE_PP_MAX,
+from ..bags.blocks import COMMAND_FIELDS, Block, BlockFormatError
+from ..config import setting
+from ..physics.effects import ModelError
+from ..physics.fin import Fin, FinConfigError, load_fin
+from ..physics.model import load_model
+from ..physics.waveforms import ProtocolTiming
+from ..rig.simulated import (
     STOP_SLEW_VPP_PER_S,
     DriveLimits,
-    Protocol,
     RigConfig,
     SimulatedRig,
     loosened,
@@ -68,41 +71,35 @@ from ._common import (
     TOPIC_TIP,
     StartupError,
     block_msg,
-    bool_param,
-    dataclass_params,
-    float_param,
+    declare,
     freeze_parameters,
-    int_param,
     msg_block,
     run_node,
-    str_param,
 )
 
-RIG_RANGES = {
-    "sample_rate_hz": (100.0, 20000.0),
-    "voltage_noise_v": (0.0, 100.0),
-    "current_noise_a": (0.0, 1e-2),
-    "vibrometer_noise_m_s": (0.0, 1.0),
-    "displacement_noise_m": (0.0, 1e-3),
-    "loadcell_length_m": (1e-3, 10.0),
-    "loadcell_width_m": (1e-4, 1.0),
-    "loadcell_thickness_m": (1e-5, 0.1),
-    "loadcell_modulus_pa": (1e6, 1e12),
-    "loadcell_fn_hz": (1.0, 5000.0),
-    "loadcell_zeta": (1e-4, 2.0),
-    "loadcell_drift_m_per_s": (-1e-6, 1e-6),
-    "swim_speed_m_s": (0.0, 10.0),
-}
 #: The watchdog never trips on less than this much wall time without a command (see the module).
 WATCHDOG_MIN_WALL_S = 0.25
 
-LIMIT_RANGES = {
-    "frequency_min_hz": (0.01, 1000.0),
-    "frequency_max_hz": (0.01, 1000.0),
-    "voltage_pp_max": (0.0, HARD_VOLTAGE_PP_MAX),
-    "slew_vpp_per_s": (1.0, 1e6),
-    "command_timeout_s": (0.01, 60.0),
-}
+
+@dataclass(frozen=True)
+class FinSimConfig:
+    """``fin_sim``'s parameters (``rig.*``: :class:`RigConfig`, ``limits.*``: :class:`DriveLimits`)."""
+
+    fin: str = setting("M8528-P1", "fin preset name or YAML path")
+    model: str = setting(
+        "", "augmented model YAML from `piezofin diagnose --report` (its fin and effects; replaces fin)"
+    )
+    seed: int = setting(0, "noise seed", 0, 2**31 - 1)
+    block_s: float = setting(0.05, "simulated time per published block, s", 0.0005, 1.0)
+    realtime_factor: float = setting(1.0, "simulated s per wall s", 0.01, 1000.0)
+    publish_clock: bool = setting(False, "publish /clock (sample times)")
+    start_time_s: float = setting(
+        0.0, "time of the first sample, s (0: the node clock at configure)", 0.0, 1e10
+    )
+    protocol: bool = setting(False, "run the paper's trial (off, on, off) on each new on-command")
+    protocol_off_s: float = setting(ProtocolTiming.off_s, "protocol: time off, s", 0.1, 600.0)
+    protocol_on_s: float = setting(ProtocolTiming.on_s, "protocol: time on, s", 0.1, 600.0)
+    autostart: bool = setting(True, "configure and activate at start (ros2 run)")
 
 
 class FinSim(LifecycleNode):
@@ -112,38 +109,15 @@ class FinSim(LifecycleNode):
         self, *, context: Context | None = None, node_name: str = "fin_sim", **kwargs: object
     ) -> None:
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
-        self._fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path")
-        self._model_path = str_param(
-            self,
-            "model",
-            "",
-            "augmented model YAML from `piezofin diagnose --report` (its fin and effects; replaces fin)",
-        )
-        self._seed = int_param(self, "seed", 0, 0, 2**31 - 1, "noise seed")
-        self._block_s = float_param(
-            self, "block_s", 0.05, 0.0005, 1.0, "simulated time per published block, s"
-        )
-        self._factor = float_param(self, "realtime_factor", 1.0, 0.01, 1000.0, "simulated s per wall s")
-        self._publish_clock = bool_param(self, "publish_clock", False, "publish /clock (sample times)")
-        self._start_time = float_param(
-            self,
-            "start_time_s",
-            0.0,
-            0.0,
-            1e10,
-            "time of the first sample, s (0: the node clock at configure)",
-        )
-        self._protocol = bool_param(
-            self, "protocol", False, "run the paper's trial (off, on, off) on each new on-command"
-        )
-        self._protocol_off = float_param(self, "protocol_off_s", 10.0, 0.1, 600.0, "protocol: time off, s")
-        self._protocol_on = float_param(self, "protocol_on_s", 10.0, 0.1, 600.0, "protocol: time on, s")
-        self.autostart = bool_param(self, "autostart", True, "configure and activate at start (ros2 run)")
+        c = declare(self, FinSimConfig)
+        self._fin_name, self._model_path, self._seed = c.fin, c.model, c.seed
+        self._block_s, self._factor, self._publish_clock = c.block_s, c.realtime_factor, c.publish_clock
+        self._start_time = c.start_time_s
+        self._protocol, self._protocol_off, self._protocol_on = c.protocol, c.protocol_off_s, c.protocol_on_s
+        self.autostart = c.autostart
         self.finalized = False  # lifecycle shutdown: the process ends (run_node)
-        self._rig_config = dataclass_params(self, "rig", RigConfig(), RIG_RANGES, "rig model (SI units)")
-        self._limits = dataclass_params(
-            self, "limits", DriveLimits(), LIMIT_RANGES, "drive limits (SI units)"
-        )
+        self._rig_config = declare(self, RigConfig, "rig")
+        self._limits = declare(self, DriveLimits, "limits")
         if self.get_parameter("use_sim_time").value:
             self.set_parameters([Parameter("use_sim_time", value=False)])
             self.get_logger().warning(
@@ -172,7 +146,7 @@ class FinSim(LifecycleNode):
         model = None
         try:
             if self._model_path:
-                model = load_augmented(self._model_path)
+                model = load_model(self._model_path)
                 self._fin = model.fin
             else:
                 self._fin = load_fin(self._fin_name)
@@ -181,7 +155,7 @@ class FinSim(LifecycleNode):
             self.get_logger().error(f"cannot configure (parameter {key}): {exc}")
             return TransitionCallbackReturn.FAILURE
         t0 = self._start_time or self.get_clock().now().nanoseconds * 1e-9
-        protocol = Protocol(self._protocol_off, self._protocol_on) if self._protocol else None
+        protocol = ProtocolTiming(self._protocol_off, self._protocol_on) if self._protocol else None
         self._rig = SimulatedRig(
             self._fin,
             self._rig_config,

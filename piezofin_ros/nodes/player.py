@@ -12,38 +12,44 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Any
 
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from ..bagio import BagError, BagMessage, bag_topics, read_messages
-from ..fin import config_dir
+from ..bags import BagError, BagMessage, bag_topics, read_messages
+from ..config import setting
+from ..physics.fin import config_dir
 from ._common import (
     QOS_CLOCK,
     StartupError,
-    array_param,
-    bool_param,
-    float_param,
+    declare,
     freeze_parameters,
     run_node,
-    str_param,
 )
 from .recorder import message_class, qos_for
+
+
+@dataclass(frozen=True)
+class PlayerConfig:
+    """``player``'s parameters."""
+
+    bag: str = setting("", "the .mcap file to play")
+    rate: float = setting(1.0, "playback speed factor", 0.01, 1000.0)
+    topics: tuple[str, ...] = setting((), "topics to play (default: all)", items=str)
+    publish_clock: bool = setting(True, "publish /clock from the bag's time")
 
 
 class Player(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "player", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
-        self.bag_path = str_param(self, "bag", "", "the .mcap file to play")
-        self.rate = float_param(self, "rate", 1.0, 0.01, 1000.0, "playback speed factor")
-        topics = array_param(self, "topics", [], Parameter.Type.STRING_ARRAY, "topics to play (default: all)")
-        self.publish_clock = bool_param(self, "publish_clock", True, "publish /clock from the bag's time")
+        c = declare(self, PlayerConfig)
+        self.bag_path, self.rate, topics, self.publish_clock = c.bag, c.rate, c.topics, c.publish_clock
         freeze_parameters(self)
         if not self.bag_path:
             raise StartupError("parameter bag: give the .mcap file to play (-p bag:=run.mcap)")

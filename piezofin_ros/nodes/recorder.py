@@ -1,7 +1,7 @@
 """``recorder``: the suite's topics (or a chosen set) to an MCAP file rosbag2 can play.
 
 Subscriptions are *raw* (rclpy hands over the CDR bytes), so nothing is deserialised or
-serialised again: each message goes straight into :class:`~piezofin_ros.bagio.BagWriter` with
+serialised again: each message goes straight into :class:`~piezofin_ros.bags.writer.BagWriter` with
 the node clock's time (the simulated time under ``use_sim_time``).  A topic's channel is written
 at its first message, with the QoS its publishers offer then (``ros2 bag play`` offers the same).
 Chunks are flushed every ``flush_s`` of log time; SIGINT or SIGTERM closes the file with its
@@ -20,14 +20,15 @@ import importlib
 import struct
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 
-from ..bagio import BagWriter, block_of, message_definition, normalise_type, qos_profile
+from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
+from ..config import setting
 from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
@@ -41,13 +42,9 @@ from ._common import (
     TOPIC_STATUS,
     TOPIC_TIP,
     StartupError,
-    array_param,
-    bool_param,
-    float_param,
+    declare,
     freeze_parameters,
-    int_param,
     run_node,
-    str_param,
 )
 
 F64A = "std_msgs/msg/Float64MultiArray"
@@ -118,32 +115,32 @@ def default_bag_path(directory: str = "bags") -> Path:
     return Path(directory) / time.strftime("piezofin_%Y%m%d-%H%M%S.mcap")
 
 
+@dataclass(frozen=True)
+class RecorderConfig:
+    """``recorder``'s parameters."""
+
+    path: str = setting("", "output .mcap file (default bags/piezofin_<time>.mcap); never overwritten")
+    topics: tuple[str, ...] = setting(
+        (), "topics to record (default: the suite's), name or name:type", items=str
+    )
+    namespaces: tuple[str, ...] = setting((), "fins to record (default: this node's namespace)", items=str)
+    compression: str = setting("zstd", "chunk compression: zstd, lz4 or none")
+    chunk_kib: int = setting(1024, "chunk size, KiB", 16, 65536)
+    flush_s: float = setting(1.0, "longest log time between chunk flushes, s", 0.05, 600.0)
+    discover: bool = setting(False, "also record any other topic that appears")
+    plot_fields: bool = setting(True, "also write estimate and cmd field by field (Float64) for plotting")
+
+
 class Recorder(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "recorder", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
-        path = str_param(
-            self, "path", "", "output .mcap file (default bags/piezofin_<time>.mcap); never overwritten"
-        )
-        topics = array_param(
-            self,
-            "topics",
-            [],
-            Parameter.Type.STRING_ARRAY,
-            "topics to record (default: the suite's), name or name:type",
-        )
-        namespaces = array_param(
-            self,
-            "namespaces",
-            [],
-            Parameter.Type.STRING_ARRAY,
-            "fins to record (default: this node's namespace)",
-        )
-        compression = str_param(self, "compression", "zstd", "chunk compression: zstd, lz4 or none")
-        chunk_kib = int_param(self, "chunk_kib", 1024, 16, 65536, "chunk size, KiB")
-        flush_s = float_param(self, "flush_s", 1.0, 0.05, 600.0, "longest log time between chunk flushes, s")
-        self.discover = bool_param(self, "discover", False, "also record any other topic that appears")
-        self.plot_fields = bool_param(
-            self, "plot_fields", True, "also write estimate and cmd field by field (Float64) for plotting"
+        c = declare(self, RecorderConfig)
+        path, topics, namespaces, compression = c.path, c.topics, c.namespaces, c.compression
+        chunk_kib, flush_s, self.discover, self.plot_fields = (
+            c.chunk_kib,
+            c.flush_s,
+            c.discover,
+            c.plot_fields,
         )
         freeze_parameters(self)
         self.path = Path(path) if path else default_bag_path()

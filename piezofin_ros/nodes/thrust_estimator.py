@@ -1,4 +1,4 @@
-"""``thrust_estimator``: :class:`~piezofin_ros.estimation.StreamEstimator` on the live topics.
+"""``thrust_estimator``: :class:`~piezofin_ros.estimation.estimator.StreamEstimator` on the live topics.
 
 Subscribes ``drive`` (required), ``tip_velocity`` and ``loadcell`` (optional: a fish has
 neither) and ``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` block per
@@ -9,15 +9,25 @@ estimates recorded live.
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 
 from rclpy.context import Context
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
 
-from ..blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, Block, BlockFormatError, check_samples
-from ..estimation import Estimate, EstimatorConfig, StreamEstimator
-from ..fin import FinConfigError, load_fin
-from ..rig import RigConfig
+from ..bags.blocks import (
+    DRIVE_CHANNELS,
+    LOADCELL_CHANNELS,
+    TIP_CHANNELS,
+    Block,
+    BlockFormatError,
+    check_samples,
+)
+from ..config import setting
+from ..errors import PiezofinError
+from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
+from ..physics.fin import load_fin
+from ..rig.simulated import RigConfig
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -29,27 +39,18 @@ from ._common import (
     SilenceWatch,
     StartupError,
     block_msg,
-    dataclass_params,
+    declare,
     freeze_parameters,
     msg_block,
     run_node,
-    str_param,
 )
 
-ESTIMATOR_RANGES = {
-    "on_threshold_v": (0.01, 1000.0),
-    "off_hold_s": (0.01, 60.0),
-    "settle_s": (0.0, 600.0),
-    "window_s": (0.1, 3600.0),
-    "max_window_s": (0.1, 3600.0),
-    "min_periods": (1, 10000),
-    "tolerance": (1e-4, 0.5),
-    "baseline_s": (0.1, 600.0),
-    "post_delay_s": (0.0, 600.0),
-    "channel_timeout_s": (0.01, 600.0),
-    "harmonics": (1, 10),
-    "loadcell_stiffness_n_per_m": (1e-3, 1e9),
-}
+
+@dataclass(frozen=True)
+class ThrustEstimatorConfig:
+    """``thrust_estimator``'s parameters (and ``estimator.*`` from :class:`EstimatorConfig`)."""
+
+    fin: str = setting("M8528-P1", "fin preset name or YAML path")
 
 
 class ThrustEstimator(Node):
@@ -59,12 +60,12 @@ class ThrustEstimator(Node):
         self, *, context: Context | None = None, node_name: str = "thrust_estimator", **kwargs: object
     ):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
-        fin_name = str_param(self, "fin", "M8528-P1", "fin preset name or YAML path")
+        fin_name = declare(self, ThrustEstimatorConfig).fin
         default = EstimatorConfig(loadcell_stiffness_n_per_m=RigConfig().loadcell_stiffness)
         try:
             self.fin = load_fin(fin_name)
-            config = dataclass_params(self, "estimator", default, ESTIMATOR_RANGES, "estimator window (s, V)")
-        except (FinConfigError, ValueError) as exc:
+            config = declare(self, EstimatorConfig, "estimator", base=default)
+        except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         freeze_parameters(self)
         self.core = StreamEstimator(self.fin, config)
@@ -79,6 +80,10 @@ class ThrustEstimator(Node):
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}  # blocks
         self._silence = SilenceWatch(
             self, f"{self.resolve_topic_name(TOPIC_DRIVE)}", "is fin_sim (or the rig driver) running?"
+        )
+        self.get_logger().info(
+            f"{self.fin.name} (psi {self.fin.psi:.2f}, c_m {self.fin.c_m:.3f}): estimating from "
+            f"{self.resolve_topic_name(TOPIC_DRIVE)} to {self.resolve_topic_name(TOPIC_ESTIMATE)}"
         )
 
     def _decode(self, msg: Float64MultiArray, channels: tuple[str, ...], topic: str) -> Block | None:

@@ -1,0 +1,172 @@
+"""Stamped, self-describing sample blocks: the wire format of every piezofin topic.
+
+A block is a small table: named channels (columns) by samples (rows).  On the wire it is a
+``std_msgs/Float64MultiArray`` (so every ROS tool, Foxglove and ``rosbags`` can read it
+without custom messages)::
+
+    layout.dim[0] = {label: "t_s,voltage_V,current_A", size: n_channels, stride: n_channels * n}
+    layout.dim[1] = {label: "sample",                  size: n,          stride: n}
+    layout.data_offset = 0
+    data = [t_0 .. t_{n-1}, v_0 .. v_{n-1}, i_0 .. i_{n-1}]        (channel-major)
+
+The first label names the channels with their SI unit after the last underscore.  A block of
+one sample (commands, estimates) may omit ``dim[1]``.  Sample times are a channel of their own
+(``t_s``, seconds of the ROS clock that stamped them), so a block carries its own time base and
+a receiver never has to guess a rate or trust an arrival time.
+
+This module has no ROS dependency: nodes convert messages with :func:`from_layout` and
+:func:`to_layout`, and offline tools do the same on bags.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import BagError
+
+FloatArray = NDArray[Any]
+
+#: Channels of each high-rate topic, in wire order.
+DRIVE_CHANNELS = ("t_s", "voltage_V", "current_A")
+TIP_CHANNELS = ("t_s", "tip_velocity_m_s")
+LOADCELL_CHANNELS = ("t_s", "displacement_m")
+#: Fields of an actuation command, in wire order (also accepted unlabelled in this order).
+COMMAND_FIELDS = ("frequency_hz", "voltage_pp_V", "on")
+
+#: Hard bound on a block's size, so a malformed message cannot make a receiver allocate gigabytes.
+MAX_VALUES = 1_000_000
+
+
+class BlockFormatError(BagError, ValueError):
+    """A message does not follow the block layout; the text says what is wrong."""
+
+
+@dataclass(frozen=True)
+class Block:
+    """``values[c, k]`` is sample ``k`` of channel ``names[c]``."""
+
+    names: tuple[str, ...]
+    values: FloatArray
+
+    def __post_init__(self) -> None:
+        values = np.asarray(self.values, dtype=float)
+        if values.ndim == 1:
+            values = values.reshape(len(self.names), -1) if self.names else values.reshape(0, 0)
+        if values.ndim != 2 or values.shape[0] != len(self.names):
+            raise BlockFormatError(f"{len(self.names)} channel names for values of shape {values.shape}")
+        if len(set(self.names)) != len(self.names):
+            raise BlockFormatError(f"repeated channel name in {self.names}")
+        object.__setattr__(self, "values", values)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.values.shape[1])
+
+    def __getitem__(self, name: str) -> FloatArray:
+        try:
+            return self.values[self.names.index(name)]  # type: ignore[no-any-return]
+        except ValueError:
+            raise KeyError(f"block has no channel {name!r} (has {', '.join(self.names)})") from None
+
+    def scalar(self, name: str) -> float:
+        """The value of a one-sample block's channel."""
+        return float(self[name][0])
+
+    def as_dict(self) -> dict[str, float]:
+        """A one-sample block as ``{name: value}``."""
+        return {name: float(self.values[c, 0]) for c, name in enumerate(self.names)}
+
+    @classmethod
+    def from_columns(cls, **columns: ArrayLike) -> Block:
+        """``Block.from_columns(t_s=t, voltage_V=v)``: channels in keyword order."""
+        arrays = [np.atleast_1d(np.asarray(c, dtype=float)) for c in columns.values()]
+        if len({a.shape for a in arrays}) > 1:
+            raise BlockFormatError(f"channels differ in length: {[a.shape for a in arrays]}")
+        return cls(tuple(columns), np.stack(arrays) if arrays else np.zeros((0, 0)))
+
+    @classmethod
+    def from_record(cls, record: dict[str, float]) -> Block:
+        """A one-sample block from ``{name: value}`` (for commands and estimates)."""
+        return cls(tuple(record), np.asarray([[float(v)] for v in record.values()]).reshape(len(record), 1))
+
+
+Dim = tuple[str, int, int]  # (label, size, stride), as in std_msgs/MultiArrayDimension
+
+
+def to_layout(block: Block) -> tuple[list[Dim], FloatArray]:
+    """Dimensions and flat data of a ``Float64MultiArray`` holding ``block``."""
+    nc, n = block.values.shape
+    dims = [(",".join(block.names), nc, nc * n), ("sample", n, n)]
+    return dims, np.ascontiguousarray(block.values).ravel()
+
+
+def from_layout(
+    dims: Sequence[Dim],
+    data: ArrayLike,
+    *,
+    expect: Sequence[str] | None = None,
+    data_offset: int = 0,
+) -> Block:
+    """Decode a ``Float64MultiArray`` into a :class:`Block`, checking every size.
+
+    ``expect`` names the channels the receiver needs; they must all be present (others are
+    kept).  An unlabelled message (no ``dim``) is accepted only with ``expect``, as one
+    sample in that order, which is what a person typing ``ros2 topic pub`` writes.
+    Raises :class:`BlockFormatError` with the reason on any inconsistency.
+    """
+    values = np.asarray(data, dtype=float).ravel()
+    if values.size > MAX_VALUES:
+        raise BlockFormatError(f"{values.size} values exceed the limit of {MAX_VALUES}")
+    if data_offset != 0:
+        raise BlockFormatError(f"data_offset must be 0, got {data_offset}")
+    if len(dims) == 0:
+        if expect is None:
+            raise BlockFormatError("message has no layout (dim is empty)")
+        if values.size != len(expect):
+            raise BlockFormatError(
+                f"unlabelled message must hold {len(expect)} values ({', '.join(expect)}), got {values.size}"
+            )
+        return Block(tuple(expect), values.reshape(len(expect), 1))
+    if len(dims) > 2:
+        raise BlockFormatError(f"block has at most 2 dimensions, got {len(dims)}")
+    label, nc, stride0 = dims[0]
+    names = tuple(s.strip() for s in label.split(",")) if label.strip() else ()
+    if len(names) != nc:
+        raise BlockFormatError(f"dim[0] names {len(names)} channels ({label!r}) but its size is {nc}")
+    if any(not s for s in names):
+        raise BlockFormatError(f"empty channel name in {label!r}")
+    n = dims[1][1] if len(dims) == 2 else 1
+    if len(dims) == 2 and dims[1][2] != n:
+        raise BlockFormatError(f"dim[1] stride {dims[1][2]} != size {n}")
+    if stride0 != nc * n:
+        raise BlockFormatError(f"dim[0] stride {stride0} != {nc} channels x {n} samples")
+    if values.size != nc * n:
+        raise BlockFormatError(f"layout says {nc} x {n} = {nc * n} values, message holds {values.size}")
+    block = Block(names, values.reshape(nc, n))
+    if expect is not None:
+        missing = [c for c in expect if c not in names]
+        if missing:
+            raise BlockFormatError(f"missing channel(s) {', '.join(missing)} (has {', '.join(names)})")
+    return block
+
+
+def check_samples(block: Block, channels: Sequence[str]) -> Block:
+    """Validate a high-rate block: at least one sample, finite, strictly increasing ``t_s``.
+
+    Returns a block holding only ``channels`` (in that order).  Non-finite *values* are
+    allowed (a sensor may drop out); non-finite or non-increasing times are not.
+    """
+    if block.n == 0:
+        raise BlockFormatError("block holds no sample")
+    t = block["t_s"]
+    if not np.all(np.isfinite(t)):
+        raise BlockFormatError("non-finite sample time")
+    if block.n > 1 and np.any(np.diff(t) <= 0):
+        raise BlockFormatError("sample times do not increase strictly")
+    return Block(tuple(channels), np.stack([block[c] for c in channels]))

@@ -1,0 +1,388 @@
+"""Reading bags: every intact message of an MCAP file, whatever happened to it.
+
+:func:`read_messages` streams messages with the ``mcap`` stream reader; damage (a writer killed
+before closing, flipped bytes, a truncated chunk) ends a stretch, is reported as a :class:`Damage`
+and reading resumes at the next intact chunk, with a budget on memory (a 2 MB file never takes
+gigabytes).  :func:`bag_topics` lists the channels from the summary or, without one, by reading."""
+
+from __future__ import annotations
+
+import io
+import logging
+import mmap
+import os
+import struct
+import zlib
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import lz4.frame
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
+from mcap.opcode import Opcode
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from ..errors import BagError
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+#: What mcap's reader and the decompressors raise on damaged bytes: mcap's own errors (bad magic,
+#: end of file, record length, CRC is a ValueError), struct and EOF errors from truncated records,
+#: zstandard's and lz4's (a RuntimeError) decompression errors, and the lookup, arithmetic and type
+#: errors that garbled lengths and opcodes cause inside the parser, and the OS's refusal of a seek
+#: that a garbled offset asks for (before the start of a truncated file).  Anything else is a bug.
+_DAMAGE: tuple[type[BaseException], ...] = (
+    McapError,
+    ValueError,
+    struct.error,
+    EOFError,
+    zstandard.ZstdError,
+    RuntimeError,
+    LookupError,
+    ArithmeticError,
+    TypeError,
+    MemoryError,
+    OSError,
+)
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    topic: str
+    type_name: str
+    log_time_ns: int
+    data: bytes
+    offered_qos: str = ""  # the channel's offered_qos_profiles
+
+
+@dataclass(frozen=True)
+class Damage:
+    """Where and why a bag stops being readable (or a chunk of it is skipped)."""
+
+    path: Path
+    offset: int  # byte offset of the damaged record
+    size: int  # file size, bytes
+    reason: str
+    messages_before: int  # messages read before this point
+    fatal: bool  # True: nothing after ``offset`` could be read
+
+    def __str__(self) -> str:
+        what = "the rest is unreadable" if self.fatal else "this chunk was skipped, reading went on"
+        return (
+            f"{self.path}: damaged at byte {self.offset} of {self.size} ({self.reason}); {what}; "
+            f"{self.messages_before} messages read before it"
+        )
+
+
+_LOG = logging.getLogger(__name__)
+
+
+def _warn(damage: Damage) -> None:
+    _LOG.warning("warning: %s", damage)
+
+
+def read_messages(
+    path: str | os.PathLike[str],
+    topics: Iterable[str] | None = None,
+    on_damage: Callable[[Damage], None] | None = _warn,
+) -> Iterator[BagMessage]:
+    """Serialised messages of a bag in file (recording) order, optionally only ``topics``.
+
+    The file is read record by record, so a damaged bag gives everything it still holds: a file
+    whose writer was killed (no summary, a cut chunk) gives everything before the cut; a chunk
+    that fails its CRC or does not decompress is skipped; after a cut, garbled, deleted or
+    duplicated byte range, reading resumes at the next chunk that passes its CRC (a chunk seen
+    before is not read twice).  Channels whose definition was lost with a chunk are taken from
+    the file's summary when it is intact.  Each damage is passed to ``on_damage`` (default: a
+    logged warning).  Raises :class:`BagError` naming the file when it is missing, not an MCAP
+    file, or has no readable message.
+    """
+    path = Path(path)
+    wanted = set(topics) if topics is not None else None
+    try:
+        f = open(path, "rb")  # noqa: SIM115 (closed below; a generator cannot use `with` across yields safely)
+    except FileNotFoundError:
+        raise BagError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise BagError(f"{path}: is a directory; give the .mcap file inside it") from None
+    except OSError as exc:
+        raise BagError(f"{path}: cannot open ({exc.strerror or exc})") from None
+    with f:
+        size = os.fstat(f.fileno()).st_size
+        if size == 0:
+            raise BagError(f"{path}: not a readable MCAP file (empty)")
+        seen_chunks: set[tuple[int, int, int, int]] = set()
+        base: int | None = 0  # where the current reader starts
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            # a damaged start: an MCAP file only if a chunk further on passes its CRC
+            base = _next_chunk(f, 0, size, seen_chunks)
+            if base is None:
+                raise BagError(f"{path}: not a readable MCAP file (no MCAP magic at the start)")
+        schemas: dict[int, str] = {}
+        channels: dict[int, tuple[str, int]] = {}
+        qos: dict[int, str] = {}
+        budget = _Budget(path, size)
+        summary_channels = _summary_channels(f)
+        n = 0
+        offset = 0
+        first_damage: str | None = None
+
+        def damaged(reason: str, fatal: bool) -> None:
+            nonlocal first_damage
+            first_damage = first_damage or f"{reason} at byte {offset}"
+            if on_damage is not None:
+                on_damage(Damage(path, offset, size, reason, n, fatal))
+
+        def take(record: Any) -> BagMessage | None:
+            if isinstance(record, Schema):
+                schemas[record.id] = record.name
+            elif isinstance(record, Channel):
+                channels[record.id] = (record.topic, record.schema_id)
+                qos[record.id] = record.metadata.get("offered_qos_profiles", "")
+            elif isinstance(record, (Message, _LazyMessage)):
+                ch = channels.get(record.channel_id)
+                name = None
+                if ch is not None:
+                    name = schemas.get(ch[1], "")
+                elif record.channel_id in summary_channels:
+                    ch, name, qos[record.channel_id] = summary_channels[record.channel_id]
+                if ch is not None and (wanted is None or ch[0] in wanted):
+                    q = qos.get(record.channel_id, "")
+                    return BagMessage(ch[0], name or "", record.log_time, bytes(record.data), q)
+            return None
+
+        if base:
+            damaged(f"no MCAP magic at the start; resumed at the first intact chunk, byte {base}", False)
+        while base is not None:
+            f.seek(base)
+            reader = StreamReader(f, skip_magic=base > 0, emit_chunks=True, record_size_limit=size)
+            records = iter(reader.records)
+            resume: int | None = None
+            while True:
+                offset = base + _position(reader)
+                try:
+                    record = next(records)
+                except StopIteration:
+                    break
+                except _DAMAGE as exc:  # any corruption ends this stretch, never the caller
+                    resume = _next_chunk(f, offset + 1, size, seen_chunks)
+                    if resume is None:
+                        damaged(_why(exc), fatal=True)
+                    else:
+                        damaged(f"{_why(exc)}; resumed at the next intact chunk, byte {resume}", fatal=False)
+                    break
+                if isinstance(record, Chunk):
+                    key = _chunk_key(record)
+                    if key in seen_chunks:
+                        damaged("chunk: a copy of one already read (duplicated bytes), skipped", fatal=False)
+                        continue
+                    try:
+                        data = budget.expand(record)
+                    except _ChunkError as exc:  # size, CRC, zstd, lz4: skip this chunk
+                        damaged(f"chunk: {exc}", fatal=False)
+                        continue
+                    seen_chunks.add(key)
+                    try:
+                        for r in _chunk_records(data, budget):
+                            m = take(r)
+                            if m is not None:
+                                n += 1
+                                yield m
+                    except _ChunkError as exc:  # framing inside a chunk that passed its CRC
+                        damaged(f"chunk: {exc}", fatal=False)
+                    del data
+                else:
+                    budget.count_record()
+                    m = take(record)
+                    if m is not None:
+                        n += 1
+                        yield m
+            base = resume
+        if n == 0 and first_damage is not None:
+            raise BagError(f"{path}: not a readable MCAP file ({first_damage})")
+
+
+def _chunk_key(chunk: Chunk) -> tuple[int, int, int, int]:
+    return (chunk.message_start_time, chunk.message_end_time, chunk.uncompressed_size, chunk.uncompressed_crc)
+
+
+def _next_chunk(f: BinaryIO, start: int, size: int, seen: set[tuple[int, int, int, int]]) -> int | None:
+    """Offset of the first record at or after ``start`` that is a chunk passing its CRC (and not one
+    already read), or None.  Chunk records begin with opcode 0x06 and a little-endian u64 length."""
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        pos = start - 1
+        while True:
+            pos = data.find(b"\x06", pos + 1)
+            if pos < 0 or pos + 9 > size:
+                return None
+            length = int.from_bytes(data[pos + 1 : pos + 9], "little")
+            if not 40 <= length <= size - pos - 9:
+                continue
+            try:
+                raw = io.BytesIO(data[pos : pos + 9 + length])
+                record = next(iter(StreamReader(raw, skip_magic=True, emit_chunks=True).records))
+                if not isinstance(record, Chunk) or not record.uncompressed_crc:
+                    continue
+                if _chunk_key(record) in seen:
+                    continue
+                _Budget(Path(), size).expand(record)  # size, CRC, decompression: a real chunk?
+            except (_ChunkError, McapError, ValueError, struct.error, EOFError):  # not a chunk: look on
+                continue
+            return pos
+
+
+def _summary_channels(f: BinaryIO) -> dict[int, tuple[tuple[str, int], str, str]]:
+    """Channel id -> ((topic, schema id), schema name, offered QoS) from the summary, if the file
+    has an intact one."""
+    try:
+        f.seek(0)
+        summary = make_reader(f).get_summary()
+    except _DAMAGE:  # no summary (a killed writer) or a damaged one: channels come from the chunks
+        return {}
+    finally:
+        f.seek(0)
+    if summary is None:
+        return {}
+    names = {sid: s.name for sid, s in summary.schemas.items()}
+    return {
+        cid: ((c.topic, c.schema_id), names.get(c.schema_id, ""), c.metadata.get("offered_qos_profiles", ""))
+        for cid, c in summary.channels.items()
+    }
+
+
+class _ChunkError(BagError, ValueError):
+    """A chunk that cannot be used (its size, CRC, compression or framing); it is skipped."""
+
+
+@dataclass(frozen=True)
+class _LazyMessage:
+    """A message record inside a chunk: its bytes are a view into the chunk, copied only if kept."""
+
+    channel_id: int
+    log_time: int
+    data: memoryview
+
+
+_MAX_CHUNK = 1 << 30  # bytes: larger uncompressed chunks are corruption, not data
+
+
+class _Budget:
+    """What reading one file may cost, from the file's size and not from what the file claims.
+
+    * one chunk decompresses to at most ``50 x size + 32 MiB`` (and 1 GiB): the bytes are held
+      while its records are read, so this bounds the reader's memory (records are parsed one by
+      one from the chunk, never expanded into a list);
+    * all chunks together to at most ``100 x size + 64 MiB``, and the file holds at most one
+      record per 8 bytes (a record takes several compressed bytes even in a very repetitive bag;
+      the suite's blocks take about a kilobyte): beyond either, the file is a decompression bomb
+      and :class:`BagError` names it.  This bounds the time: a 2 MB file holds at most 250,000
+      records.
+    """
+
+    def __init__(self, path: Path, size: int) -> None:
+        self.path, self.size = path, size
+        self.chunk_limit = min(_MAX_CHUNK, 50 * size + (32 << 20))
+        self.total_limit = 100 * size + (64 << 20)
+        self.record_limit = max(size // 8, 10_000)
+        self.expanded = 0
+        self.records = 0
+
+    def expand(self, chunk: Chunk) -> bytes:
+        """The chunk's records, decompressed (at most its claimed size) and CRC-checked."""
+        usize = chunk.uncompressed_size
+        if usize > self.chunk_limit:
+            raise _ChunkError(f"claims {usize} bytes uncompressed, above the {self.chunk_limit}-byte limit")
+        if self.expanded + usize > self.total_limit:
+            raise BagError(
+                f"{self.path}: expands beyond {self.total_limit} bytes, over 100x its {self.size} bytes: "
+                "a decompression bomb, not a bag"
+            )
+        try:
+            if chunk.compression == "zstd":
+                with zstandard.ZstdDecompressor().stream_reader(chunk.data) as reader:
+                    data = reader.read(usize + 1)
+                    while len(data) <= usize:
+                        more = reader.read(usize + 1 - len(data))
+                        if not more:
+                            break
+                        data += more
+            elif chunk.compression == "lz4":
+                data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=usize + 1)
+            elif chunk.compression == "":
+                data = chunk.data
+            else:
+                raise _ChunkError(f"unknown compression {chunk.compression!r}")
+        except (zstandard.ZstdError, RuntimeError) as exc:  # lz4 raises RuntimeError
+            raise _ChunkError(f"does not decompress ({exc})") from None
+        if len(data) != usize:
+            got = f"more than {usize}" if len(data) > usize else str(len(data))
+            raise _ChunkError(f"decompresses to {got} bytes, not the {usize} it states")
+        if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+            raise _ChunkError("fails its CRC")
+        self.expanded += usize
+        return data
+
+    def count_record(self) -> None:
+        self.records += 1
+        if self.records > self.record_limit:
+            raise BagError(
+                f"{self.path}: holds more than {self.record_limit} records in {8 * self.record_limit} "
+                "bytes: a decompression bomb, not a bag"
+            )
+
+
+def _chunk_records(data: bytes, budget: _Budget) -> Iterator[Schema | Channel | _LazyMessage]:
+    """The schema, channel and message records of a decompressed chunk, one at a time."""
+    view = memoryview(data)
+    pos, end = 0, len(data)
+    while pos < end:
+        if pos + 9 > end:
+            raise _ChunkError(f"a record is cut at byte {pos} of the chunk")
+        opcode = data[pos]
+        length = int.from_bytes(view[pos + 1 : pos + 9], "little")
+        body, pos = pos + 9, pos + 9 + length
+        if pos > end:
+            raise _ChunkError(f"a record of {length} bytes overruns the chunk")
+        budget.count_record()
+        if opcode == Opcode.MESSAGE:
+            if length < 22:
+                raise _ChunkError(f"a message record of {length} bytes (at least 22)")
+            channel_id, _, log_time = struct.unpack_from("<HIQ", data, body)
+            yield _LazyMessage(channel_id, log_time, view[body + 22 : pos])
+        elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+            stream = ReadDataStream(io.BytesIO(view[body:pos]))
+            try:
+                yield Schema.read(stream) if opcode == Opcode.SCHEMA else Channel.read(stream)
+            except (McapError, struct.error, UnicodeDecodeError, EOFError) as exc:
+                raise _ChunkError(f"a damaged {Opcode(opcode).name.lower()} record ({exc})") from None
+
+
+def _position(reader: Any) -> int:
+    """Bytes the reader has consumed since it started."""
+    return int(reader._stream.count)
+
+
+def _why(exc: BaseException) -> str:
+    name = type(exc).__name__
+    if isinstance(exc, (EOFError, struct.error, EndOfFile, RecordLengthLimitExceeded)):
+        return "the file ends or is garbled here, as when its writer is stopped before closing it"
+    return f"{name}: {exc}" if str(exc) else name
+
+
+def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
+    """Topic -> message type of every channel in a bag: from its summary, or (a bag whose writer was
+    killed) by reading it through.  Raises :class:`BagError` as :func:`read_messages` does."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            channels = _summary_channels(f)
+    except OSError:
+        channels = {}
+    if channels:
+        return {topic: name for (topic, _), name, _ in channels.values()}
+    return {m.topic: m.type_name for m in read_messages(path, on_damage=None)}

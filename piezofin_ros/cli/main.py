@@ -1,0 +1,448 @@
+"""``piezofin``: the command-line front end of the physics core (no ROS needed).
+
+    piezofin sweep --fin M8528-P1 --vpp 400 600 800 --freq 1:11:0.1 [--json] [--plot F.png]
+
+Errors in the arguments or in a fin file end the command with a one-line message and
+exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CliError
+from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
+from ..physics.steady import SteadyState, harmonic_balance
+
+EXIT_USAGE = 2
+
+
+class UsageError(CliError):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+def parse_frequencies(spec: Sequence[str]) -> np.ndarray:
+    """``start:stop:step`` (stop included, like the paper's 1-11 Hz) and/or plain values, Hz."""
+    values: list[float] = []
+    for item in spec:
+        parts = item.split(":")
+        try:
+            nums = [float(p) for p in parts]
+        except ValueError:
+            raise UsageError(f"--freq: cannot read {item!r}; use values or start:stop:step") from None
+        if len(nums) == 1:
+            values.append(nums[0])
+        elif len(nums) == 3:
+            start, stop, step = nums
+            if not step > 0 or stop < start:
+                raise UsageError(f"--freq {item!r}: need start <= stop and step > 0")
+            n = int(np.floor((stop - start) / step + 1e-9)) + 1
+            if n > 1_000_000:
+                raise UsageError(f"--freq {item!r}: {n} points is too many (max 1e6)")
+            values.extend(np.round(start + step * np.arange(n), 12))
+        else:
+            raise UsageError(f"--freq: cannot read {item!r}; use values or start:stop:step")
+    freqs = np.asarray(values, dtype=float)
+    if freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):
+        raise UsageError("--freq: frequencies must be finite and > 0 Hz")
+    return freqs
+
+
+def _load(fin_arg: str, c_d: float | None) -> Fin:
+    try:
+        fin = load_fin(fin_arg)
+        return fin if c_d is None else fin.replace(c_d=c_d)
+    except (FinConfigError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+
+
+def sweep_result(fin: Fin, state: SteadyState, U: float, harmonics: int) -> dict[str, object]:
+    """The ``--json`` object: the fin, every model parameter (SI, paper symbols), the points."""
+    out: dict[str, object] = {"fin": fin.name}
+    out.update({k: v for k, v in fin.model_parameters().items() if k != "name"})
+    out["U"] = U
+    out["harmonics"] = harmonics
+    out["points"] = state.records()
+    return out
+
+
+def format_table(fin: Fin, state: SteadyState) -> str:
+    head = (
+        f"# {fin.name}: psi={fin.psi:.3f} c_m={fin.c_m:.3f} c_d={fin.c_d:g} mu={fin.mu:.3f} "
+        f"linear underwater resonance {fin.f_water_linear:.2f} Hz\n"
+        f"{'f_Hz':>7} {'Vpp':>6} {'v_tip_rms_m/s':>14} {'I_rms_mA':>9} {'P_mW':>9} "
+        f"{'T_mN':>9} {'T/P_mN/W':>9}"
+    )
+    rows = [
+        f"{r['frequency_hz']:7.2f} {r['voltage_pp']:6.0f} {r['tip_velocity_rms']:14.5f} "
+        f"{1e3 * r['current_rms']:9.4f} {1e3 * r['power_w']:9.4f} {1e3 * r['thrust_n']:9.4f} "
+        f"{1e3 * r['thrust_per_watt']:9.1f}"
+        for r in state.records()
+    ]
+    return "\n".join([head, *rows])
+
+
+def plot_sweep(fin: Fin, state: SteadyState, path: str) -> None:
+    """Thrust, power and thrust per watt against frequency, one curve per voltage."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4), constrained_layout=True)
+    panels = [
+        (state.thrust_n * 1e3, "mean thrust (mN)"),
+        (state.power_w * 1e3, "mean electrical power (mW)"),
+        (state.thrust_per_watt * 1e3, "thrust per watt (mN/W)"),
+    ]
+    f = state.frequency_hz[:, 0]
+    for ax, (values, label) in zip(axes, panels, strict=False):
+        for j, vpp in enumerate(state.voltage_pp[0]):
+            ax.plot(f, values[:, j], label=f"{vpp:g} Vpp")
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[2].set_yscale("log")
+    axes[0].legend()
+    fig.suptitle(
+        f"{fin.name}: steady state, harmonic balance (psi = {fin.psi:.2f}, c_m = {fin.c_m:.3f}, "
+        f"c_d = {fin.c_d:g} assumed)"
+    )
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _add_sweep_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fin", default="M8528-P1", help="preset name or path to a fin YAML (default: M8528-P1)")
+    p.add_argument(
+        "--vpp",
+        type=float,
+        nargs="+",
+        default=[400.0, 600.0, 800.0],
+        help="peak-to-peak voltages, V (default: 400 600 800)",
+    )
+    p.add_argument(
+        "--freq",
+        nargs="+",
+        default=["1:11:0.1"],
+        help="frequencies, Hz: values and/or start:stop:step (default: 1:11:0.1)",
+    )
+    p.add_argument("--U", type=float, default=0.0, help="swimming speed for Eq. (19), m/s (default 0)")
+    p.add_argument("--c-d", type=float, default=None, help="override the fin's drag coefficient c_d")
+    p.add_argument(
+        "--harmonics",
+        type=int,
+        default=1,
+        help="odd harmonics kept in the balance: 1 = the paper's single term (default)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--plot", metavar="FILE.png", help="draw thrust, power and thrust/W vs frequency")
+    p.add_argument(
+        "--model",
+        metavar="AUGMENTED.yaml",
+        help="an augmented model saved by `diagnose --report` (its fin and effects)",
+    )
+
+
+def _voltages(values: Sequence[float]) -> np.ndarray:
+    vpp = np.asarray(values, dtype=float)
+    if np.any(~np.isfinite(vpp)) or np.any(vpp < 0):
+        raise UsageError("--vpp: voltages must be finite and >= 0 V")
+    return vpp
+
+
+def run_sweep(args: argparse.Namespace) -> int:
+    if args.model:
+        return _sweep_augmented(args)
+    fin = _load(args.fin, args.c_d)
+    freqs = parse_frequencies(args.freq)
+    vpp = _voltages(args.vpp)
+    if not 1 <= args.harmonics <= 10:
+        raise UsageError("--harmonics: expected 1..10")
+    if not np.isfinite(args.U):
+        raise UsageError("--U: expected a finite speed in m/s")
+    state = harmonic_balance(fin, freqs[:, None], vpp[None, :], U=args.U, harmonics=args.harmonics)
+    if args.json:
+        json.dump(sweep_result(fin, state, args.U, args.harmonics), sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(format_table(fin, state))
+    if args.plot:
+        try:
+            plot_sweep(fin, state, args.plot)
+        except OSError as exc:
+            raise UsageError(f"--plot {args.plot}: cannot write ({exc.strerror})") from None
+        print(f"wrote {args.plot}", file=sys.stderr)
+    return 0
+
+
+def _sweep_augmented(args: argparse.Namespace) -> int:
+    from ..physics.effects import ModelError
+    from ..physics.model import load_model
+
+    try:
+        model = load_model(args.model)
+    except ModelError as exc:
+        raise UsageError(f"--model: {exc}") from None
+    freqs = parse_frequencies(args.freq)
+    vpp = _voltages(args.vpp)
+    f, v = (x.ravel() for x in np.meshgrid(freqs, vpp, indexing="ij"))
+    p = model.predict(f, v)
+    records = [
+        {
+            "frequency_hz": float(f[j]),
+            "voltage_pp": float(v[j]),
+            "tip_velocity_rms": float(p.tip_velocity_rms[j]),
+            "current_rms": float(p.current_rms[j]),
+            "power_w": float(p.power_w[j]),
+            "thrust_n": float(p.thrust_loadcell_n[j]),
+            "thrust_per_watt": float(p.thrust_per_watt[j]),
+        }
+        for j in range(f.size)
+    ]
+    if args.json:
+        json.dump(
+            {"fin": model.fin.name, "effects": model.parameters(), "points": records}, sys.stdout, indent=1
+        )
+        sys.stdout.write("\n")
+        return 0
+    print(f"# {model.fin.name} with {', '.join(model.names) or 'no effect'}")
+    print(f"{'f [Hz]':>7} {'Vpp':>5} {'u_rms [mm/s]':>12} {'P [mW]':>8} {'T [mN]':>8} {'T/P [mN/W]':>10}")
+    for r in records:
+        print(
+            f"{r['frequency_hz']:7.2f} {r['voltage_pp']:5.0f} {r['tip_velocity_rms'] * 1e3:12.2f} "
+            f"{r['power_w'] * 1e3:8.3f} {r['thrust_n'] * 1e3:8.3f} {r['thrust_per_watt'] * 1e3:10.1f}"
+        )
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="piezofin", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sweep = sub.add_parser("sweep", help="steady-state table/plot over frequency and voltage")
+    _add_sweep_args(sweep)
+    sweep.set_defaults(func=run_sweep)
+    diag = sub.add_parser("diagnose", help="where, why and how far the model misses measured trials")
+    _add_diagnose_args(diag)
+    diag.set_defaults(func=run_diagnose)
+    fins = sub.add_parser("fins", help="list the preset fins and their derived parameters")
+    fins.set_defaults(func=run_fins)
+    est = sub.add_parser("estimate", help="run the thrust estimator offline on a recorded bag")
+    est.add_argument("bag", help="an .mcap file recorded by the suite (or a rig driver)")
+    est.add_argument("--namespace", default="/fin", help="the fin's namespace in the bag (default /fin)")
+    est.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
+    est.add_argument("--json", action="store_true", help="print the estimates as JSON")
+    est.set_defaults(func=run_estimate)
+    bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
+    bag_sub = bag.add_subparsers(dest="bag_command", required=True)
+    rec = bag_sub.add_parser(
+        "recover", help="copy every readable message of a damaged or unclosed bag into a complete one"
+    )
+    rec.add_argument("bag", help="the damaged .mcap (e.g. from a recorder that was killed)")
+    rec.add_argument("-o", "--output", help="the new file (default <bag>.recovered.mcap; never overwritten)")
+    rec.set_defaults(func=run_bag_recover)
+    return parser
+
+
+def run_bag_recover(args: argparse.Namespace) -> int:
+    from ..bags import BagError, recover
+
+    try:
+        report = recover(args.bag, args.output)
+    except BagError as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"{args.output or args.bag}: {exc.strerror or exc}") from None
+    print(report.summary())
+    return 0
+
+
+def run_estimate(args: argparse.Namespace) -> int:
+    from ..bags import BagError
+    from ..estimation.offline import replay_estimates
+
+    fin = _load(args.fin, None)
+    try:
+        replay = replay_estimates(args.bag, fin, args.namespace)
+    except BagError as exc:
+        raise UsageError(str(exc)) from None
+    for line in replay.skipped_lines():
+        print(f"skipped {line}", file=sys.stderr)
+    if args.json:
+        print(json.dumps([e.as_dict() for e in replay.replayed], indent=1))
+    else:
+        print(
+            f"{'t_start':>12} {'final':>5} {'f [Hz]':>7} {'Vpp':>5} {'T [mN]':>8} {'T_self':>8} "
+            f"{'T_cell':>8} {'P [mW]':>8} {'T/P [mN/W]':>10}"
+        )
+        for e in replay.replayed:
+            print(
+                f"{e.t_start:12.3f} {int(e.final):5d} {e.frequency_hz:7.3f} {e.voltage_pp:5.0f} "
+                f"{e.thrust_n * 1e3:8.3f} {e.thrust_self_n * 1e3:8.3f} {e.thrust_loadcell_n * 1e3:8.3f} "
+                f"{e.power_w * 1e3:8.3f} {e.thrust_per_watt * 1e3:10.1f}"
+            )
+    if replay.recorded:
+        diff = replay.max_relative_difference()
+        same = "reproduces" if diff <= 1e-9 else "DIFFERS FROM"
+        print(
+            f"{len(replay.replayed)} estimates; {same} the {len(replay.recorded)} recorded live "
+            f"(largest relative difference {diff:.1e})",
+            file=sys.stderr,
+        )
+    return 0
+
+
+def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "data", nargs="*", help="MCAP bags of trials (the suite's topics), or one CSV of per-trial summaries"
+    )
+    p.add_argument(
+        "--paper", action="store_true", help="check what the paper reports for M8528-P1 (no data needed)"
+    )
+    p.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
+    p.add_argument("--namespace", default="/fin", help="the fin's namespace in the bags (default /fin)")
+    p.add_argument("--json", metavar="OUT.json", help="write the findings as JSON")
+    p.add_argument(
+        "--report", metavar="OUT_DIR", help="write report.md, plots, JSON and augmented_model.yaml here"
+    )
+    p.add_argument(
+        "--relative-sigma",
+        type=float,
+        default=0.02,
+        help="CSV without *_sigma columns: 1-sigma relative uncertainty (0.02)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument(
+        "--force", action="store_true", help="replace an existing --json file or --report directory's files"
+    )
+
+
+def _refuse_existing(args: argparse.Namespace) -> None:
+    """Outputs are never replaced without ``--force``; checked before the work, not after it."""
+    if args.force:
+        return
+    if args.json and Path(args.json).exists():
+        raise UsageError(f"--json {args.json}: exists (give --force to replace it)")
+    if args.report and Path(args.report).exists():
+        report = Path(args.report)
+        if not report.is_dir():
+            raise UsageError(f"--report {report}: exists and is not a directory")
+        if any(report.iterdir()):
+            raise UsageError(f"--report {report}: not empty (give --force to replace its files)")
+
+
+def run_diagnose(args: argparse.Namespace) -> int:
+    import time
+
+    from ..bags import BagError
+    from ..diagnosis.attribute import diagnose, summary_json
+    from ..diagnosis.data import DataError, from_bags, from_csv
+    from ..diagnosis.report import text, write
+
+    fin = _load(args.fin, None)
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    if not (np.isfinite(args.relative_sigma) and 0 < args.relative_sigma < 1):
+        raise UsageError("--relative-sigma: expected a number in (0, 1)")
+    _refuse_existing(args)
+    if args.paper:
+        from ..diagnosis.paper import paper_gap, paper_text
+
+        if args.data:
+            raise UsageError("--paper takes no data files")
+        result = paper_gap(fin, progress=say)
+        print(paper_text(fin, result))
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(
+                    result, fh, indent=1, default=lambda o: o.__dict__ if hasattr(o, "__dict__") else float(o)
+                )
+        return 0
+    if not args.data:
+        raise UsageError("give one or more bags, or one CSV (or --paper)")
+    csvs = [d for d in args.data if d.lower().endswith(".csv")]
+    try:
+        if csvs:
+            if len(args.data) != 1:
+                raise UsageError("give either one CSV or one or more bags, not a mix")
+            say(f"reading {csvs[0]}")
+            trials = from_csv(csvs[0], relative_sigma=args.relative_sigma)
+        else:
+            trials, skipped = from_bags(args.data, fin, args.namespace, progress=say)
+            for line in skipped:
+                print(f"skipped {line}", file=sys.stderr)
+        say(f"{len(trials)} trials; checking each stage, then fitting the candidate effects")
+        d = diagnose(trials, fin, progress=say)
+    except (BagError, DataError) as exc:
+        raise UsageError(str(exc)) from None
+    summary = summary_json(d)
+    print(text(d))
+    try:
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(summary, fh, indent=1, default=float)
+            say(f"wrote {args.json}")
+        if args.report:
+            for path in write(d, args.report, summary):
+                say(f"wrote {path}")
+    except OSError as exc:
+        raise UsageError(f"cannot write the output ({exc})") from None
+    say("done")
+    return 0
+
+
+def diagnose_main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezofin_ros diagnose ...``: the ``diagnose`` sub-command on its own."""
+    parser = argparse.ArgumentParser(
+        prog="diagnose", description="sim-to-real gap diagnosis of measured trials"
+    )
+    _add_diagnose_args(parser)
+    parser.set_defaults(func=run_diagnose)
+    return _run(parser, argv)
+
+
+def run_fins(args: argparse.Namespace) -> int:
+    for name in preset_names():
+        fin = load_fin(name)
+        print(
+            f"{name}: psi={fin.psi:.3f} c_m={fin.c_m:.3f} mu={fin.mu:.2f} gamma={fin.gamma:.4g} "
+            f"m_v={fin.m_v:.4g} kg/m f_sc={fin.f_sc} Hz -> linear underwater {fin.f_water_linear:.2f} Hz"
+        )
+    return 0
+
+
+def _run(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except UsageError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except BrokenPipeError:  # e.g. `piezofin sweep | head`
+        return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return _run(build_parser(), argv)
+
+
+def sweep_main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezofin_ros sweep ...``: the ``sweep`` sub-command on its own."""
+    parser = argparse.ArgumentParser(prog="sweep", description="steady-state sweep of a fin")
+    _add_sweep_args(parser)
+    parser.set_defaults(func=run_sweep)
+    return _run(parser, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,90 @@
+"""Summary tables and plots of trial results (plain matplotlib; no ROS)."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..physics.fin import Fin
+from ..physics.steady import harmonic_balance
+
+
+def _fmt(x: float | None, scale: float, digits: int) -> str:
+    if x is None or not math.isfinite(x):
+        return "-"
+    return f"{x * scale:.{digits}f}"
+
+
+def trial_table(records: Sequence[dict[str, float]], chosen: dict[str, float] | None) -> str:
+    """A fixed-width table of trial records (the controller's status ``results``)."""
+    head = (
+        f"{'trial':>5} {'f [Hz]':>7} {'Vpp':>5} {'T [mN]':>8} {'T_self':>8} {'T_cell':>8} "
+        f"{'P [mW]':>8} {'T/P [mN/W]':>10}"
+    )
+    lines = [head, "-" * len(head)]
+    for r in records:
+        mark = " <- chosen" if chosen is not None and r["trial"] == chosen["trial"] else ""
+        lines.append(
+            f"{int(r['trial']):>5} {r['frequency_hz']:>7.2f} {r['voltage_pp']:>5.0f} "
+            f"{_fmt(r.get('thrust_n'), 1e3, 3):>8} {_fmt(r.get('thrust_self_n'), 1e3, 3):>8} "
+            f"{_fmt(r.get('thrust_loadcell_n'), 1e3, 3):>8} {_fmt(r.get('power_w'), 1e3, 3):>8} "
+            f"{_fmt(r.get('thrust_per_watt'), 1e3, 1):>10}{mark}"
+        )
+    return "\n".join(lines)
+
+
+def plot_trials(
+    path: str | os.PathLike[str],
+    fin: Fin,
+    records: Sequence[dict[str, float]],
+    chosen: dict[str, float] | None,
+    title: str = "",
+) -> Path:
+    """Measured thrust, power and thrust per watt against frequency, with the model's curves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4), constrained_layout=True)
+    volts = sorted({r["voltage_pp"] for r in records})
+    freqs = [r["frequency_hz"] for r in records]
+    f_dense = np.linspace(max(0.2, min(freqs) * 0.8), max(freqs) * 1.1, 300)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, v in enumerate(volts):
+        c = colors[j % len(colors)]
+        model = harmonic_balance(fin, f_dense, v, harmonics=3)
+        rs = [r for r in records if r["voltage_pp"] == v and "thrust_n" in r]
+        f = [r["frequency_hz"] for r in rs]
+        for ax, key, mkey, scale in (
+            (axes[0], "thrust_n", model.thrust_n, 1e3),
+            (axes[1], "power_w", model.power_w, 1e3),
+            (axes[2], "thrust_per_watt", model.thrust_per_watt, 1e3),
+        ):
+            ax.plot(f_dense, np.asarray(mkey) * scale, color=c, lw=1, alpha=0.6, label=f"model {v:.0f} Vpp")
+            ax.plot(f, [r[key] * scale for r in rs], "o", color=c, label=f"measured {v:.0f} Vpp")
+            if key == "thrust_n":
+                ax.plot(f, [r["thrust_loadcell_n"] * scale for r in rs], "x", color=c, label="load cell")
+    if chosen is not None and "thrust_n" in chosen:
+        axes[2].plot(
+            chosen["frequency_hz"], chosen["thrust_per_watt"] * 1e3, "*", ms=16, color="k", label="chosen"
+        )
+    for ax, ylabel in zip(
+        axes, ("mean thrust [mN]", "mean power [mW]", "thrust per watt [mN/W]"), strict=True
+    ):
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[1].set_yscale("log")
+    axes[0].legend(fontsize=7)
+    axes[2].legend(fontsize=7)
+    fig.suptitle(title or f"{fin.name}: protocol trials")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

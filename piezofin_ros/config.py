@@ -1,0 +1,62 @@
+"""Settings declared once: a dataclass field that carries its range, choices and description.
+
+A node's configuration is a frozen dataclass whose fields are made with :func:`setting`; the same
+declaration gives the default, the range and the text that ``ros2 param describe`` shows (the node
+declares its ROS parameters from it, :func:`piezofin_ros.nodes._common.declare`), the reference
+table in ``docs/reference.md`` (checked by a test), and the checks a value passes::
+
+    @dataclass(frozen=True)
+    class PlayerConfig:
+        bag: str = setting("", "the .mcap file to play")
+        rate: float = setting(1.0, "playback speed factor", 0.01, 1000.0)
+
+ROS-free: the science packages use it for their own settings (the rig's instruments and limits,
+the estimator's windows), which a node declares under a prefix (``rig.*``, ``limits.*``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import Field, dataclass, field, fields
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Setting:
+    """What a field declares besides its default."""
+
+    description: str
+    lo: float | None = None  # inclusive range of a number
+    hi: float | None = None
+    choices: tuple[str, ...] = ()  # the values a string may take
+    items: type | None = None  # element type of a tuple (float or str): a ROS array parameter
+    read_only: bool = False
+
+
+def setting(
+    default: Any,
+    description: str,
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    choices: Sequence[str] = (),
+    items: type | None = None,
+    read_only: bool = False,
+) -> Any:
+    """A dataclass field with its setting (arrays are tuples, with ``items`` their element type)."""
+    if isinstance(default, tuple) and items is None:
+        raise TypeError(f"setting {description!r}: a tuple needs items= (float or str)")
+    return field(
+        default=default, metadata={"setting": Setting(description, lo, hi, tuple(choices), items, read_only)}
+    )
+
+
+def settings_of(cls: type) -> list[tuple[Field[Any], Any, Setting]]:
+    """(field, default, setting) of every field of a settings dataclass, in declaration order."""
+    out = []
+    for f in fields(cls):
+        s = f.metadata.get("setting")
+        if s is None:
+            raise TypeError(f"{cls.__name__}.{f.name} is not declared with setting()")
+        out.append((f, f.default, s))
+    return out

@@ -1,0 +1,110 @@
+"""The controller's live loop around the optimiser: trials, settling, slew, estimate watchdog."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from .optimise import Optimiser
+
+
+@dataclass
+class DriveLoop:
+    """The controller's loop around an :class:`Optimiser`: trials, settling, slew, safety.
+
+    ``tick(t)`` returns the command to send at time ``t``; ``add_estimate(t, e)`` takes each
+    running-window estimate.  A trial is settled when two consecutive windows at the point agree
+    within ``settle_tolerance`` (or after ``max_windows``); its last window is the observation.
+    The commanded voltage moves at most ``slew_vpp_per_s`` and never leaves the limits.  When
+    estimates stop for ``estimate_timeout_s`` the loop holds its point; after twice that it ramps
+    the drive down to zero (each with a message in ``events``), and resumes if they come back.
+    """
+
+    optimiser: Optimiser
+    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer"
+    slew_vpp_per_s: float = 400.0
+    estimate_timeout_s: float = 10.0
+    settle_tolerance: float = 0.03
+    max_windows: int = 3
+    state: str = "driving"  # driving, holding, ramping down, stopped
+    target: tuple[float, float] | None = None
+    command_v: float = 0.0
+    trials: int = 0
+    discrepancy: float = math.nan  # self-sensed vs vibrometer thrust, relative, last window
+    events: list[str] = field(default_factory=list)
+    _t_last: float | None = None
+    _t_settled_from: float | None = None
+    _last_estimate_t: float | None = None
+    _windows: list[tuple[float, float]] = field(default_factory=list)
+
+    def tick(self, t: float) -> tuple[float, float, float]:
+        if self._t_last is None:
+            self._t_last = self._last_estimate_t = t
+        assert self._last_estimate_t is not None
+        dt = max(0.0, t - self._t_last)
+        self._t_last = t
+        if self.target is None:
+            self.target = self.optimiser.propose()
+        f, v_target = self.target
+        silence = t - self._last_estimate_t
+        if self.state in ("driving", "holding") and silence > 2 * self.estimate_timeout_s:
+            self.state = "ramping down"
+            self.events.append(f"no estimate for {silence:.1f} s: ramping the drive down to 0 V")
+        elif self.state == "driving" and silence > self.estimate_timeout_s:
+            self.state = "holding"
+            self.events.append(
+                f"no estimate for {silence:.1f} s: holding {f:.2f} Hz, {self.command_v:.0f} Vpp"
+            )
+        goal = 0.0 if self.state in ("ramping down", "stopped") else v_target
+        step = self.slew_vpp_per_s * dt
+        self.command_v += min(max(goal - self.command_v, -step), step)
+        self.command_v = min(max(self.command_v, 0.0), self.optimiser.limits.voltage_pp_max)
+        if self.state == "ramping down" and self.command_v == 0.0:
+            self.state = "stopped"
+        if self._t_settled_from is None and self.command_v == v_target and self.state == "driving":
+            self._t_settled_from = t
+        return (f, self.command_v, 1.0 if self.command_v > 0 else 0.0)
+
+    def add_estimate(self, t: float, e: Any) -> bool:
+        """Use a running-window estimate (an :class:`~piezofin_ros.estimation.estimator.Estimate`)."""
+        self._last_estimate_t = t
+        if self.state != "driving":
+            self.events.append(f"estimates are back: resuming from {self.state}")
+            self.state = "driving"
+        thrust = e.thrust_self_n if self.source == "self" else e.thrust_n
+        if math.isfinite(e.thrust_n) and math.isfinite(e.thrust_self_n) and e.thrust_n > 0:
+            self.discrepancy = e.thrust_self_n / e.thrust_n - 1.0
+        if self.target is None or self._t_settled_from is None:
+            return False
+        f, _ = self.target
+        if e.final or e.t_start < self._t_settled_from or abs(e.frequency_hz - f) > 0.02 * f:
+            return False  # a window from before the drive reached this point
+        power = e.power_w
+        if not (math.isfinite(thrust) and math.isfinite(power)):
+            return False
+        self._windows.append((thrust, power))
+        w = self._windows
+        agree = len(w) >= 2 and all(
+            abs(a / b - 1) <= self.settle_tolerance for a, b in zip(w[-1], w[-2], strict=True)
+        )
+        if not (agree or len(w) >= self.max_windows):
+            return True
+        self.optimiser.observe(e.t_end, e.frequency_hz, e.voltage_pp, thrust, power)
+        self.trials += 1
+        self._windows = []
+        new = self.optimiser.propose()
+        if new != self.target:
+            self.target = new
+            self._t_settled_from = None
+        return True
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "state": self.state,
+            "trials": self.trials,
+            "target": self.target,
+            "command_vpp": self.command_v,
+            "self_vs_vibrometer": self.discrepancy,
+            **self.optimiser.status(),
+        }

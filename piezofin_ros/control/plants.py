@@ -1,0 +1,105 @@
+"""Plants: the fin as a black box that maps an operating point to thrust and power.
+
+The controller's benchmark and tests need fins that differ from the model the controller
+starts from, in the ways the paper says real fins do (see the reading notes).  A plant is a
+:class:`~piezofin_ros.physics.model.Model` (a fin plus effects of the one library) with a
+resonance that may drift in time and measurement noise:
+
+* ``softening``: the resonance drops with the drive amplitude (electroelastic softening: the
+  MFC's stiffness falls with the electric field), the library's ``electroelastic_softening``:
+  ``wn`` becomes ``wn (1 - softening * Vpp / 800)``, so the resonance moves by ``softening``
+  (e.g. 0.4 = 40 %) at 800 Vpp and proportionally less below;
+* ``loss_tan_delta``: dielectric loss of the piezoceramic, ``dielectric_loss``:
+  ``P_loss = (1/2) tan(delta) C_eq w V^2`` (``V`` the voltage amplitude), which the nominal model
+  has not: it is what makes the measured thrust per watt peak near resonance;
+* ``resonance_scale``: the natural frequency times a factor (``resonance_offset``), constant or a
+  function of time (drift).
+
+:meth:`Plant.measure` adds measurement noise like the estimator's (relative and absolute).
+Everything is vectorised over arrays of frequency and voltage.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..physics.effects import DielectricLoss, Electroelastic, ResonanceOffset
+from ..physics.fin import Fin
+from ..physics.model import Model
+
+FloatArray = NDArray[Any]
+
+
+@dataclass(frozen=True)
+class PlantResponse:
+    """Steady thrust (N), electrical power (W) and RMS tip velocity (m/s) on a grid."""
+
+    thrust_n: FloatArray
+    power_w: FloatArray
+    tip_velocity_rms: FloatArray
+
+    @property
+    def thrust_per_watt(self) -> FloatArray:
+        p = self.power_w
+        return np.divide(self.thrust_n, p, out=np.zeros(np.shape(p)), where=p > 0)
+
+
+@dataclass(frozen=True)
+class EstimateNoise:
+    """Measurement noise of one trial's estimate: relative (1 sigma) plus absolute floors."""
+
+    thrust_rel: float = 0.005
+    thrust_abs_n: float = 5e-6
+    power_rel: float = 0.005
+    power_abs_w: float = 5e-6
+
+
+@dataclass(frozen=True)
+class Plant:
+    fin: Fin
+    softening: float = 0.0
+    loss_tan_delta: float = 0.0
+    resonance_scale: float | Callable[[float], float] = 1.0
+    noise: EstimateNoise = field(default_factory=EstimateNoise)
+    name: str = "plant"
+
+    def _scale(self, t: float) -> float:
+        s = self.resonance_scale
+        return float(s(t)) if callable(s) else float(s)
+
+    def model(self, t: float = 0.0) -> Model:
+        """The fin plus this plant's effects at time ``t`` (only drift depends on it)."""
+        return Model(
+            self.fin,
+            (
+                ResonanceOffset(self._scale(t)),
+                Electroelastic(self.softening),
+                DielectricLoss(self.loss_tan_delta),
+            ),
+        )
+
+    def steady(self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, t: float = 0.0) -> PlantResponse:
+        """Noise-free steady state at time ``t``."""
+        p = self.model(t).predict(frequency_hz, voltage_pp)
+        return PlantResponse(np.asarray(p.thrust_n), np.asarray(p.power_w), np.asarray(p.tip_velocity_rms))
+
+    def measure(
+        self, frequency_hz: float, voltage_pp: float, t: float, rng: np.random.Generator
+    ) -> tuple[float, float]:
+        """One trial's noisy ``(thrust N, power W)``."""
+        r = self.steady(frequency_hz, voltage_pp, t)
+        n = self.noise
+        thrust = (
+            float(r.thrust_n) * (1 + n.thrust_rel * rng.standard_normal())
+            + n.thrust_abs_n * rng.standard_normal()
+        )
+        power = (
+            float(r.power_w) * (1 + n.power_rel * rng.standard_normal())
+            + n.power_abs_w * rng.standard_normal()
+        )
+        return thrust, power

@@ -1,0 +1,573 @@
+r"""Thrust, power and thrust per watt from measured signals, over quasi-steady windows.
+
+Two layers, both free of ROS:
+
+* :func:`analyse_window` turns one window of samples (a whole number of drive periods) into an
+  :class:`Estimate`.  It is a pure function, used live, on bags and in the tests.
+* :class:`StreamEstimator` takes blocks of samples as they arrive (drive voltage and current,
+  tip velocity, load-cell displacement, swimming speed), finds the quasi-steady windows in the
+  drive signal itself and emits estimates.  It never needs to be told what was commanded, so it
+  works the same behind ``fin_sim``, a rig driver or a fish's own drive electronics.
+
+What is estimated (per window of ``N`` whole periods at ``f = w / 2 pi``)
+-------------------------------------------------------------------------
+The voltage, current and tip velocity are projected on the odd harmonics ``k = 1, 3, 5``
+of the drive frequency (a lock-in: exact for a periodic steady state, and it rejects the white
+measurement noise that would bias a mean square).  With ``U_k`` the complex amplitudes of the tip
+velocity:
+
+* RMS tip velocity ``u = sqrt(sum |U_k|^2 / 2)``;
+* Lighthill's mean thrust, Eqs. (19)-(20): ``T = (1/2) m_v [u^2 - U^2 (phi'(L)/phi(L))^2 w_rms^2]``,
+  ``w_rms^2 = sum |U_k|^2 / (2 (k w)^2)``, with ``m_v = (pi/4) rho_w b^2 c_m(psi)`` (Eq. 21);
+* mean electrical power ``P = mean(v i)`` over a period, by Parseval from the same harmonics:
+  ``P = sum_k Re(V_k conj(I_k)) / 2``.  A plain ``mean(v i)`` over samples leaks the reactive
+  power ``C_eq v dv/dt`` (often 10x the real power) whenever the window misses a period
+  boundary, even by a fraction of a sample; the projection does not;
+* thrust per watt ``T / P`` and the thrust coefficient of Eq. (22),
+  ``c_tau = T / ((1/2) rho_w w^2 |w(L)|^2 b L)`` with ``|w(L)| = |U_1| / w``;
+* **self-sensed** tip velocity and thrust, from the drive alone: by Eq. (10) the motional
+  current is ``i - C_eq dv/dt = theta deta/dt``, so ``U_k^self = (phi(L)/theta)(I_k - j k w C_eq V_k)``.
+  A fish with no vibrometer and no load cell gets the same Lighthill thrust from this;
+* **load-cell** thrust as the paper measures it: mean deflection during the window minus the
+  baseline (pre and post, each ``baseline_s`` long, with the drive off), times the transducer
+  stiffness.  The baseline is the line through the two baselines' means, read at the window's mean
+  time, so a linear drift cancels even though the window (after ``settle_s``) is not centred
+  between them; the paper's plain average would leave ``drift x offset`` (2 nm/s x 1.5 s x
+  6.8 kN/m = 20 uN on the simulated rig).  With the pre baseline only, its mean is used.
+
+Windows
+-------
+A drive period runs between two upward zero crossings of the voltage (with hysteresis against
+noise).  Consecutive periods of the same length and amplitude (within ``tolerance``) form a
+*segment*; a burst of the paper's protocol is one segment, and so is steady continuous driving.
+The first ``settle_s`` of a segment are skipped (the transient).  While a segment lasts, an
+estimate is emitted every ``window_s`` of settled periods (``final = 0``); when it ends (the drive
+stops or changes) one estimate over all its settled periods follows (``final = 1``), once the post
+baseline of the load cell has been recorded.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..config import setting
+from ..errors import EstimationError
+from ..physics.fin import Fin
+
+FloatArray = NDArray[Any]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Estimates over one window ``[t_start, t_end)`` (s, ROS time of the samples).  SI units.
+
+    NaN marks what the data cannot give (no vibrometer, no load-cell baseline, ...).
+    """
+
+    t_start: float
+    t_end: float
+    final: float  # 1: whole segment (trial); 0: running window
+    n_periods: float
+    frequency_hz: float
+    voltage_pp: float  # V, 2 |V_1|
+    current_rms: float  # A
+    power_w: float  # W, mean(v i)
+    tip_velocity_rms: float  # m/s, vibrometer
+    thrust_n: float  # N, Lighthill (vibrometer)
+    thrust_per_watt: float  # N/W (vibrometer)
+    c_tau: float  # Eq. (22), from the Lighthill thrust
+    tip_velocity_rms_self: float  # m/s, from the motional current
+    thrust_self_n: float  # N, Lighthill from the motional current
+    thrust_per_watt_self: float  # N/W
+    thrust_loadcell_n: float  # N, load cell with the pre/post baseline
+    loadcell_baselines: float  # 0, 1 (pre only) or 2 (pre and post)
+    swim_speed_m_s: float  # U used in Eq. (19)
+    tip_phase_rad: float = math.nan  # phase of the fundamental tip velocity relative to the voltage's
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, record: dict[str, float]) -> Estimate:
+        missing = [n for n in cls.field_names() if n not in record and n not in OPTIONAL_FIELDS]
+        if missing:
+            raise KeyError(f"estimate lacks field(s) {', '.join(missing)}")
+        return cls(**{n: float(record.get(n, math.nan)) for n in cls.field_names()})
+
+
+#: Fields added after the first recordings: older bags lack them, and they read as NaN.
+OPTIONAL_FIELDS = ("tip_phase_rad",)
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Windowing and baseline settings (s, V)."""
+
+    on_threshold_v: float = setting(10.0, "estimator: |v| above this means the drive is on, V", 0.01, 1000.0)
+    off_hold_s: float = setting(
+        0.5, "estimator: the drive is off after this long below the threshold, s", 0.01, 60.0
+    )
+    settle_s: float = setting(3.0, "estimator: transient skipped at the start of a segment, s", 0.0, 600.0)
+    window_s: float = setting(
+        5.0, "estimator: running estimates every this much settled time, s", 0.1, 3600.0
+    )
+    max_window_s: float = setting(
+        60.0, "estimator: a final estimate uses at most the last this-much of its segment, s", 0.1, 3600.0
+    )
+    min_periods: int = setting(3, "estimator: fewest whole periods in a window", 1, 10000)
+    tolerance: float = setting(
+        0.03, "estimator: relative change of period or amplitude that starts a new segment", 1e-4, 0.5
+    )
+    baseline_s: float = setting(5.0, "estimator: load-cell pre/post baseline length, s", 0.1, 600.0)
+    post_delay_s: float = setting(
+        1.0, "estimator: wait after the drive stops before the post baseline, s", 0.0, 600.0
+    )
+    channel_timeout_s: float = setting(
+        2.0, "estimator: how long (drive time) to wait for a lagging channel, s", 0.01, 600.0
+    )
+    harmonics: int = setting(3, "estimator: number of odd harmonics in the lock-in (1, 3, 5)", 1, 10)
+    loadcell_stiffness_n_per_m: float = setting(
+        6846.09375, "estimator: load cell stiffness, N/m (the paper's cantilever, 3 E I / l^3)", 1e-3, 1e9
+    )
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise EstimationError(f"estimator.{f.name} must be a finite number > 0, got {value!r}")
+
+
+def _harmonic_fit(t: FloatArray, t_ref: float, omega: float, orders: FloatArray, x: FloatArray) -> FloatArray:
+    """Complex amplitudes ``X_k`` of each column of ``x``: ``x ~ c + sum_k Re(X_k e^{j k w (t - t_ref)})``.
+
+    Least squares on ``[1, cos, sin]``; over whole periods of uniform samples this is the
+    Fourier projection (a lock-in), and it still works on a window that is a sample short.
+    Returns an array ``(len(orders), n_columns)``.
+    """
+    ph = np.outer(t - t_ref, omega * orders)
+    basis = np.column_stack([np.ones_like(t), np.cos(ph), np.sin(ph)])
+    coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
+    m = len(orders)
+    return coef[1 : 1 + m] - 1j * coef[1 + m :]  # type: ignore[no-any-return]
+
+
+def analyse_window(
+    fin: Fin,
+    t: ArrayLike,
+    voltage: ArrayLike,
+    current: ArrayLike,
+    frequency_hz: float,
+    *,
+    tip_velocity: ArrayLike | None = None,
+    tip_t: ArrayLike | None = None,
+    swim_speed_m_s: float = 0.0,
+    harmonics: int = 3,
+) -> dict[str, float]:
+    """Estimates over one window of drive samples that spans whole periods of ``frequency_hz``.
+
+    ``tip_velocity`` may have its own sample times ``tip_t`` (default: ``t``).  Returns the
+    fields of :class:`Estimate` that a window determines (not the window bookkeeping or the
+    load cell).
+    """
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(voltage, dtype=float)
+    i = np.asarray(current, dtype=float)
+    if t.size < 4 or t.shape != v.shape or t.shape != i.shape:
+        raise EstimationError(
+            "a window needs at least 4 drive samples, with t, voltage and current of equal length"
+        )
+    w = 2.0 * math.pi * frequency_hz
+    orders = np.arange(1, 2 * harmonics, 2, dtype=float)
+    V, I_ = _harmonic_fit(t, t[0], w, orders, np.column_stack([v, i])).T
+    power = float(0.5 * np.sum(np.real(V * np.conj(I_))))  # Parseval: mean(v i) over a period
+    slope_ratio = fin.phi_tip_slope / fin.phi_tip
+    U2 = swim_speed_m_s**2
+
+    def lighthill(Uk: FloatArray) -> tuple[float, float, float]:
+        ms_u = float(np.sum(np.abs(Uk) ** 2) / 2.0)
+        ms_w = float(np.sum(np.abs(Uk) ** 2 / (2.0 * (orders * w) ** 2)))
+        thrust = 0.5 * fin.m_v * (ms_u - U2 * slope_ratio**2 * ms_w)
+        amp_w1 = abs(Uk[0]) / w
+        denom = 0.5 * fin.rho_w * w**2 * amp_w1**2 * fin.b * fin.L
+        c_tau = thrust / denom if denom > 0 else math.nan
+        return math.sqrt(ms_u), thrust, c_tau
+
+    def per_watt(thrust: float) -> float:
+        return thrust / power if power > 0 else math.nan
+
+    motional = I_ - 1j * orders * w * fin.C_eq * V
+    u_self, thrust_self, _ = lighthill(fin.phi_tip / fin.theta * motional)
+    out = {
+        "frequency_hz": frequency_hz,
+        "voltage_pp": 2.0 * float(abs(V[0])),
+        "current_rms": float(np.sqrt(np.mean(i**2))),
+        "power_w": power,
+        "tip_velocity_rms": math.nan,
+        "thrust_n": math.nan,
+        "thrust_per_watt": math.nan,
+        "c_tau": math.nan,
+        "tip_velocity_rms_self": u_self,
+        "thrust_self_n": thrust_self,
+        "thrust_per_watt_self": per_watt(thrust_self),
+        "swim_speed_m_s": swim_speed_m_s,
+        "tip_phase_rad": math.nan,
+    }
+    if tip_velocity is not None:
+        tu = t if tip_t is None else np.asarray(tip_t, dtype=float)
+        u = np.asarray(tip_velocity, dtype=float)
+        ok = np.isfinite(u)
+        if np.count_nonzero(ok) >= 2 * len(orders) + 1:
+            Uk = _harmonic_fit(tu[ok], t[0], w, orders, u[ok])
+            u_rms, thrust, c_tau = lighthill(Uk)
+            out.update(
+                tip_velocity_rms=u_rms,
+                thrust_n=thrust,
+                thrust_per_watt=per_watt(thrust),
+                c_tau=c_tau,
+                tip_phase_rad=float(np.angle(Uk[0] / V[0])) if abs(V[0]) > 0 else math.nan,
+            )
+    return out
+
+
+def _baseline_at(baselines: list[tuple[float, float]], t: float) -> float:
+    """The load cell's zero at time ``t`` from (mean time, mean deflection) of its baselines:
+    the line through two of them (a linear drift cancels), or the value of one."""
+    if len(baselines) == 1 or baselines[-1][0] <= baselines[0][0]:
+        return float(np.mean([x for _, x in baselines]))
+    (t0, x0), (t1, x1) = baselines[0], baselines[-1]
+    return x0 + (x1 - x0) * (t - t0) / (t1 - t0)
+
+
+class _Channel:
+    """Time-ordered samples of one topic (columns share the times), pruned from the front."""
+
+    def __init__(self) -> None:
+        self._t: deque[FloatArray] = deque()
+        self._x: deque[FloatArray] = deque()
+        self.latest = -math.inf
+        self.seen = False
+        self.dropped = 0  # samples at or before the latest time (duplicates, out of order)
+
+    def append(self, t: FloatArray, x: FloatArray) -> None:
+        self.seen = True
+        keep = t > self.latest
+        if not np.all(keep):
+            self.dropped += int(np.count_nonzero(~keep))
+            t, x = t[keep], x[keep]
+        if t.size:
+            self._t.append(t)
+            self._x.append(x)
+            self.latest = float(t[-1])
+
+    def slice(self, t0: float, t1: float) -> tuple[FloatArray, FloatArray]:
+        ts, xs = [], []
+        for t, x in zip(self._t, self._x, strict=True):
+            if t[-1] < t0 or t[0] >= t1:
+                continue
+            sel = (t >= t0) & (t < t1)
+            ts.append(t[sel])
+            xs.append(x[sel])
+        if not ts:
+            return np.empty(0), np.empty((0, *self._x[0].shape[1:]) if self._x else (0,))
+        return np.concatenate(ts), np.concatenate(xs)
+
+    def prune(self, before: float) -> None:
+        while self._t and self._t[0][-1] < before:
+            self._t.popleft()
+            self._x.popleft()
+
+
+@dataclass
+class _Pending:
+    t_start: float
+    t_end: float
+    n_periods: int
+    final: bool
+    pre: tuple[float, float] | None  # load-cell pre-baseline window (the drive off before it), if any
+    post: tuple[float, float] | None = None
+    post_open: bool = False  # the post baseline may still be cut short by a restart
+    await_off: bool = False  # ended by a change: a stop that follows soon still gives a post baseline
+
+
+@dataclass
+class _Segment:
+    pre: tuple[float, float] | None  # load-cell pre-baseline window (the drive off before it), if any
+    periods: list[tuple[float, float, float]] = field(default_factory=list)  # (t0, t1, vpp)
+    next_window: int = 0  # index of the first period of the next running window
+
+
+class StreamEstimator:
+    """Incremental estimator: feed blocks with ``add_*``; each call returns new estimates.
+
+    All times are the samples' own (ROS clock) times, so live data and a replayed bag give the
+    same estimates.  ``fin`` supplies ``m_v``, ``C_eq``, ``theta`` and ``phi(L)``.
+    """
+
+    def __init__(self, fin: Fin, config: EstimatorConfig | None = None) -> None:
+        self.fin = fin
+        self.config = config or EstimatorConfig()
+        self.drive = _Channel()
+        self.tip = _Channel()
+        self.loadcell = _Channel()
+        self._speed: deque[tuple[float, float]] = deque(maxlen=10_000)
+        self._on = False
+        self._last_above = -math.inf
+        self._off_since = -math.inf  # time since which the drive has been off and settled
+        self._first_t = math.nan
+        self._prev = (math.nan, math.nan)  # last drive sample (t, v)
+        self._armed = False
+        self._vmin = math.inf
+        self._vmax = -math.inf
+        self._last_cross = math.nan
+        self._segment: _Segment | None = None
+        self._pending: list[_Pending] = []
+        self._last_final: _Pending | None = None  # ended by a change, may still get a post baseline
+
+    # ----------------------------------------------------------------------------- inputs
+    def add_drive(self, t: ArrayLike, voltage: ArrayLike, current: ArrayLike) -> list[Estimate]:
+        t = np.asarray(t, dtype=float)
+        v = np.asarray(voltage, dtype=float)
+        i = np.asarray(current, dtype=float)
+        if t.size == 0:
+            return []
+        keep = t > self.drive.latest
+        t, v, i = t[keep], v[keep], i[keep]
+        if t.size == 0:
+            return []
+        if math.isnan(self._first_t):
+            self._first_t = float(t[0])
+            self._off_since = float(t[0])
+        self.drive.append(t, np.column_stack([v, i]))
+        self._segment_drive(t, np.nan_to_num(v))
+        self._prune()
+        return self._finish_ready()
+
+    def add_tip(self, t: ArrayLike, tip_velocity: ArrayLike) -> list[Estimate]:
+        self.tip.append(np.asarray(t, dtype=float), np.asarray(tip_velocity, dtype=float))
+        return self._finish_ready()
+
+    def add_loadcell(self, t: ArrayLike, displacement: ArrayLike) -> list[Estimate]:
+        self.loadcell.append(np.asarray(t, dtype=float), np.asarray(displacement, dtype=float))
+        return self._finish_ready()
+
+    def add_speed(self, t: float, speed_m_s: float) -> None:
+        """Swimming speed ``U`` (m/s) from the fish stack, applied in Eq. (19)."""
+        if math.isfinite(t) and math.isfinite(speed_m_s):
+            self._speed.append((t, speed_m_s))
+
+    def flush(self) -> list[Estimate]:
+        """End of data: close the open segment and emit everything pending with what is there."""
+        if self._segment is not None:
+            self._end_segment(self.drive.latest, by_off=False)
+        for p in self._pending:
+            p.await_off = p.post_open = False
+        out = [self._compute(p) for p in self._pending]
+        self._pending = []
+        return [e for e in out if e is not None]
+
+    # ------------------------------------------------------------------------ segmentation
+    def _segment_drive(self, t: FloatArray, v: FloatArray) -> None:
+        cfg = self.config
+        above = np.abs(v) > cfg.on_threshold_v
+        if np.any(above):
+            first_above = float(t[np.argmax(above)])
+            if not self._on:
+                self._on = True
+                self._on_event(first_above)
+            self._last_above = float(t[len(above) - 1 - np.argmax(above[::-1])])
+        # Upward zero crossings with hysteresis (v must have gone below -h since the last one).
+        h = 0.5 * cfg.on_threshold_v
+        t_prev, v_prev = self._prev
+        tt = np.concatenate([[t_prev], t]) if math.isfinite(t_prev) else t
+        vv = np.concatenate([[v_prev], v]) if math.isfinite(t_prev) else v
+        cand = np.flatnonzero((vv[:-1] < 0) & (vv[1:] >= 0)) + 1
+        start = 0
+        for k in cand.tolist():
+            seg = vv[start:k]
+            if seg.size:
+                self._vmin = min(self._vmin, float(seg.min()))
+                self._vmax = max(self._vmax, float(seg.max()))
+            start = k
+            if self._vmin >= -h:
+                continue
+            tc = tt[k - 1] - vv[k - 1] * (tt[k] - tt[k - 1]) / (vv[k] - vv[k - 1])
+            if math.isfinite(self._last_cross) and self._on:
+                self._on_period(self._last_cross, float(tc), self._vmax - self._vmin)
+            self._last_cross = float(tc)
+            self._vmin, self._vmax = math.inf, -math.inf
+        rest = vv[start:]
+        if rest.size:
+            self._vmin = min(self._vmin, float(rest.min()))
+            self._vmax = max(self._vmax, float(rest.max()))
+        self._prev = (float(t[-1]), float(v[-1]))
+        if self._on and float(t[-1]) - self._last_above > cfg.off_hold_s:
+            self._on = False
+            self._last_cross = math.nan
+            if self._segment is not None:
+                self._end_segment(self._last_above, by_off=True)
+            self._off_since = self._last_above + cfg.post_delay_s
+
+    def _on_event(self, t_on: float) -> None:
+        cfg = self.config
+        guard = 0.1
+        for p in self._pending:  # a restart cuts the post baseline of earlier trials short
+            if p.post is not None and p.post_open and p.post[1] > t_on - guard:
+                p.post = (p.post[0], t_on - guard) if t_on - guard - p.post[0] >= 1.0 else None
+                p.post_open = False
+            p.await_off = False
+        self._last_final = None
+        pre = (t_on - guard - cfg.baseline_s, t_on - guard)
+        ok = self._off_since <= pre[0] and self._first_t <= pre[0]
+        self._segment = _Segment(pre if ok else None)
+        self._last_cross = math.nan
+
+    def _on_period(self, t0: float, t1: float, vpp: float) -> None:
+        cfg = self.config
+        seg = self._segment
+        if seg is None:
+            return
+        if seg.periods:
+            r0, r1, rv = seg.periods[0]
+            period, ref = t1 - t0, r1 - r0
+            if abs(period - ref) > cfg.tolerance * ref or abs(vpp - rv) > cfg.tolerance * rv + 2.0:
+                # The drive changed.  A segment still in its transient (a ramp) hands its
+                # pre baseline on; the next settled segment is the same trial.
+                transient = seg.periods[-1][1] - seg.periods[0][0] < cfg.settle_s
+                self._end_segment(t0, by_off=False)
+                seg = self._segment = _Segment(seg.pre if transient else None)
+        seg.periods.append((t0, t1, vpp))
+        settled = [p for p in seg.periods[seg.next_window :] if p[0] >= seg.periods[0][0] + cfg.settle_s]
+        if settled and self._last_final is not None:
+            self._last_final.await_off = False  # the drive settled elsewhere: no post baseline
+            self._last_final = None
+        if settled and settled[-1][1] - settled[0][0] >= cfg.window_s and len(settled) >= cfg.min_periods:
+            self._pending.append(
+                _Pending(settled[0][0], settled[-1][1], len(settled), final=False, pre=seg.pre)
+            )
+            seg.next_window = len(seg.periods)
+
+    def _end_segment(self, t_off: float, *, by_off: bool) -> None:
+        cfg = self.config
+        seg, self._segment = self._segment, None
+        post = (t_off + cfg.post_delay_s, t_off + cfg.post_delay_s + cfg.baseline_s) if by_off else None
+        periods = seg.periods if seg is not None else []
+        settled = []
+        if periods:
+            t_settled = periods[0][0] + cfg.settle_s
+            settled = [p for p in periods if p[0] >= t_settled and p[1] >= periods[-1][1] - cfg.max_window_s]
+        if len(settled) < cfg.min_periods:
+            last = self._last_final
+            if by_off and last is not None and last.await_off:
+                last.post, last.post_open, last.await_off = post, True, False  # ramp-down ended the trial
+                self._last_final = None
+            return
+        pending = _Pending(
+            settled[0][0],
+            settled[-1][1],
+            len(settled),
+            final=True,
+            pre=seg.pre if seg is not None else None,
+            post=post,
+            post_open=post is not None,
+            await_off=not by_off,
+        )
+        self._pending.append(pending)
+        if self._last_final is not None:
+            self._last_final.await_off = False
+        self._last_final = None if by_off else pending
+
+    # ------------------------------------------------------------------------- estimation
+    def _ready(self, p: _Pending) -> bool:
+        if p.await_off:
+            return False
+        now = self.drive.latest
+        timeout = self.config.channel_timeout_s
+        if self.tip.seen and self.tip.latest < p.t_end and now < p.t_end + timeout:
+            return False
+        need = p.post[1] if p.post is not None else p.t_end
+        if p.post is not None and p.post_open and now < need:
+            return False  # the drive may still restart and cut the baseline short
+        return not (self.loadcell.seen and self.loadcell.latest < need and now < need + timeout)
+
+    def _finish_ready(self) -> list[Estimate]:
+        out, keep = [], []
+        for p in self._pending:
+            if self._ready(p):
+                e = self._compute(p)
+                if e is not None:
+                    out.append(e)
+            else:
+                keep.append(p)
+        self._pending = keep
+        return out
+
+    def _speed_at(self, t0: float, t1: float) -> float:
+        inside = [u for (t, u) in self._speed if t0 <= t < t1]
+        if inside:
+            return float(np.mean(inside))
+        before = [u for (t, u) in self._speed if t < t1]
+        return before[-1] if before else 0.0
+
+    def _compute(self, p: _Pending) -> Estimate | None:
+        t, vi = self.drive.slice(p.t_start, p.t_end)
+        if t.size < 4:
+            return None
+        freq = p.n_periods / (p.t_end - p.t_start)
+        tt, u = self.tip.slice(p.t_start, p.t_end)
+        speed = self._speed_at(p.t_start, p.t_end)
+        r = analyse_window(
+            self.fin,
+            t,
+            vi[:, 0],
+            vi[:, 1],
+            freq,
+            tip_velocity=u if tt.size else None,
+            tip_t=tt if tt.size else None,
+            swim_speed_m_s=speed,
+            harmonics=self.config.harmonics,
+        )
+        thrust_lc, n_base = math.nan, 0
+        baselines: list[tuple[float, float]] = []  # (mean time, mean deflection)
+        for win in (p.pre, p.post):
+            if win is None:
+                continue
+            tb, x = self.loadcell.slice(*win)
+            ok = np.isfinite(x)
+            if np.count_nonzero(ok) >= 10:
+                baselines.append((float(np.mean(tb[ok])), float(np.mean(x[ok]))))
+        t_on, x_on = self.loadcell.slice(p.t_start, p.t_end)
+        ok = np.isfinite(x_on)
+        if baselines and np.count_nonzero(ok) >= 10:
+            n_base = len(baselines)
+            base = _baseline_at(baselines, float(np.mean(t_on[ok])))
+            thrust_lc = (float(np.mean(x_on[ok])) - base) * self.config.loadcell_stiffness_n_per_m
+        return Estimate(
+            t_start=p.t_start,
+            t_end=p.t_end,
+            final=1.0 if p.final else 0.0,
+            n_periods=float(p.n_periods),
+            thrust_loadcell_n=thrust_lc,
+            loadcell_baselines=float(n_base),
+            **r,
+        )
+
+    def _prune(self) -> None:
+        cfg = self.config
+        horizon = (
+            cfg.max_window_s + cfg.settle_s + 2 * cfg.baseline_s + cfg.post_delay_s + cfg.channel_timeout_s
+        )
+        oldest = self.drive.latest - horizon - 5.0
+        for p in self._pending:
+            oldest = min(oldest, p.pre[0] if p.pre else p.t_start)
+        for ch in (self.drive, self.tip, self.loadcell):
+            ch.prune(oldest)

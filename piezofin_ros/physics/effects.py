@@ -1,0 +1,493 @@
+r"""Effects: what a real fin does that the paper's model does not, as immutable, composable objects.
+
+An effect carries its parameters (:class:`Param`: unit, bounds, the neutral value at which it
+vanishes, a typical size) and two descriptions of the same physics, side by side:
+
+* its **time-domain law** (:meth:`Effect.law`): how it changes the instantaneous equations,
+  written in the canonical form of :class:`TimeLaw`::
+
+      m(t) eta'' + c_lin D (1 + c_abs |eta|) eta' + g(t) |eta'| eta' + wn^2 S (eta + c3 eta^3)
+          = theta Q clip(v, v_clip)
+      m(t) = 1 + mu M (1 + M_kc KC(t)),   g(t) = gamma G KC(t)^-n,   KC(t) = 2 pi phi(L) |eta(t)| / b
+      i = C_eq dv_c/dt + G_loss v_c + theta Q eta'
+      load cell = gain (1/2) m_v M (1 + M_kc KC) (w_t^2 - U^2 w_x^2) + bias
+
+  (``|eta(t)|`` the instantaneous amplitude ``sqrt(eta^2 + (eta'/w)^2)``; integrated by
+  :func:`piezofin_ros.physics.timedomain.simulate_law`);
+* its **describing function** (:meth:`Effect.describe`): the same law seen by the single-term
+  harmonic balance, as changes of the balance's coefficients (:class:`~.knobs.Knobs`) at an
+  operating point and a tip amplitude ``X = phi(L) A``.  For ``c3 eta^3`` it is
+  ``(3/4) c3 A^2``; for ``|eta| eta'`` it is ``(4 / 3 pi) A eta'``; for the clipped sine the
+  fundamental ``(2 V / pi)(asin r + r sqrt(1 - r^2))``, ``r = v_clip / V``.
+
+``test/physics/test_effects.py`` checks, for every effect, that the two agree: the steady state
+of the time-domain law moves the tip velocity, current, power and thrust as the describing
+function says, within 1 %.
+
+Effects are frozen dataclasses whose fields are their parameters (``Duffing(beta=40.0)``); they
+compose with ``+`` into :class:`Effects`, and a fin plus effects is a
+:class:`~piezofin_ros.physics.model.Model`.  :data:`LIBRARY` maps each effect's name to its class
+(the names are those of saved models, ``effects: {drag_offset: {scale: 2.0}}``).  Every effect is
+neutral at its ``neutral`` values, so the paper's model is the model with no effect.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import astuple, dataclass, fields, replace
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import PhysicsError
+from .fin import Fin
+from .knobs import Knobs
+
+FloatArray = NDArray[Any]
+V_REF = 800.0  # Vpp: voltage-dependent effects are quoted at this drive
+#: Describing functions: |x| x (quadratic drag) -> 8/(3 pi) X, |x| x' -> 4/(3 pi) X, x^3 -> 3/4 X^2.
+DF_ABS_DAMPING = 4.0 / (3.0 * math.pi)
+DF_CUBIC = 0.75
+
+
+class ModelError(PhysicsError):
+    """A model or an effect is malformed (unknown effect, wrong parameter, out of range)."""
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    unit: str
+    neutral: float  # the value at which the effect vanishes
+    lower: float
+    upper: float
+    scale: float  # typical size of a departure (prior width and fit scaling)
+    description: str = ""
+    starts: tuple[float, ...] = ()  # starting values for the fit (default: neutral +- scale/2)
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """What a describing function may depend on, as arrays over trials (SI; ``voltage_pp`` nominal)."""
+
+    fin: Fin
+    frequency_hz: FloatArray
+    voltage_pp: FloatArray
+    tip_amplitude: FloatArray  # X = phi(L) A, m (0 for the time-domain law: it has no amplitude)
+
+    @property
+    def omega(self) -> FloatArray:
+        return 2 * math.pi * self.frequency_hz
+
+    @property
+    def kc(self) -> FloatArray:
+        """Keulegan-Carpenter number of the tip, ``2 pi X / b``."""
+        return 2 * math.pi * self.tip_amplitude / self.fin.b
+
+
+@dataclass(frozen=True)
+class TimeLaw:
+    """The coefficients of the canonical time-domain equations (module docstring), per trial.
+
+    Each is a float or an array over trials; the nominal model is ``TimeLaw()``.  Factors
+    multiply the paper's coefficients; ``c3`` (1/m^2 kg), ``c_abs`` (1/(m sqrt kg)) and
+    ``mass_kc`` are relative to the linear term they extend.
+    """
+
+    stiffness: FloatArray | float = 1.0  # S, x wn^2
+    c3: FloatArray | float = 0.0  # cubic spring: wn^2 S (eta + c3 eta^3)
+    damping: FloatArray | float = 1.0  # D, x 2 zeta wn
+    c_abs: FloatArray | float = 0.0  # damping x (1 + c_abs |eta|)
+    mass: FloatArray | float = 1.0  # M, added mass x (mu and m_v)
+    mass_kc: FloatArray | float = 0.0  # added mass x (1 + mass_kc KC(t))
+    drag: FloatArray | float = 1.0  # G, x gamma
+    drag_n: FloatArray | float = 0.0  # drag x KC(t)^-n
+    coupling: FloatArray | float = 1.0  # Q, x theta
+    voltage_clip: FloatArray | float = math.inf  # V, the drive clips at +-this
+    loss_conductance: FloatArray | float = 0.0  # S
+    thrust_gain: FloatArray | float = 1.0
+    thrust_bias_n: FloatArray | float = 0.0
+    swim_speed: FloatArray | float = 0.0  # m/s
+
+
+E = TypeVar("E", bound="Effect")
+
+
+class Effect:
+    """One effect.  Subclasses are frozen dataclasses registered with :func:`register`."""
+
+    name: ClassVar[str] = ""
+    title: ClassVar[str] = ""
+    params: ClassVar[tuple[Param, ...]] = ()
+    amplitude_dependent: ClassVar[bool] = False
+
+    def __post_init__(self) -> None:
+        for q, v in zip(self.params, self.values, strict=True):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ModelError(f"effect {self.name}: parameter {q.name} must be a number, got {v!r}")
+            if not (math.isfinite(v) and q.lower <= v <= q.upper):
+                raise ModelError(
+                    f"effect {self.name}: parameter {q.name} = {v!r} outside [{q.lower}, {q.upper}] {q.unit}"
+                )
+
+    @property
+    def values(self) -> tuple[float, ...]:
+        return tuple(float(x) for x in astuple(self))  # type: ignore[call-overload]
+
+    @classmethod
+    def neutral(cls) -> NDArray[np.float64]:
+        return np.array([q.neutral for q in cls.params], dtype=float)
+
+    @classmethod
+    def at(cls: type[E], values: Iterable[float]) -> E:
+        vals = [float(v) for v in values]
+        if len(vals) != len(cls.params):
+            raise ModelError(f"effect {cls.name} takes {len(cls.params)} parameter(s), got {len(vals)}")
+        return cls(*vals)
+
+    def parameters(self) -> dict[str, float]:
+        return {q.name: v for q, v in zip(self.params, self.values, strict=True)}
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        """The describing function: the balance's coefficients with this effect, at ``op``."""
+        raise NotImplementedError
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        """The time-domain law: the canonical equations' coefficients with this effect."""
+        raise NotImplementedError
+
+    def __add__(self, other: Effect | Effects) -> Effects:
+        return Effects((self,)) + other
+
+
+class Effects(tuple[Effect, ...]):
+    """Several effects, applied in order (``a + b + c``)."""
+
+    def __add__(self, other: Any) -> Effects:  # type: ignore[override]
+        if isinstance(other, Effect):
+            return Effects((*self, other))
+        return Effects((*self, *other))
+
+    def __iter__(self) -> Iterator[Effect]:
+        return super().__iter__()
+
+    @property
+    def amplitude_dependent(self) -> bool:
+        return any(e.amplitude_dependent for e in self)
+
+    def describe(self, op: OperatingPoint) -> Knobs:
+        k = Knobs()
+        for e in self:
+            k = e.describe(k, op)
+        return k
+
+    def law(self, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        law = TimeLaw()
+        for e in self:
+            law = e.law(law, fin, frequency_hz, voltage_pp)
+        return law
+
+
+#: Every effect by name (the names of saved models and of the diagnosis's candidates).
+LIBRARY: dict[str, type[Effect]] = {}
+
+
+def register(cls: type[E]) -> type[E]:
+    """Class decorator: a frozen dataclass effect whose fields are its ``params``, into :data:`LIBRARY`."""
+    names = tuple(f.name for f in fields(cls))  # type: ignore[arg-type]
+    if names != tuple(q.name for q in cls.params):
+        raise TypeError(f"{cls.__name__}: fields {names} are not its params")
+    LIBRARY[cls.name] = cls
+    return cls
+
+
+def effect_class(name: str, source: str = "") -> type[Effect]:
+    try:
+        return LIBRARY[name]
+    except KeyError:
+        where = f"{source}: " if source else ""
+        raise ModelError(f"{where}unknown effect {name!r}; known: {', '.join(LIBRARY)}") from None
+
+
+def make(name: str, values: Iterable[float]) -> Effect:
+    """The effect ``name`` with ``values`` (in the order of its params)."""
+    return effect_class(name).at(values)
+
+
+class Coefficient(Effect):
+    """An effect that changes one coefficient alike in the time-domain law and in the balance.
+
+    For these (linear) effects the describing function *is* the law: ``target`` names the field of
+    both :class:`TimeLaw` and :class:`~.knobs.Knobs`, ``how`` says whether :meth:`amount` multiplies
+    it (``scale``), adds to it (``add``) or replaces it (``set``).  Subclasses define :meth:`amount`.
+    """
+
+    target: ClassVar[str] = ""
+    how: ClassVar[str] = "scale"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        raise NotImplementedError
+
+    def _apply(self, obj: Any, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> Any:
+        old, x = getattr(obj, self.target), self.amount(fin, omega, voltage_pp)
+        new = old * x if self.how == "scale" else (old + x if self.how == "add" else x)
+        return replace(obj, **{self.target: new})
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        return self._apply(k, op.fin, op.omega, op.voltage_pp)  # type: ignore[no-any-return]
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        omega = 2 * math.pi * np.asarray(frequency_hz, float)
+        return self._apply(law, fin, omega, voltage_pp)  # type: ignore[no-any-return]
+
+
+# --- the library -------------------------------------------------------------------------------
+
+
+@register
+@dataclass(frozen=True)
+class ResonanceOffset(Coefficient):
+    name = "resonance_offset"
+    title = "stiffness off (in-water resonance shifted, linear)"
+    params = (Param("scale", "-", 1.0, 0.3, 2.0, 0.1, "natural frequency x scale"),)
+    scale: float = 1.0
+    target = "stiffness"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.scale**2
+
+
+@register
+@dataclass(frozen=True)
+class Duffing(Effect):
+    """A cubic spring ``c3 eta^3``, whose describing function is ``(3/4) c3 A^2``."""
+
+    name = "stiffness_nonlinearity"
+    title = "geometric stiffness nonlinearity (Duffing, amplitude-dependent)"
+    params = (Param("beta", "-", 0.0, -5000.0, 5000.0, 20.0, "wn^2 x (1 + beta (X/L)^2)"),)
+    amplitude_dependent = True
+    beta: float = 0.0
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        x = op.tip_amplitude / op.fin.L
+        return replace(k, stiffness=k.stiffness * np.maximum(1.0 + self.beta * x * x, 0.01))
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        # beta (phi A / L)^2 = (3/4) c3 A^2
+        return replace(law, c3=law.c3 + self.beta * (fin.phi_tip / fin.L) ** 2 / DF_CUBIC)
+
+
+@register
+@dataclass(frozen=True)
+class Electroelastic(Coefficient):
+    name = "electroelastic_softening"
+    title = "electroelastic softening (stiffness falls with the field)"
+    params = (Param("softening", "-", 0.0, -0.5, 0.9, 0.1, "wn x (1 - s Vpp/800)"),)
+    softening: float = 0.0
+    target = "stiffness"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return np.maximum(1.0 - self.softening * np.asarray(voltage_pp, float) / V_REF, 0.05) ** 2
+
+
+@register
+@dataclass(frozen=True)
+class NonlinearDamping(Effect):
+    """Damping ``(1 + c_abs |eta|)``, whose describing function is ``1 + c_abs (4 / 3 pi) A``."""
+
+    name = "nonlinear_damping"
+    title = "internal dissipative nonlinearity (damping grows with amplitude)"
+    params = (Param("q", "-", 0.0, -1.0, 2000.0, 10.0, "zeta x (1 + q X/L)"),)
+    amplitude_dependent = True
+    q: float = 0.0
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        return replace(k, damping=k.damping * np.maximum(1.0 + self.q * op.tip_amplitude / op.fin.L, 0.01))
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        # q phi A / L = c_abs (4 / 3 pi) A (on top of the damping the other effects set)
+        return replace(law, c_abs=law.c_abs + self.q * fin.phi_tip / fin.L / DF_ABS_DAMPING)
+
+
+@register
+@dataclass(frozen=True)
+class AddedMassOffset(Coefficient):
+    name = "added_mass_offset"
+    title = "inertia coefficient c_m off the curve of Eq. (21)"
+    params = (Param("scale", "-", 1.0, 0.1, 4.0, 0.2, "c_m x scale"),)
+    scale: float = 1.0
+    target = "mass"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.scale
+
+
+@register
+@dataclass(frozen=True)
+class AddedMassKC(Effect):
+    """Added mass ``x (1 + a KC(t))``; a sine's instantaneous amplitude is constant, so the
+    describing function is the law at the amplitude."""
+
+    name = "added_mass_kc"
+    title = "amplitude-dependent added mass (Keulegan-Carpenter)"
+    params = (Param("a", "-", 0.0, -0.8, 5.0, 0.2, "c_m x (1 + a KC)"),)
+    amplitude_dependent = True
+    a: float = 0.0
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        return replace(k, mass=k.mass * np.maximum(1.0 + self.a * op.kc, 0.05))
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        return replace(law, mass_kc=law.mass_kc + self.a)
+
+
+@register
+@dataclass(frozen=True)
+class DragOffset(Coefficient):
+    name = "drag_offset"
+    title = "drag coefficient c_d off the assumed value"
+    params = (Param("scale", "-", 1.0, 0.0, 20.0, 0.5, "c_d x scale"),)
+    scale: float = 1.0
+    target = "drag"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.scale
+
+
+@register
+@dataclass(frozen=True)
+class DragKC(Effect):
+    name = "drag_kc"
+    title = "amplitude-dependent drag coefficient (c_d ~ KC^-n, Graham)"
+    params = (Param("n", "-", 0.0, -2.0, 2.0, 0.2, "c_d x KC^-n"),)
+    amplitude_dependent = True
+    n: float = 0.0
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        return replace(k, drag=k.drag * np.maximum(op.kc, 1e-3) ** (-self.n))
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        return replace(law, drag_n=law.drag_n + self.n)
+
+
+@register
+@dataclass(frozen=True)
+class DielectricLoss(Coefficient):
+    name = "dielectric_loss"
+    title = "dielectric loss of the piezoceramic (tan delta)"
+    params = (Param("tan_delta", "-", 0.0, 0.0, 0.5, 0.02, "P += tan(delta) C_eq w V^2 / 2"),)
+    tan_delta: float = 0.0
+    target = "loss_conductance"
+    how = "add"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.tan_delta * fin.C_eq * omega
+
+
+@register
+@dataclass(frozen=True)
+class Leakage(Coefficient):
+    name = "leakage"
+    title = "resistive leakage of the drive (frequency-independent loss)"
+    params = (Param("conductance", "uS", 0.0, 0.0, 50.0, 1.0, "P += G V^2 / 2"),)
+    conductance: float = 0.0
+    target = "loss_conductance"
+    how = "add"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.conductance * 1e-6
+
+
+@register
+@dataclass(frozen=True)
+class SwimSpeed(Coefficient):
+    name = "swim_speed"
+    title = "flow past the fin (U != 0 in Eq. 19)"
+    params = (Param("U", "m/s", 0.0, 0.0, 5.0, 0.05, "free-stream speed"),)
+    U: float = 0.0
+    target = "swim_speed"
+    how = "set"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.U
+
+
+def amplifier_clip(inv_i_max: float, fin: Fin, omega: FloatArray) -> FloatArray:
+    """The voltage amplitude at which an amplifier of peak current ``1 / inv_i_max`` mA clips."""
+    with np.errstate(divide="ignore"):
+        return np.where(inv_i_max > 0, 1e-3 / (inv_i_max * fin.C_eq * omega), np.inf)
+
+
+@register
+@dataclass(frozen=True)
+class AmplifierLimit(Effect):
+    """The amplifier clips at the voltage where its current limit is reached, ``c = I_max / (C_eq w)``.
+
+    A sine of amplitude ``V`` clipped at ``c < V`` keeps a fundamental of amplitude
+    ``(2 V / pi) (asin r + r sqrt(1 - r^2))`` with ``r = c / V`` (its describing function).
+    """
+
+    name = "amplifier_limit"
+    title = "amplifier current limit (the drive clips at high f x V)"
+    params = (
+        Param(
+            "inv_i_max",
+            "1/mA",
+            0.0,
+            0.0,
+            50.0,
+            1.0,
+            "1 / peak current the amplifier delivers",
+            (0.5, 2.0, 8.0, 30.0),
+        ),
+    )
+    inv_i_max: float = 0.0
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        v = 0.5 * op.voltage_pp
+        clip = amplifier_clip(self.inv_i_max, op.fin, op.omega)
+        r = np.clip(clip / np.maximum(v, 1e-12), 0.0, 1.0)
+        alpha = np.arcsin(r)
+        fundamental = (2 / math.pi) * (alpha + r * np.sqrt(1 - r * r))
+        # C dv/dt of the clipped sine: mean square (V w)^2 (2 alpha + sin 2 alpha) / (2 pi), of which
+        # the fundamental carries (fundamental V w)^2 / 2; the rest is harmonic current.
+        ms = (2 * alpha + np.sin(2 * alpha)) / (2 * math.pi) - 0.5 * fundamental**2
+        harmonics = (op.fin.C_eq * op.omega * v) ** 2 * np.maximum(ms, 0.0)
+        return replace(
+            k,
+            voltage=k.voltage * fundamental,
+            current_harmonics_a2=k.current_harmonics_a2 + harmonics,
+        )
+
+    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+        clip = amplifier_clip(self.inv_i_max, fin, 2 * math.pi * np.asarray(frequency_hz, float))
+        return replace(law, voltage_clip=np.minimum(law.voltage_clip, clip))
+
+
+@register
+@dataclass(frozen=True)
+class LoadcellOffset(Coefficient):
+    name = "loadcell_offset"
+    title = "thrust transducer drift not cancelled by the baselines (offset)"
+    params = (Param("bias", "mN", 0.0, -50.0, 50.0, 0.2, "added to the load-cell thrust"),)
+    bias: float = 0.0
+    target = "thrust_bias_n"
+    how = "add"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.bias * 1e-3
+
+
+@register
+@dataclass(frozen=True)
+class LoadcellGain(Coefficient):
+    name = "loadcell_gain"
+    title = "thrust transducer calibration (gain)"
+    params = (Param("gain", "-", 1.0, 0.1, 5.0, 0.2, "load-cell thrust x gain"),)
+    gain: float = 1.0
+    target = "thrust_gain"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.gain

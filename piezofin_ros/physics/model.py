@@ -1,0 +1,343 @@
+r"""The model: a fin plus effects, and its steady state (the harmonic balance with describing functions).
+
+A :class:`Model` is a :class:`~piezofin_ros.physics.fin.Fin` and a tuple of
+:class:`~piezofin_ros.physics.effects.Effect` objects; ``Model(fin)`` is the paper's model.  Its
+steady state modifies the coefficients of the single-term harmonic balance (Eqs. 15-18, see
+:mod:`.steady`) and of the measurement chain with each effect's describing function.  With
+:class:`~.knobs.Knobs` ``s`` (stiffness), ``m`` (added mass), ``c`` (structural damping), ``g``
+(drag), ``q`` (coupling) and ``r`` (effective over nominal voltage)::
+
+    a = s wn^2 - (1 + m mu) w^2,   d = c 2 zeta wn w + g (8 / 3 pi) gamma w^2 A,   F = q theta r V
+
+    A^2 (a^2 + d^2) = F^2                                   (the quartic of steady.py)
+
+    U_1 = j w phi(L) (H0 - j H1)                            tip-velocity phasor (V real)
+    I_1 = (G_loss + j w C_eq) r V + q theta j w (H0 - j H1)  Eq. (10) plus a loss current
+    P   = (1/2) q theta w r V H1 + (1/2) G_loss (r V)^2       mean(v i); G_loss: loss conductance
+    T   = gain (1/2) m m_v [u^2 - U^2 (phi'/phi)^2 x^2] + bias   Eqs. (19)-(20), load cell
+
+When a knob depends on the amplitude (``A`` enters through the tip amplitude ``X = phi(L) A``
+or the Keulegan-Carpenter number ``KC = 2 pi X / b``), the balance is a fixed point in ``A``: it
+is iterated from the nominal solution with under-relaxation in ``log A`` until it settles (on
+a softening branch with several solutions this finds the one continued from the nominal model).
+
+The same model drives the time domain (:func:`.timedomain.simulate_law`, each effect's law), the
+streaming rig (:meth:`Model.knobs_at`, the linearisation at the commanded point), the optimiser's
+map (a correction is effects fitted on top of a model), the benchmark plants and the diagnosis.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .effects import Effect, Effects, ModelError, OperatingPoint, TimeLaw, effect_class, make
+from .fin import Fin, FinConfigError, read_yaml_file
+from .knobs import Knobs
+from .steady import coefficients, solve_amplitude
+
+FloatArray = NDArray[Any]
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Steady-state channels on a set of operating points (arrays, SI)."""
+
+    voltage_pp_drive: FloatArray  # V, the drive the fin receives
+    tip_velocity_rms: FloatArray  # m/s, fundamental
+    tip_phase_rad: FloatArray  # phase of the tip velocity relative to the drive voltage
+    current_rms: FloatArray  # A, fundamental
+    power_w: FloatArray  # W
+    thrust_n: FloatArray  # N, Lighthill on the motion (what the vibrometer gives)
+    thrust_loadcell_n: FloatArray  # N, what the load cell reads
+
+    @property
+    def thrust_per_watt(self) -> FloatArray:
+        p = self.power_w
+        return np.divide(self.thrust_loadcell_n, p, out=np.zeros(np.shape(p)), where=p > 0)
+
+
+@dataclass(frozen=True)
+class Model:
+    """A fin plus effects; ``Model(fin)`` is the paper's model.  Compose with ``+``."""
+
+    fin: Fin
+    effects: tuple[Effect, ...] = ()
+    notes: Mapping[str, Any] = field(default_factory=dict)
+    #: one standard deviation of fitted parameters, ``{effect: {parameter: sigma}}`` (from the fit's
+    #: Jacobian, :func:`piezofin_ros.diagnosis.attribute.fit`); empty for a model nobody fitted
+    uncertainties: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "effects", Effects(self.effects))
+        bad = [e for e in self.effects if not isinstance(e, Effect)]
+        if bad:
+            raise ModelError(f"not effects: {bad!r}")
+
+    def __add__(self, other: Effect | Iterable[Effect]) -> Model:
+        more = (other,) if isinstance(other, Effect) else tuple(other)
+        return Model(self.fin, Effects(self.effects) + more, self.notes, self.uncertainties)
+
+    @classmethod
+    def of(cls, fin: Fin, params: Mapping[str, Sequence[float]] | None = None) -> Model:
+        """``Model.of(fin, {"drag_offset": [2.0]})``: effects by name with their values."""
+        return cls(fin, tuple(make(name, vals) for name, vals in (params or {}).items()))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.effects)
+
+    @property
+    def values(self) -> tuple[tuple[float, ...], ...]:
+        return tuple(e.values for e in self.effects)
+
+    def without(self, name: str) -> Model:
+        kept = tuple(e for e in self.effects if e.name != name)
+        sigma = {k: v for k, v in self.uncertainties.items() if k != name}
+        return Model(self.fin, kept, self.notes, sigma)
+
+    def parameters(self) -> dict[str, dict[str, float]]:
+        return {e.name: e.parameters() for e in self.effects}
+
+    def parameters_text(self, name: str, digits: int = 3) -> str:
+        """``"scale = 2.03 +- 0.04"``: an effect's parameters, with their uncertainty when fitted."""
+        sigma = self.uncertainties.get(name, {})
+        out = []
+        for k, v in self.parameters()[name].items():
+            pm = f" +- {sigma[k]:.2g}" if k in sigma and math.isfinite(sigma[k]) else ""
+            out.append(f"{k} = {v:.{digits}g}{pm}")
+        return ", ".join(out)
+
+    def predict(
+        self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, drive_pp: ArrayLike | None = None
+    ) -> Prediction:
+        """Steady state at nominal (commanded) voltages ``voltage_pp``.  With ``drive_pp`` (the measured
+        fundamental of the drive, Vpp) the fin is driven by that instead of by the model's drive."""
+        return predict(self.fin, self.effects, frequency_hz, voltage_pp, drive_pp=drive_pp)
+
+    def knobs_at(self, frequency_hz: float, voltage_pp: float) -> Knobs:
+        """The knobs (floats) at this operating point's steady state: the linearisation that the
+        streaming rig integrates, so that its steady state is this model's (see :mod:`..rig`)."""
+        f, v = np.array([float(frequency_hz)]), np.array([float(voltage_pp)])
+        k, _ = steady_knobs(self.fin, self.effects, f, v)
+        return Knobs(**{n: float(np.asarray(getattr(k, n))[0]) for n in Knobs.__dataclass_fields__})
+
+    def law(self, frequency_hz: ArrayLike, voltage_pp: ArrayLike) -> TimeLaw:
+        """The time-domain law of every effect, at these (broadcast) operating points."""
+        f, v = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
+        return Effects(self.effects).law(self.fin, f, v)
+
+    # --- persistence (safe YAML; loaded by fin_sim, the controller and sweep) ---------------
+    def to_mapping(self) -> dict[str, Any]:
+        return {
+            "fin": self.fin.inputs(),
+            "effects": self.parameters(),
+            **(
+                {"uncertainties": {k: dict(v) for k, v in self.uncertainties.items()}}
+                if self.uncertainties
+                else {}
+            ),
+            **({"notes": dict(self.notes)} if self.notes else {}),
+        }
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], source: str = "<mapping>") -> Model:
+        if not isinstance(data, Mapping) or "fin" not in data:
+            raise ModelError(f"{source}: an augmented model needs a 'fin' mapping")
+        fin = Fin.from_mapping(data["fin"], source=source)
+        effects = data.get("effects") or {}
+        if not isinstance(effects, Mapping):
+            raise ModelError(f"{source}: 'effects' must map effect names to parameter mappings")
+        out = tuple(_effect_from_mapping(str(name), params, source) for name, params in effects.items())
+        unc = _uncertainties_from_mapping(data.get("uncertainties") or {}, out, source)
+        return cls(fin, out, dict(data.get("notes") or {}), unc)
+
+
+def _effect_from_mapping(name: str, params: Any, source: str) -> Effect:
+    """``effects.<name>: {param: value}`` of a saved model (missing parameters: neutral)."""
+    ecls = effect_class(name, source)
+    if not isinstance(params, Mapping):
+        raise ModelError(f"{source}: effects.{name} must map parameter names to numbers")
+    unknown = set(params) - {q.name for q in ecls.params}
+    if unknown:
+        raise ModelError(f"{source}: effects.{name} has unknown parameter(s) {sorted(unknown)}")
+    vals = []
+    for q in ecls.params:
+        v = params.get(q.name, q.neutral)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ModelError(f"{source}: effects.{name}.{q.name} must be a number, got {v!r}")
+        vals.append(float(v))
+    try:
+        return ecls.at(vals)
+    except ModelError as exc:
+        raise ModelError(f"{source}: {exc}") from None
+
+
+def _uncertainties_from_mapping(
+    sigma: Any, effects: Sequence[Effect], source: str
+) -> dict[str, dict[str, float]]:
+    """``uncertainties.<effect>: {param: sigma}`` of a saved model: numbers >= 0, or NaN (at a bound)."""
+    if not isinstance(sigma, Mapping):
+        raise ModelError(f"{source}: 'uncertainties' must map effect names to parameter mappings")
+    known = {e.name: {q.name for q in e.params} for e in effects}
+    for name, params in sigma.items():
+        if name not in known or not isinstance(params, Mapping) or set(params) - known[name]:
+            raise ModelError(f"{source}: uncertainties.{name} names no fitted parameter of the model")
+        for q, v in params.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v >= 0 or math.isnan(v)):
+                raise ModelError(f"{source}: uncertainties.{name}.{q} must be a number >= 0, got {v!r}")
+    return {str(k): {str(q): float(v) for q, v in ps.items()} for k, ps in sigma.items()}
+
+
+def load_model(path: str) -> Model:
+    """Read a model (``augmented_model.yaml`` from ``diagnose --report``) as safe YAML.
+
+    Raises :class:`ModelError` naming the file and the problem (missing, unreadable, not YAML,
+    unknown effect or parameter, value out of range, bad fin).
+    """
+    data = read_yaml_file(path, ModelError)
+    try:
+        return Model.from_mapping(data, source=path)
+    except FinConfigError as exc:
+        raise ModelError(str(exc) if path in str(exc) else f"{path}: {exc}") from None
+
+
+def steady_knobs(
+    fin: Fin,
+    effects: Iterable[Effect],
+    f: FloatArray,
+    vpp: FloatArray,
+    measured: FloatArray | None = None,
+    iterations: int = 40,
+) -> tuple[Knobs, FloatArray]:
+    """The knobs (arrays shaped like ``f``) at the steady state, and its modal amplitude ``A``.
+
+    ``f`` and ``vpp`` are broadcast arrays; ``measured``, if given, the drive that moves the fin.
+    With amplitude-dependent effects ``A`` solves ``A = A_lin(knobs(A))`` (the describing function):
+    an under-relaxed fixed-point iteration, and where it does not settle (a softening spring's
+    jump region, where several amplitudes are steady), the *lowest* root, found by a scan in log A
+    and bisection: the steady state a trial reaches when it starts from rest, as the protocol does.
+    """
+    phi = fin.phi_tip
+    effects = Effects(effects)
+    amp_dep = effects.amplitude_dependent
+
+    def knobs(ff: FloatArray, vv: FloatArray, x: FloatArray) -> Knobs:
+        return effects.describe(OperatingPoint(fin, ff, vv, x))
+
+    def solve(ff: FloatArray, vv: FloatArray, mm: FloatArray | None, amp: FloatArray) -> FloatArray:
+        """The linear steady amplitude with the knobs frozen at amplitude ``amp``."""
+        k = knobs(ff, vv, phi * amp)
+        return solve_amplitude(*coefficients(fin, 2 * math.pi * ff, k), _force(fin, k, vv, mm))
+
+    amp = solve(f, vpp, measured, np.zeros_like(f))
+    if amp_dep:
+        for _ in range(iterations):
+            new = solve(f, vpp, measured, amp)
+            ok = (new > 0) & (amp > 0)
+            # under-relaxed in log A: softening branches overshoot otherwise
+            nxt = np.where(
+                ok, np.exp(0.5 * np.log(np.where(ok, new, 1)) + 0.5 * np.log(np.where(ok, amp, 1))), new
+            )
+            done = np.all(np.abs(nxt - amp) <= 1e-9 * np.maximum(amp, 1e-30))
+            amp = nxt
+            if done:
+                break
+        bad = ~(np.abs(solve(f, vpp, measured, amp) - amp) <= 1e-6 * amp)
+        if np.any(bad):
+            amp = np.array(amp, dtype=float)
+            fb, vb = f[bad], vpp[bad]
+            mb = None if measured is None else np.broadcast_to(measured, f.shape)[bad]
+            amp[bad] = _lowest_root(
+                lambda x, j: solve(fb[j], vb[j], None if mb is None else mb[j], x), amp[bad]
+            )
+    k = knobs(f, vpp, phi * amp)
+    kk = Knobs(
+        **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
+    )
+    return kk, amp
+
+
+def _lowest_root(
+    g: Callable[[FloatArray, Any], FloatArray], guess: FloatArray, span: tuple[float, float] = (1e-4, 1e3)
+) -> FloatArray:
+    """Lowest ``A > 0`` with ``g(A) = A`` per point (``g(x, j)``: ``x`` shaped like the index ``j``).
+
+    Scanned on a log grid ``span`` x ``guess`` for the first crossing of ``log g(A) - log A`` from
+    above, then bisected in log A.  Points with no crossing keep ``guess``.
+    """
+    n = guess.size
+    grid = guess[:, None] * np.geomspace(*span, 72)[None, :]
+    rows = np.repeat(np.arange(n), grid.shape[1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log(g(grid.ravel(), rows)).reshape(grid.shape) - np.log(grid)
+    down = (r[:, :-1] > 0) & (r[:, 1:] <= 0)
+    found = down.any(axis=1)
+    first = np.argmax(down, axis=1)
+    idx = np.arange(n)
+    lo, hi = np.log(grid[idx, first]), np.log(grid[idx, first + 1])
+    for _ in range(40):  # the bracket is a factor 1.2 wide: 40 halvings reach round-off
+        mid = 0.5 * (lo + hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            above = np.log(g(np.exp(mid), idx)) > mid
+        lo, hi = np.where(above, mid, lo), np.where(above, hi, mid)
+    return np.where(found, np.exp(0.5 * (lo + hi)), guess)
+
+
+def _drive(k: Knobs, vpp: FloatArray, measured: FloatArray | None) -> FloatArray:
+    return vpp * k.voltage if measured is None else measured
+
+
+def _force(fin: Fin, k: Knobs, vpp: FloatArray, measured: FloatArray | None) -> FloatArray:
+    """``theta V`` of the quartic (steady.py) with the knobs applied."""
+    return fin.theta * k.coupling * 0.5 * _drive(k, vpp, measured)
+
+
+def predict(
+    fin: Fin,
+    effects: Iterable[Effect],
+    frequency_hz: ArrayLike,
+    voltage_pp: ArrayLike,
+    *,
+    drive_pp: ArrayLike | None = None,
+    iterations: int = 40,
+) -> Prediction:
+    """Steady state of ``fin`` with ``effects`` (instances with parameter values), vectorised.
+
+    ``voltage_pp`` is the nominal drive; ``drive_pp``, if given, the measured one that moves the fin.
+    """
+    effects = Effects(effects)
+    f, vpp = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
+    measured = None if drive_pp is None else np.broadcast_to(np.asarray(drive_pp, float), f.shape)
+    w = 2 * math.pi * f
+    phi = fin.phi_tip
+    kk, amp = steady_knobs(fin, effects, f, vpp, measured, iterations)
+    a, c0, kd = coefficients(fin, w, kk)
+    force = _force(fin, kk, vpp, measured)
+    d = c0 + kd * amp
+    v_amp = 0.5 * _drive(kk, vpp, measured)
+    den = a * a + d * d
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h0 = np.where(den > 0, force * a / den, 0.0)
+        h1 = np.where(den > 0, force * d / den, 0.0)
+    vel = 1j * w * (h0 - 1j * h1)  # modal velocity phasor
+    tip = phi * vel
+    current = (kk.loss_conductance + 1j * w * fin.C_eq) * v_amp + fin.theta * kk.coupling * vel
+    power = 0.5 * v_amp * np.real(current)
+    u_ms = 0.5 * np.abs(tip) ** 2
+    x_ms = 0.5 * (fin.phi_tip_slope * amp) ** 2
+    thrust = 0.5 * fin.m_v * kk.mass * (u_ms - kk.swim_speed**2 * x_ms)
+    return Prediction(
+        voltage_pp_drive=vpp * kk.voltage,
+        tip_velocity_rms=np.sqrt(u_ms),
+        tip_phase_rad=np.angle(tip),
+        current_rms=np.sqrt(0.5 * np.abs(current) ** 2 + kk.current_harmonics_a2),
+        power_w=power,
+        thrust_n=thrust,
+        thrust_loadcell_n=kk.thrust_gain * thrust + kk.thrust_bias_n,
+    )

@@ -1,0 +1,283 @@
+"""Hostile files: decompression bombs for every bag reader, YAML bombs for every configuration reader.
+
+Each reader runs as a user runs it (the console scripts, in their own process), and is measured:
+peak resident memory at most 100x the file's size + 200 MB, or one error line naming the file
+with no traceback, within 30 s.  The files are built here, for a class of attack each.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import resource
+import signal
+import struct
+import subprocess
+import time
+import zlib
+from pathlib import Path
+
+import lz4.frame
+import pytest
+import zstandard
+
+from piezofin_ros.bags import MCAP_MAGIC, message_definition
+
+from ..rosutil import BIN, clean_env
+
+TOPIC = "/fin/drive"
+TYPE = "std_msgs/msg/Float64MultiArray"
+
+
+# ------------------------------------------------------------------------------ MCAP by hand
+def _record(opcode: int, body: bytes) -> bytes:
+    return bytes([opcode]) + struct.pack("<Q", len(body)) + body
+
+
+def _string(s: str | bytes) -> bytes:
+    b = s.encode() if isinstance(s, str) else s
+    return struct.pack("<I", len(b)) + b
+
+
+def _header() -> bytes:
+    return MCAP_MAGIC + _record(0x01, _string("ros2") + _string("attacker"))
+
+
+def _schema_channel() -> bytes:
+    schema = _record(
+        0x03, struct.pack("<H", 1) + _string(TYPE) + _string("ros2msg") + _string(message_definition(TYPE))
+    )
+    channel = _record(0x04, struct.pack("<HH", 1, 1) + _string(TOPIC) + _string("cdr") + struct.pack("<I", 0))
+    return schema + channel
+
+
+def _message(t_ns: int, payload: bytes = b"") -> bytes:
+    return _record(0x05, struct.pack("<HIQQ", 1, 0, t_ns, t_ns) + payload)
+
+
+def _chunk(pieces: int, piece: bytes, compression: str, claim: int | None = None) -> bytes:
+    """A chunk of ``pieces`` copies of ``piece`` (records), compressed by streaming: the test never
+    holds the uncompressed bytes.  ``claim`` overrides the uncompressed size it states."""
+    crc, size = 0, 0
+    out = io.BytesIO()
+    if compression == "zstd":
+        comp = zstandard.ZstdCompressor(level=3).compressobj()
+        for _ in range(pieces):
+            out.write(comp.compress(piece))
+            crc, size = zlib.crc32(piece, crc), size + len(piece)
+        out.write(comp.flush())
+    else:
+        comp = lz4.frame.LZ4FrameCompressor()
+        out.write(comp.begin())
+        for _ in range(pieces):
+            out.write(comp.compress(piece))
+            crc, size = zlib.crc32(piece, crc), size + len(piece)
+        out.write(comp.flush())
+    data = out.getvalue()
+    body = struct.pack("<QQQI", 0, 10**9, claim if claim is not None else size, crc)
+    body += _string(compression) + struct.pack("<Q", len(data)) + data
+    return _record(0x06, body)
+
+
+def _footer() -> bytes:
+    return _record(0x02, struct.pack("<QQI", 0, 0, 0)) + MCAP_MAGIC
+
+
+def bomb(path: Path, kind: str) -> Path:
+    """The attacks: one chunk expanding to 1 GiB of empty messages (the one found), one that lies
+    about its size, many chunks each under the per-chunk limit (zstd and lz4), and an unchunked
+    flood of empty messages."""
+    records = _message(10**9) * 4096  # 4096 empty messages, 31 B each
+    piece = len(records)  # ~124 KiB
+    with open(path, "wb") as f:
+        f.write(_header())
+        if kind == "one 1 GiB chunk":
+            f.write(_chunk(1, _schema_channel(), "zstd"))
+            f.write(_chunk((1 << 30) // piece, records, "zstd"))
+        elif kind == "chunk lying about its size":
+            f.write(_chunk(1, _schema_channel(), "zstd"))
+            f.write(_chunk((1 << 30) // piece, records, "zstd", claim=1 << 20))
+        elif kind in ("many chunks, zstd", "many chunks, lz4"):
+            f.write(_chunk(1, _schema_channel(), "zstd"))
+            comp = kind.split(", ")[1]
+            for k in range(40):  # each just under the 32 MiB floor of the per-chunk limit, each different
+                f.write(_chunk((30 << 20) // piece, _message(10**9 + k) * 4096, comp))
+        elif kind == "unchunked flood":
+            f.write(_schema_channel())
+            for _ in range(100):  # 410 k empty messages, 12.7 MB
+                f.write(records)
+        f.write(_footer())
+    return path
+
+
+KINDS = [
+    "one 1 GiB chunk",
+    "chunk lying about its size",
+    "many chunks, zstd",
+    "many chunks, lz4",
+    "unchunked flood",
+]
+READERS = {
+    "estimate": ["piezofin", "estimate", "{bag}"],
+    "recover": ["piezofin", "bag", "recover", "{bag}", "-o", "{out}"],
+    "diagnose": ["piezofin", "diagnose", "{bag}", "--quiet"],
+}
+
+
+def run_measured(argv: list[str], timeout: float = 60.0) -> tuple[int, str, float, float]:
+    """Run a command in its own process; returns (status, stderr, wall s, peak RSS in MB)."""
+    t0 = time.monotonic()
+    proc = subprocess.Popen(
+        argv,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=clean_env(),
+        text=True,
+    )
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+    wall = time.monotonic() - t0
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)  # the largest child so far (KiB on Linux)
+    return proc.returncode, err, wall, usage.ru_maxrss / 1024
+
+
+@pytest.fixture(scope="module")
+def bombs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("bombs")
+    return {k: bomb(d / f"{k.replace(' ', '_').replace(',', '')}.mcap", k) for k in KINDS}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("reader", list(READERS))
+@pytest.mark.parametrize("kind", KINDS)
+def test_no_bag_takes_memory_it_does_not_hold(
+    bombs: dict[str, Path], kind: str, reader: str, tmp_path: Path
+) -> None:
+    bag = bombs[kind]
+    size_mb = bag.stat().st_size / 1e6
+    argv = [a.format(bag=bag, out=tmp_path / "out.mcap") for a in READERS[reader]]
+    argv[0] = str(BIN / argv[0])
+    # each reader in a fresh child of a fresh helper, so ru_maxrss is that reader's own peak
+    helper = [
+        str(BIN / "python"),
+        "-c",
+        "import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
+        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); "
+        "sys.exit(r.returncode)",
+        *argv,
+    ]
+    status, err, wall, _ = run_measured(helper)
+    lines = err.strip().splitlines()
+    peak_mb = int(lines[-1]) / 1024
+    said = lines[:-1]
+    print(f"{kind} / {reader}: {size_mb:.2f} MB file, status {status}, {wall:.1f} s, peak {peak_mb:.0f} MB")
+    assert wall < 30.0
+    assert peak_mb <= 100 * size_mb + 200, (peak_mb, said[-5:])
+    assert not any("Traceback" in x for x in said), "\n".join(said[-20:])
+    if status != 0:
+        errors = [x for x in said if "error" in x.lower()]
+        assert len(errors) == 1 and str(bag) in errors[0], said[-5:]
+    if reader == "recover":
+        assert status != 0 or (tmp_path / "out.mcap").exists()
+        assert not list(tmp_path.glob(".*partial")), "a partial output was left behind"
+
+
+# ------------------------------------------------------------------------------- YAML bombs
+def yaml_bomb(path: Path, kind: str) -> Path:
+    if kind == "20 MB":
+        path.write_text("name: big\n" + "".join(f"k{i}: {i}.0\n" for i in range(1_500_000)))
+    elif kind == "deep nesting":
+        path.write_text("fin: " + "[" * 100_000 + "]" * 100_000 + "\n")
+    elif kind == "100,000-digit integer":
+        path.write_text("L: " + "9" * 100_000 + "\n")
+    elif kind == "python tag":
+        path.write_text("fin: !!python/object/apply:os.system ['true']\n")
+    elif kind == "aliases":
+        lines = ["a0: &a0 {x: 1.0}"] + [f"a{i}: &a{i} {{p: *a{i - 1}, q: *a{i - 1}}}" for i in range(1, 40)]
+        path.write_text("\n".join(lines) + "\n")
+    elif kind == "not UTF-8":
+        path.write_bytes(b"name: \xff\xfe\n")
+    return path
+
+
+YAML_KINDS = ["20 MB", "deep nesting", "100,000-digit integer", "python tag", "aliases", "not UTF-8"]
+YAML_READERS = {
+    "fin (sweep --fin)": ["piezofin", "sweep", "--fin", "{f}", "--vpp", "400", "--freq", "5"],
+    "model (sweep --model)": ["piezofin", "sweep", "--model", "{f}", "--vpp", "400", "--freq", "5"],
+    "parameters (bringup --config)": ["bringup", "--config", "{f}", "--bag", "{out}"],
+}
+
+
+@pytest.mark.parametrize("reader", list(YAML_READERS))
+@pytest.mark.parametrize("kind", YAML_KINDS)
+def test_no_configuration_file_hangs_or_crashes_a_reader(tmp_path: Path, kind: str, reader: str) -> None:
+    f = yaml_bomb(tmp_path / "bad.yaml", kind)
+    argv = [a.format(f=f, out=tmp_path / "b.mcap") for a in YAML_READERS[reader]]
+    argv[0] = str(BIN / argv[0])
+    t0 = time.monotonic()
+    run = subprocess.run(
+        argv, capture_output=True, text=True, timeout=60, env=clean_env(), stdin=subprocess.DEVNULL
+    )
+    wall = time.monotonic() - t0
+    assert wall < 10.0
+    assert run.returncode == 2, run.stdout + run.stderr
+    assert "Traceback" not in run.stderr
+    errors = [x for x in run.stderr.splitlines() if "error" in x.lower()]
+    assert len(errors) == 1 and str(f) in errors[0], run.stderr
+    assert not (tmp_path / "b.mcap").exists()
+
+
+def test_sigterm_stops_bringup_while_it_reads_its_configuration(tmp_path: Path) -> None:
+    f = yaml_bomb(tmp_path / "big.yaml", "20 MB")
+    proc = subprocess.Popen(
+        [str(BIN / "bringup"), "--config", str(f), "--bag", str(tmp_path / "b.mcap")],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=clean_env(),
+        text=True,
+    )
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=10)
+    assert proc.returncode != 0 or "interrupted" in err
+    assert "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------- outputs kept
+def test_diagnose_never_overwrites_its_outputs(tmp_path: Path) -> None:
+    out = tmp_path / "findings.json"
+    out.write_text("keep me")
+    report = tmp_path / "report"
+    report.mkdir()
+    (report / "report.md").write_text("keep me too")
+    for extra in (["--json", str(out)], ["--report", str(report)]):
+        t0 = time.monotonic()
+        run = subprocess.run(
+            [str(BIN / "piezofin"), "diagnose", "--paper", *extra],
+            capture_output=True,
+            text=True,
+            env=clean_env(),
+        )
+        assert run.returncode == 2
+        assert "--force" in run.stderr and "Traceback" not in run.stderr
+        assert time.monotonic() - t0 < 10.0  # refused before the work, not after it
+    assert out.read_text() == "keep me" and (report / "report.md").read_text() == "keep me too"
+
+
+def test_recover_leaves_nothing_behind_when_it_fails(tmp_path: Path) -> None:
+    src = bomb(tmp_path / "src.mcap", "many chunks, zstd")
+    out = tmp_path / "rec.mcap"
+    run = subprocess.run(
+        [str(BIN / "piezofin"), "bag", "recover", str(src), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        env=clean_env(),
+        timeout=60,
+    )
+    assert run.returncode == 2, run.stderr
+    assert not out.exists() and os.listdir(tmp_path) == ["src.mcap"]

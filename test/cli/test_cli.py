@@ -1,0 +1,109 @@
+"""The `piezofin sweep` command, through its installed console scripts (real processes)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from piezofin_ros.cli.main import UsageError, parse_frequencies
+from piezofin_ros.physics.fin import load_fin
+from piezofin_ros.physics.steady import harmonic_balance
+
+BIN = Path(sys.executable).parent
+
+
+def run(exe: str, *args: str) -> subprocess.CompletedProcess[str]:
+    path = shutil.which(exe, path=str(BIN)) or shutil.which(exe)
+    assert path, f"console script {exe!r} is not installed"
+    return subprocess.run(
+        [path, *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        stdin=subprocess.DEVNULL,
+        env={**os.environ, "MPLBACKEND": "Agg"},
+    )
+
+
+def test_sweep_json_has_parameters_and_points() -> None:
+    proc = run(
+        "piezofin", "sweep", "--fin", "M8528-P1", "--vpp", "400", "600", "800", "--freq", "1:11:0.1", "--json"
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["fin"] == "M8528-P1"
+    for key in ("L", "b", "m_s", "f_sc", "zeta", "theta", "C_eq", "psi", "c_m", "c_d", "rho_w"):
+        assert isinstance(out[key], float), key
+    assert out["f_sc"] == 38.1 and out["C_eq"] == pytest.approx(19.3e-9)  # SI, not nF
+    points = out["points"]
+    assert len(points) == 101 * 3
+    assert set(points[0]) == {
+        "frequency_hz",
+        "voltage_pp",
+        "tip_velocity_rms",
+        "current_rms",
+        "power_w",
+        "thrust_n",
+        "thrust_per_watt",
+    }
+    # The numbers are the core's.
+    fin = load_fin("M8528-P1")
+    p = next(r for r in points if r["frequency_hz"] == 5.5 and r["voltage_pp"] == 800)
+    ref = harmonic_balance(fin, 5.5, 800.0)
+    assert p["thrust_n"] == pytest.approx(float(ref.thrust_n), rel=1e-12)
+    assert p["thrust_per_watt"] == pytest.approx(p["thrust_n"] / p["power_w"], rel=1e-12)
+
+
+def test_ros2_run_alias_and_plot(tmp_path: Path) -> None:
+    png = tmp_path / "sweep.png"
+    proc = run("sweep", "--fin", "M8507-P1", "--vpp", "800", "--freq", "5", "10", "--plot", str(png))
+    assert proc.returncode == 0, proc.stderr
+    assert "M8507-P1" in proc.stdout and len(proc.stdout.splitlines()) == 2 + 2
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_fin_file_path(tmp_path: Path) -> None:
+    text = (Path(__file__).parents[2] / "config" / "fins" / "M8514-P1.yaml").read_text()
+    fin_file = tmp_path / "my_fin.yaml"
+    fin_file.write_text(text.replace("name: M8514-P1", "name: my-fin"))
+    proc = run("piezofin", "sweep", "--fin", str(fin_file), "--freq", "10", "--json")
+    assert json.loads(proc.stdout)["fin"] == "my-fin"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--fin", "nope"], "unknown fin 'nope'"),
+        (["--freq", "5:1:1"], "need start <= stop"),
+        (["--freq", "abc"], "cannot read 'abc'"),
+        (["--vpp", "-5"], "voltages must be finite"),
+        (["--plot", "/nonexistent/dir/x.png", "--freq", "5"], "cannot write"),
+    ],
+)
+def test_errors_are_one_line_without_traceback(args: list[str], message: str) -> None:
+    proc = run("piezofin", "sweep", *args)
+    assert proc.returncode == 2
+    assert message in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_bad_fin_file_names_the_key(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nL: 0.1\n")
+    proc = run("piezofin", "sweep", "--fin", str(bad))
+    assert proc.returncode == 2 and "missing field 'L_active'" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_frequency_spec_includes_the_stop() -> None:
+    f = parse_frequencies(["1:11:0.1"])
+    assert f.size == 101 and f[0] == 1.0 and f[-1] == 11.0
+    assert list(parse_frequencies(["2", "3:4:0.5"])) == [2.0, 3.0, 3.5, 4.0]
+    with pytest.raises(UsageError):
+        parse_frequencies(["0"])

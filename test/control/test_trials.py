@@ -1,0 +1,65 @@
+"""The controller's trial runner: schedule, estimate matching, choice."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from piezofin_ros.control.trials import Mode, TrialPlan, TrialRunner, choose
+from piezofin_ros.estimation.estimator import Estimate
+
+
+def estimate(t_start: float, f: float, thrust: float, power: float, final: float = 1.0) -> Estimate:
+    nan = math.nan
+    return Estimate(
+        t_start, t_start + 5, final, 5 * f, f, 800.0, 1e-4, power, 0.1, thrust, thrust / power, 0.13,
+        0.1, thrust, thrust / power, nan, 0.0, 0.0,
+    )  # fmt: skip
+
+
+def test_protocol_schedule_is_off_on_off() -> None:
+    runner = TrialRunner(TrialPlan.grid([5.0, 9.0], [800.0]))
+    cmds = {t: runner.command(100.0 + t) for t in (0.0, 9.9, 10.0, 19.9, 20.0, 29.9, 30.0, 40.0, 60.0)}
+    assert cmds[0.0][2] == 0 and cmds[9.9][2] == 0
+    assert cmds[10.0] == (5.0, 800.0, 1.0) and cmds[19.9] == (5.0, 800.0, 1.0)
+    assert cmds[20.0][2] == 0 and cmds[29.9][2] == 0
+    assert cmds[40.0] == (9.0, 800.0, 1.0)  # second trial's burst
+    assert cmds[60.0] == (0.0, 0.0, 0.0)
+    assert runner.done
+
+
+def test_estimates_attach_to_their_trial_and_timeouts_are_reported() -> None:
+    runner = TrialRunner(TrialPlan.grid([5.0, 9.0], [800.0]))
+    runner.command(0.0)
+    assert not runner.add_estimate(estimate(13.0, 5.0, 1e-3, 1e-3, final=0.0))  # running window: ignored
+    assert runner.add_estimate(estimate(13.0, 5.0, 1e-3, 1e-3))
+    runner.command(35.0)  # trial 1 starts here (the first took 30 s)
+    assert runner.missing(74.9) == []  # 35 + 30 s trial + 10 s estimate timeout
+    assert [r.index for r in runner.missing(75.1)] == [1]
+
+
+def test_continuous_mode_moves_on_when_the_estimate_comes() -> None:
+    runner = TrialRunner(TrialPlan.grid([5.0, 9.0], [800.0], mode=Mode.CONTINUOUS))
+    assert runner.command(0.0) == (5.0, 800.0, 1.0)
+    assert runner.add_estimate(estimate(3.0, 5.0, 1e-3, 1e-3, final=0.0))
+    assert runner.command(8.0) == (9.0, 800.0, 1.0)  # no stop between points
+
+
+def test_choose_most_thrust_per_watt_above_the_demand() -> None:
+    runner = TrialRunner(TrialPlan.grid([2.0, 5.0, 9.0], [800.0]))
+    runner.command(0.0)
+    for k, (f, thrust, power) in enumerate([(2.0, 1e-4, 1e-6), (5.0, 2e-3, 1e-3), (9.0, 1.5e-2, 2e-2)]):
+        runner.command(30.0 * k)
+        runner.add_estimate(estimate(30.0 * k + 13, f, thrust, power))
+    assert choose(runner.results, min_thrust_n=1e-3).frequency_hz == 5.0
+    assert choose(runner.results, min_thrust_n=0.0).frequency_hz == 2.0
+    assert choose(runner.results, min_thrust_n=1.0).frequency_hz == 9.0  # none meets it: most thrust
+
+
+@pytest.mark.parametrize(
+    "bad", [{"points": ()}, {"points": ((math.nan, 800.0),)}, {"points": ((5.0, 800.0),), "on_s": 0}]
+)
+def test_bad_plans_are_rejected(bad: dict) -> None:
+    with pytest.raises(ValueError):  # noqa: PT011 (each message is checked in the node tests)
+        TrialPlan(**bad)

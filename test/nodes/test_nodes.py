@@ -1,0 +1,600 @@
+"""The nodes on real rclpy and Fast DDS, in one process: a live run, its bag, its replay."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from rosbags.highlevel import AnyReader
+from std_msgs.msg import Float64MultiArray
+
+from piezofin_ros.bags import block_of, read_messages
+from piezofin_ros.bags.blocks import Block
+from piezofin_ros.estimation.estimator import Estimate
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg
+from piezofin_ros.nodes.controller import Controller
+from piezofin_ros.nodes.fin_sim import FinSim
+from piezofin_ros.nodes.player import Player
+from piezofin_ros.nodes.recorder import Recorder
+from piezofin_ros.nodes.thrust_estimator import ThrustEstimator
+from piezofin_ros.physics.steady import harmonic_balance
+
+from ..rosutil import graph
+
+pytestmark = pytest.mark.ros
+
+T0 = 1000.0  # simulated start time, far from the wall clock: a wall-clock stamp would show
+SIM_TIME = [Parameter("use_sim_time", value=True)]
+
+
+def params(**kw: Any) -> list[Parameter]:
+    return [Parameter(k.replace("__", "."), value=v) for k, v in kw.items()]
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Two protocol trials (9 and 6 Hz at 800 Vpp), 50x real time, recorded."""
+    bag = tmp_path_factory.mktemp("live") / "live.mcap"
+    with graph() as g:
+        ctx = g.context
+        sim = g.add(
+            FinSim(
+                context=ctx,
+                namespace="fin",
+                parameter_overrides=params(
+                    realtime_factor=50.0, publish_clock=True, start_time_s=T0, autostart=False
+                ),
+            )
+        )
+        est = g.add(
+            ThrustEstimator(
+                context=ctx, namespace="fin", parameter_overrides=SIM_TIME + params(estimator__baseline_s=4.0)
+            )
+        )
+        ctl = g.add(
+            Controller(
+                context=ctx,
+                namespace="fin",
+                parameter_overrides=SIM_TIME
+                + params(frequencies=[9.0, 6.0], voltages=[800.0], off_s=6.0, on_s=8.0, min_thrust_n=0.0),
+            )
+        )
+        rec = g.add(
+            Recorder(context=ctx, parameter_overrides=SIM_TIME + params(path=str(bag), namespaces=["fin"]))
+        )
+        assert sim.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        g.spin_until(lambda: sim.matched() >= 2, timeout=10.0, what="estimator and recorder matched")
+        sim.trigger_activate()
+        g.spin_until(lambda: ctl.finished, timeout=60.0, what="two trials")
+        sim.trigger_deactivate()
+        est.close()
+        g.spin_for(0.3)  # let the recorder take the last messages
+        rec.close()
+        return {
+            "bag": bag,
+            "fin": est.fin,
+            "estimates": list(est.estimates),
+            "status": ctl.status(),
+            "published": dict(sim.published),
+            "recorded": rec.counts,
+            "rig": sim.rig,
+        }
+
+
+def test_live_estimates_match_the_steady_state(live: dict[str, Any]) -> None:
+    finals = [e for e in live["estimates"] if e.final]
+    assert [round(e.frequency_hz, 3) for e in finals] == [9.0, 6.0]
+    for e in finals:
+        hb = harmonic_balance(live["fin"], e.frequency_hz, e.voltage_pp, harmonics=3)
+        assert e.voltage_pp == pytest.approx(800.0, rel=2e-3)
+        assert e.thrust_n == pytest.approx(float(hb.thrust_n), rel=5e-3)
+        assert e.thrust_self_n == pytest.approx(e.thrust_n, rel=5e-3)
+        cfg = live["rig"].config
+        n_on = (e.t_end - e.t_start) * cfg.sample_rate_hz
+        sigma = cfg.loadcell_stiffness * cfg.displacement_noise_m * math.sqrt(1 / n_on + 1 / (2 * 4000))
+        assert e.loadcell_baselines == 2
+        assert abs(e.thrust_loadcell_n - e.thrust_n) <= 5 * sigma + 3e-3 * e.thrust_n
+
+
+def test_times_come_from_the_samples_not_the_wall_clock(live: dict[str, Any]) -> None:
+    for e in live["estimates"]:
+        assert T0 < e.t_start < e.t_end < T0 + 60.0
+    times = [m.log_time_ns * 1e-9 for m in read_messages(live["bag"])]
+    assert min(times) >= T0 and max(times) < T0 + 60.0  # the recorder logs in simulated time
+
+
+def test_controller_reports_both_trials(live: dict[str, Any]) -> None:
+    st = live["status"]
+    assert st["state"] == "done"
+    assert [r["frequency_hz"] for r in st["results"]] == [9.0, 6.0]
+    assert st["chosen"]["frequency_hz"] == 6.0  # more thrust per watt below resonance
+
+
+def test_rosbags_reads_every_recorded_message(live: dict[str, Any]) -> None:
+    with AnyReader([live["bag"]]) as reader:
+        counts: dict[str, int] = {}
+        samples = 0
+        for conn, _, raw in reader.messages():
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+            if conn.topic == "/fin/drive":
+                msg = reader.deserialize(raw, conn.msgtype)
+                samples += msg.layout.dim[1].size
+    assert counts == {k: v for k, v in live["recorded"].items() if v}
+    assert samples == live["published"]["drive"]  # not one sample lost between fin_sim and the bag
+    assert counts["/fin/estimate"] == len(live["estimates"])
+    assert counts["/clock"] > 0
+
+
+def test_replay_reproduces_the_live_estimates(live: dict[str, Any]) -> None:
+    recorded = [
+        Estimate.from_dict(block_of(m.type_name, m.data).as_dict())
+        for m in read_messages(live["bag"], ["/fin/estimate"])
+    ]
+    assert recorded == live["estimates"]
+    with graph() as g:
+        player = g.add(
+            Player(
+                context=g.context,
+                parameter_overrides=params(
+                    bag=str(live["bag"]),
+                    rate=20.0,
+                    topics=["/fin/drive", "/fin/tip_velocity", "/fin/loadcell"],
+                ),
+            )
+        )
+        est = g.add(
+            ThrustEstimator(
+                context=g.context,
+                namespace="fin",
+                parameter_overrides=SIM_TIME + params(estimator__baseline_s=4.0),
+            )
+        )
+        g.spin_until(lambda: player.done, timeout=30.0, what="replay")
+        g.spin_for(0.3)
+        est.close()
+        replayed = list(est.estimates)
+    assert len(replayed) == len(recorded)
+    for a, b in zip(replayed, recorded, strict=True):
+        np.testing.assert_allclose(
+            np.array(list(a.as_dict().values())),
+            np.array(list(b.as_dict().values())),
+            rtol=1e-12,
+            equal_nan=True,
+        )
+
+
+def test_nodes_build_twice_in_one_process() -> None:
+    for _ in range(2):
+        with graph() as g:
+            for ns in ("left", "right"):
+                g.add(FinSim(context=g.context, namespace=ns, parameter_overrides=params(autostart=False)))
+                g.add(ThrustEstimator(context=g.context, namespace=ns))
+                g.add(Controller(context=g.context, namespace=ns))
+            g.spin_for(0.1)
+            assert {n.get_fully_qualified_name() for n in g.nodes} >= {"/left/fin_sim", "/right/controller"}
+
+
+def test_parameters_have_ranges_and_reasons() -> None:
+    with graph() as g:
+        sim = g.add(FinSim(context=g.context, parameter_overrides=params(autostart=False)))
+        desc = sim.describe_parameter("rig.sample_rate_hz")
+        assert desc.floating_point_range[0].from_value == 100.0
+        assert desc.description
+        result = sim.set_parameters([Parameter("rig.sample_rate_hz", value=5.0)])[0]
+        assert not result.successful
+        assert result.reason
+        result = sim.set_parameters([Parameter("block_s", value=0.1)])[0]
+        assert not result.successful
+        assert "fixed at start" in result.reason
+        with pytest.raises((InvalidParameterValueException, StartupError), match=r"limits\.voltage_pp_max"):
+            FinSim(
+                context=g.context, node_name="over", parameter_overrides=params(limits__voltage_pp_max=2000.0)
+            )
+        with pytest.raises(StartupError, match=r"realtime_factor.*outside"):
+            FinSim(context=g.context, node_name="slow", parameter_overrides=params(realtime_factor=0))
+        assert (
+            FinSim(context=g.context, node_name="int", parameter_overrides=params(block_s=1))._block_s == 1.0
+        )
+        with pytest.raises(StartupError, match="mode"):
+            Controller(context=g.context, parameter_overrides=params(mode="sometimes"))
+        with pytest.raises(StartupError, match="outside"):
+            Controller(context=g.context, node_name="c2", parameter_overrides=params(voltages=[900.0]))
+        bad_fin = g.add(
+            FinSim(context=g.context, node_name="nofin", parameter_overrides=params(fin="M0000-X"))
+        )
+        assert bad_fin.trigger_configure() == TransitionCallbackReturn.FAILURE
+
+
+def test_fin_sim_and_controller_load_a_diagnosed_model(tmp_path: Any) -> None:
+    """`-p model:=augmented_model.yaml`: fin_sim streams the diagnosed model, the optimiser starts
+    from it; a bad model fails at start naming the parameter and the file."""
+    from piezofin_ros.physics.fin import load_fin
+    from piezofin_ros.physics.model import Model
+
+    fin = load_fin("M8528-P1")
+    model = Model.of(fin, {"drag_offset": [3.0]})
+    path = tmp_path / "augmented_model.yaml"
+    path.write_text(yaml.safe_dump(model.to_mapping()))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("fin: {}\neffects: {warp_drive: {}}\n")
+    with graph() as g:
+        sim = g.add(FinSim(context=g.context, parameter_overrides=params(autostart=False, model=str(path))))
+        assert sim.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        rig = sim.rig
+        assert rig is not None and rig.model is not None
+        for _ in range(12):
+            rig.command(9.0, 800.0, 1.0)
+            block = rig.step(500)
+        tip = float(np.sqrt(np.mean(block.tip_velocity**2)))
+        assert tip == pytest.approx(float(model.predict(9.0, 800.0).tip_velocity_rms), rel=0.03)
+        assert tip < 0.7 * float(harmonic_balance(fin, 9.0, 800.0).tip_velocity_rms)  # 3x drag shows
+        broken = g.add(
+            FinSim(context=g.context, node_name="broken", parameter_overrides=params(model=str(bad)))
+        )
+        assert broken.trigger_configure() == TransitionCallbackReturn.FAILURE
+        ctl = g.add(
+            Controller(context=g.context, parameter_overrides=params(mode="optimise", model=str(path)))
+        )
+        assert ctl.loop is not None and ctl.loop.optimiser.model is not None
+        ctl.strategy.command(1.0)  # its first tick publishes a JSON status (it raised TypeError with a model)
+        ctl._publish_status()
+        assert json.loads(json.dumps(ctl.status()))["correction"]["resonance_scale"] == 1.0
+        with pytest.raises(StartupError, match=r"parameter model: .*bad\.yaml"):
+            Controller(
+                context=g.context, node_name="c3", parameter_overrides=params(mode="optimise", model=str(bad))
+            )
+
+
+def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
+    with graph() as g:
+        sim = g.add(
+            FinSim(context=g.context, parameter_overrides=params(autostart=False, realtime_factor=20.0))
+        )
+        probe = g.add(__import__("rclpy").create_node("probe", context=g.context))
+        drive: list[Block] = []
+        probe.create_subscription(Float64MultiArray, "drive", lambda m: drive.append(m), QOS_DATA)
+        cmd = probe.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+
+        def send(f: float, v: float, on: float) -> None:
+            cmd.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on})))
+
+        sim.trigger_configure()
+        g.spin_for(0.3)
+        send(5.0, 800.0, 1.0)
+        g.spin_until(lambda: sim.command_log, timeout=5.0)
+        assert "not active" in sim.command_log[-1]
+        assert drive == []
+        sim.trigger_activate()
+        g.spin_until(lambda: len(drive) > 3, timeout=5.0)
+        for f, v, on, why in [
+            (5.0, 2000.0, 1.0, "clamped"),
+            (math.nan, 400.0, 1.0, "non-finite"),
+            (-3.0, 100.0, 1.0, "outside"),
+        ]:
+            send(f, v, on)
+            g.spin_until(
+                lambda why=why: sim.command_log and why in sim.command_log[-1], timeout=5.0, what=why
+            )
+        bad = Float64MultiArray(data=[1.0, 2.0])
+        cmd.publish(bad)
+        g.spin_until(lambda: "malformed" in sim.command_log[-1], timeout=5.0)
+        sim.trigger_deactivate()  # publishes the ramp to zero, then nothing more
+        g.spin_for(0.3)
+        n = len(drive)
+        g.spin_for(0.3)
+        assert len(drive) == n
+        from piezofin_ros.nodes._common import msg_block
+
+        v = np.concatenate([msg_block(m)["voltage_V"] for m in drive])
+        assert np.max(np.abs(v)) <= 400.0 + 5 * 0.2 * 6  # never beyond 800 Vpp (noise aside)
+        assert np.all(np.abs(v[-20:]) < 2.0)  # deactivate ramped it to zero
+
+
+def test_drive_limits_can_be_tightened_live_over_the_parameter_service() -> None:
+    """An operator lowers the cap on a running fin (`ros2 param set /fin_sim limits.voltage_pp_max 400`):
+    the drive ramps down to it at once; relaxing a limit is refused with the reason; a band that
+    leaves the running frequency out ramps the drive to zero."""
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from piezofin_ros.nodes._common import msg_block
+
+    with graph() as g:
+        sim = g.add(FinSim(context=g.context, parameter_overrides=params(realtime_factor=10.0)))
+        operator = g.add(__import__("rclpy").create_node("operator", context=g.context))
+        drive: list[Any] = []
+        operator.create_subscription(Float64MultiArray, "drive", drive.append, QOS_DATA)
+        cmd = operator.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+        client = AsyncParameterClient(operator, "fin_sim")
+        g.spin_until(client.services_are_ready, timeout=10.0, what="fin_sim's parameter services")
+
+        def command(f: float, v: float) -> None:
+            cmd.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": 1.0})))
+
+        def set_limit(name: str, value: float) -> Any:
+            future = client.set_parameters([Parameter(f"limits.{name}", value=value)])
+            g.spin_until(future.done, timeout=10.0, what=f"set {name}")
+            return future.result().results[0]
+
+        def peak_after(t: float) -> float:
+            blocks = [msg_block(m) for m in drive]
+            v = np.concatenate([b["voltage_V"][b["t_s"] > t] for b in blocks])
+            return float(np.max(np.abs(v))) if v.size else math.nan
+
+        def latest_t() -> float:
+            return float(msg_block(drive[-1])["t_s"][-1])
+
+        sim.trigger_configure()
+        sim.trigger_activate()
+        g.spin_until(lambda: cmd.get_subscription_count() >= 1 and len(drive) > 0, timeout=10.0)
+        for _ in range(10):  # 800 Vpp at 5 Hz, kept fed against the watchdog
+            command(5.0, 800.0)
+            g.spin_for(0.05)
+        assert peak_after(latest_t() - 0.25) > 390.0
+        result = set_limit("voltage_pp_max", 400.0)
+        assert result.successful, result.reason
+        t_set = latest_t()
+        for _ in range(10):
+            command(5.0, 800.0)  # still asks for 800: now clamped to 400
+            g.spin_for(0.05)
+        assert peak_after(t_set + 0.15) <= 200.0 + 2.0  # ramped within 0.1 s at 4000 Vpp/s (noise 0.2 V)
+        assert "clamped" in sim.command_log[-1]
+        refused = set_limit("voltage_pp_max", 600.0)
+        assert not refused.successful and "only tighter limits" in refused.reason
+        assert sim.get_parameter("limits.voltage_pp_max").value == 400.0
+        assert set_limit("frequency_max_hz", 4.0).successful  # 5 Hz is now out of band
+        t_band = latest_t()
+        g.spin_for(0.3)
+        assert peak_after(t_band + 0.15) < 2.0
+
+
+def test_fin_sim_protocol_mode_one_command_one_trial() -> None:
+    """`-p protocol:=true`: one typed command runs the paper's trial; the estimator reports it."""
+    with graph() as g:
+        sim = g.add(
+            FinSim(
+                context=g.context,
+                parameter_overrides=params(
+                    autostart=False, protocol=True, protocol_off_s=4.0, protocol_on_s=6.0,
+                    realtime_factor=50.0, publish_clock=True, start_time_s=T0,
+                ),
+            )
+        )  # fmt: skip
+        est = g.add(
+            ThrustEstimator(
+                context=g.context, parameter_overrides=SIM_TIME + params(estimator__baseline_s=3.0)
+            )
+        )
+        probe = g.add(__import__("rclpy").create_node("probe", context=g.context))
+        cmd = probe.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+        sim.trigger_configure()
+        g.spin_until(lambda: sim.matched() >= 1 and cmd.get_subscription_count() >= 1, timeout=10.0)
+        sim.trigger_activate()
+        cmd.publish(Float64MultiArray(data=[9.0, 800.0, 1.0]))  # unlabelled, as typed by a person
+        g.spin_until(lambda: any(e.final for e in est.estimates), timeout=30.0, what="the trial's estimate")
+        e = next(e for e in est.estimates if e.final)
+        assert e.frequency_hz == pytest.approx(9.0, rel=1e-4)
+        assert e.loadcell_baselines == 2
+        assert T0 + 4.0 < e.t_start < e.t_end <= T0 + 10.0 + 1e-3
+
+
+def test_the_first_trial_waits_for_an_estimator_that_starts_last() -> None:
+    """Under ros2 launch the estimator may start last: the controller holds the drive off and starts
+    trial 0 only once an estimator publishes, so trial 0 gets its estimate (CI once lost it)."""
+    with graph() as g:
+        ctx = g.context
+        sim = g.add(
+            FinSim(
+                context=ctx,
+                parameter_overrides=params(realtime_factor=20.0, publish_clock=True, start_time_s=T0),
+            )
+        )
+        sim.trigger_configure()
+        sim.trigger_activate()
+        ctl = g.add(
+            Controller(
+                context=ctx,
+                parameter_overrides=SIM_TIME
+                + params(frequencies=[9.0], voltages=[800.0], off_s=1.0, on_s=4.0, wait_estimator_s=60.0),
+            )
+        )
+        g.spin_for(3.0)  # 60 s of fin time with no estimator: nothing driven, the plan not begun
+        assert ctl.runner.t_begin is None and not ctl.runner.results
+        assert sim.rig is not None and sim.rig.drive.amplitude == 0.0 and sim.rig.drive.t > T0 + 30.0
+        g.add(ThrustEstimator(context=ctx, parameter_overrides=SIM_TIME + params(estimator__baseline_s=0.5)))
+        g.spin_until(lambda: ctl.finished, timeout=30.0, what="the one trial")
+    (result,) = ctl.runner.results
+    assert result.estimate is not None and result.estimate.frequency_hz == pytest.approx(9.0, rel=1e-3)
+    assert ctl.status()["state"] == "done"
+
+
+def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
+    """Live: the controller optimises from self-sensed estimates; kill the estimator, the drive ramps to 0."""
+    with graph() as g:
+        ctx = g.context
+        sim = g.add(
+            FinSim(
+                context=ctx,
+                parameter_overrides=params(
+                    autostart=False, realtime_factor=50.0, publish_clock=True, start_time_s=T0
+                ),
+            )
+        )
+        est = ThrustEstimator(
+            context=ctx,
+            parameter_overrides=SIM_TIME + params(estimator__window_s=2.0, estimator__settle_s=2.0),
+        )
+        g.executor.add_node(est)
+        ctl = g.add(
+            Controller(
+                context=ctx,
+                parameter_overrides=SIM_TIME
+                + params(mode="optimise", demand_n=4e-3, estimate_timeout_s=3.0, slew_vpp_per_s=400.0),
+            )
+        )
+        probe = g.add(__import__("rclpy").create_node("probe", context=ctx, parameter_overrides=SIM_TIME))
+        sent: list[tuple[float, float, float]] = []
+
+        def on_cmd(m: Float64MultiArray) -> None:
+            from piezofin_ros.nodes._common import msg_block
+
+            b = msg_block(m)
+            sent.append(
+                (probe.get_clock().now().nanoseconds * 1e-9, b.scalar("voltage_pp_V"), b.scalar("on"))
+            )
+
+        probe.create_subscription(Float64MultiArray, "cmd", on_cmd, QOS_COMMAND)
+        sim.trigger_configure()
+        g.spin_until(lambda: sim.matched() >= 1, timeout=10.0)
+        sim.trigger_activate()
+        g.spin_until(lambda: ctl.loop.trials >= 2, timeout=60.0, what="two optimiser trials")
+        assert max(v for _, v, _ in sent) <= 800.0
+        assert ctl.status()["self_vs_vibrometer"] == pytest.approx(0.0, abs=0.01)
+        g.executor.remove_node(est)  # the estimator dies
+        est.destroy_node()
+        t_kill = sent[-1][0]
+        g.spin_until(lambda: ctl.loop.state == "stopped", timeout=60.0, what="ramp down")
+        g.spin_for(0.2)
+        assert sent[-1][1] == 0.0 and sent[-1][2] == 0.0
+        after = [v for t, v, _ in sent if t > t_kill + 0.5]  # (a trial change may be in flight at the kill)
+        assert all(b <= a + 1e-9 for a, b in itertools.pairwise(after))  # holds, then only down
+        t_zero = next(t for t, v, _ in sent if t > t_kill and v == 0.0)
+        assert t_zero - t_kill <= 2 * 3.0 + 800.0 / 400.0 + 1.0  # bounded: 2 x timeout + a full ramp
+
+
+def test_player_offers_every_topic_before_its_first_message(tmp_path: Any) -> None:
+    """`ros2 topic echo` started right after the player finds every topic's type: the publishers
+    exist from the start (the bag's channels), not from each topic's first message.  A relative
+    path that is not in the working directory is looked up in the package's share directory."""
+    import os
+
+    sample = "bags/sample_M8528-P1.mcap"
+    cwd = os.getcwd()
+    os.chdir(tmp_path)  # not the clone: the path resolves to the package's copy
+    try:
+        with graph() as g:
+            player = g.add(Player(context=g.context, parameter_overrides=params(bag=sample, rate=0.01)))
+            names = dict(player.get_topic_names_and_types())
+    finally:
+        os.chdir(cwd)
+    assert player.published == {}  # nothing played yet (rate 0.01) ...
+    for topic in ("/fin/drive", "/fin/tip_velocity", "/fin/loadcell", "/fin/cmd", "/fin/estimate"):
+        assert names[topic] == ["std_msgs/msg/Float64MultiArray"], topic  # ... and every topic offered
+
+
+def test_doubles_stay_doubles_and_every_parameter_says_what_it_is() -> None:
+    """`-p realtime_factor:=10` and `ros2 param set ... limits.voltage_pp_max 400` (integers) keep
+    the parameters doubles; the estimator's twelve window parameters each have their own description."""
+    with graph() as g:
+        sim = g.add(
+            FinSim(context=g.context, parameter_overrides=params(realtime_factor=10, autostart=False))
+        )
+        sim.trigger_configure()
+        assert sim.get_parameter("realtime_factor").type_ == Parameter.Type.DOUBLE
+        [result] = sim.set_parameters([Parameter("limits.voltage_pp_max", value=400)])
+        assert result.successful, result.reason
+        assert sim.get_parameter("limits.voltage_pp_max").type_ == Parameter.Type.DOUBLE
+        est = g.add(ThrustEstimator(context=g.context))
+        texts = [d.description for n, d in est._descriptors.items() if n.startswith("estimator.")]
+    assert len(texts) == 12 and len(set(texts)) == 12, texts
+
+
+# What rosbag2_storage_mcap (Jazzy) needs of a bag: rosbag2_storage/yaml.hpp decodes these keys of
+# `serialized_metadata` (version 9) with no default, and qos.cpp these of each offered profile.
+ROSBAG2_V9_KEYS = {
+    "version", "storage_identifier", "duration", "starting_time", "message_count",
+    "topics_with_message_count", "relative_file_paths", "compression_format", "compression_mode",
+    "files", "custom_data", "ros_distro",
+}  # fmt: skip
+QOS_KEYS = {
+    "history", "depth", "reliability", "durability", "deadline", "lifespan", "liveliness",
+    "liveliness_lease_duration", "avoid_ros_namespace_conventions",
+}  # fmt: skip
+#: rmw_qos_*_policy_from_str accepts these; "unknown" is what rosbag2 itself writes for a policy
+#: DDS does not tell (a remote publisher's history and depth), and replays with its default.
+QOS_WORDS = {
+    "history": {"system_default", "keep_last", "keep_all", "unknown"},
+    "reliability": {"system_default", "reliable", "best_effort", "best_available"},
+    "durability": {"system_default", "transient_local", "volatile", "best_available"},
+    "liveliness": {"system_default", "automatic", "manual_by_topic", "best_available"},
+}
+
+
+def check_qos(profiles: list[dict[str, Any]]) -> None:
+    assert profiles, "no offered profile"
+    for p in profiles:
+        assert set(p) == QOS_KEYS, p
+        for key, words in QOS_WORDS.items():
+            assert p[key] in words, (key, p[key])
+        for key in ("deadline", "lifespan", "liveliness_lease_duration"):
+            assert set(p[key]) == {"sec", "nsec"} and all(isinstance(v, int) for v in p[key].values())
+
+
+def test_the_bag_is_what_rosbag2_storage_mcap_reads(live: dict[str, Any], tmp_path: Any) -> None:
+    """Checked with two readers that share no code with the writer: mcap's own reader against
+    rosbag2's decoding rules, and rosbags' rosbag2 implementation on a bag directory."""
+    from mcap.reader import make_reader
+    from rosbags.rosbag2 import Reader as Rosbag2Reader
+
+    with open(live["bag"], "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        records = [m for m in reader.iter_metadata() if m.name == "rosbag2"]
+    assert summary is not None and summary.statistics is not None
+    assert len(records) == 2  # one at the start (a killed writer leaves it), the complete one at close
+    first = yaml.safe_load(records[0].metadata["serialized_metadata"])
+    meta = yaml.safe_load(records[-1].metadata["serialized_metadata"])
+    for doc in (first, meta):
+        assert set(doc) == ROSBAG2_V9_KEYS and doc["version"] == 9 and doc["ros_distro"] == "jazzy"
+    stats = summary.statistics
+    assert meta["message_count"] == stats.message_count
+    assert meta["starting_time"]["nanoseconds_since_epoch"] == stats.message_start_time
+    assert meta["duration"]["nanoseconds"] == stats.message_end_time - stats.message_start_time
+    by_topic = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
+    channels = {c.topic: c for c in summary.channels.values()}
+    assert set(by_topic) == set(channels)
+    for cid, c in summary.channels.items():
+        qos = yaml.safe_load(c.metadata["offered_qos_profiles"] or "[]")
+        assert by_topic[c.topic]["message_count"] == stats.channel_message_counts[cid]
+        assert by_topic[c.topic]["topic_metadata"]["offered_qos_profiles"] == qos
+        if "/estimate/" in c.topic or "/cmd/" in c.topic:
+            assert qos == []  # plot fields: written to the bag, never published
+        else:
+            check_qos(qos)  # what the publishers offered, read from the graph
+    drive = yaml.safe_load(channels["/fin/drive"].metadata["offered_qos_profiles"])
+    assert [(p["reliability"], p["durability"]) for p in drive] == [("reliable", "volatile")]
+    clock = yaml.safe_load(channels["/clock"].metadata["offered_qos_profiles"])
+    assert [p["reliability"] for p in clock] == ["best_effort"]  # replayed as offered
+
+    # rosbags' rosbag2 reader: a bag directory with this file and its metadata as metadata.yaml
+    bagdir = tmp_path / "bagdir"
+    bagdir.mkdir()
+    (bagdir / live["bag"].name).symlink_to(live["bag"])
+    (bagdir / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": meta}))
+    with Rosbag2Reader(bagdir) as r2:
+        assert r2.message_count == stats.message_count
+        conns = {c.topic: c for c in r2.connections}
+        assert conns["/clock"].ext.offered_qos_profiles[0].reliability.name == "BEST_EFFORT"
+        assert conns["/fin/drive"].ext.offered_qos_profiles[0].reliability.name == "RELIABLE"
+        assert sum(1 for _ in r2.messages()) == stats.message_count
+
+
+def test_estimates_are_plottable_field_by_field(live: dict[str, Any]) -> None:
+    """Foxglove and PlotJuggler plot `/fin/estimate/<field>.data` (a Float64 per estimate)."""
+    with AnyReader([live["bag"]]) as reader:
+        series: dict[str, list[float]] = {}
+        for conn, _, raw in reader.messages():
+            if conn.topic.startswith(("/fin/estimate/", "/fin/cmd/")):
+                assert conn.msgtype == "std_msgs/msg/Float64"
+                series.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype).data)
+    thrust = series["/fin/estimate/thrust_n"]
+    assert thrust == pytest.approx([e.thrust_n for e in live["estimates"]], rel=1e-12)
+    assert len(series["/fin/cmd/frequency_hz"]) == live["recorded"]["/fin/cmd"]
+    assert len(series) > 10

@@ -1,0 +1,127 @@
+"""The suite as a ROS user meets it: the real `ros2` command line and `ros2 launch`.
+
+Where a `ros2` is on the PATH (a ROS machine) it is used; otherwise the Jazzy ros2cli and launch
+are built from ``../shared/ros2-jazzy`` into ``.ros/ros2-jazzy`` (once, about a minute).  The
+package itself is built with ``colcon build --symlink-install`` into ``.ros/ws``, as a user does.
+Without either, these tests are skipped with one line saying why.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from ..rosutil import Launch
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def ros2(env: dict[str, str], *args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        ["ros2", *args], env=env, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL
+    )
+
+
+def node_list(env: dict[str, str], expected: set[str], timeout: float = 30.0) -> set[str]:
+    """`ros2 node list`, asked again until every expected node shows (discovery takes its time)."""
+    t0 = time.monotonic()
+    while True:
+        nodes = set(ros2(env, "node", "list", "--spin-time", "3").stdout.split())
+        if expected <= nodes or time.monotonic() - t0 > timeout:
+            return nodes
+        time.sleep(0.5)
+
+
+def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
+    ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    from mcap.reader import make_reader
+
+    launch = Launch(ros_env, tmp_path, "realtime_factor:=10")
+    try:
+        launch.wait_for("thrust_estimator-2] [INFO]", 60.0)
+        launch.wait_for("trial 1.000 Hz 400 Vpp", 60.0)  # an estimate: the graph works
+        suite = {"/fin/fin_sim", "/fin/thrust_estimator", "/fin/controller", "/recorder"}
+        nodes = node_list(ros_env, suite)
+        assert suite <= nodes, nodes
+        info = ros2(ros_env, "topic", "info", "-v", "/fin/drive", "--spin-time", "3").stdout
+        assert "RELIABLE" in info and "Publisher count: 1" in info, info
+        state = ros2(ros_env, "lifecycle", "get", "/fin/fin_sim", "--spin-time", "3")
+        assert state.stdout.startswith("active"), state.stdout + state.stderr
+        refused = ros2(ros_env, "lifecycle", "set", "/fin/fin_sim", "cleanup", "--spin-time", "3")
+        assert "successful" not in refused.stdout.lower() or "unsuccessful" in refused.stdout.lower()
+        tighter = ros2(
+            ros_env, "param", "set", "/fin/fin_sim", "limits.voltage_pp_max", "400", "--spin-time", "3"
+        )
+        assert "Set parameter successful" in tighter.stdout, tighter.stdout + tighter.stderr
+        looser = ros2(
+            ros_env, "param", "set", "/fin/fin_sim", "limits.voltage_pp_max", "600", "--spin-time", "3"
+        )
+        assert "only tighter limits" in looser.stdout + looser.stderr
+        kind = ros2(
+            ros_env, "param", "get", "/fin/fin_sim", "limits.voltage_pp_max", "--spin-time", "3"
+        ).stdout
+        assert "Double value is: 400.0" in kind, kind
+        assert launch.proc.poll() is None  # nothing above killed a node
+    finally:
+        out = launch.interrupt()
+    assert "[ERROR]" not in out, out[-3000:]
+    assert out.count("process has finished cleanly") == 4, out[-3000:]
+    bag = next((tmp_path / "bags").glob("piezofin_*.mcap"))
+    with open(bag, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 100
+
+
+def test_launch_without_the_simulator_and_with_a_layered_params_file(
+    ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    changes = tmp_path / "mine.yaml"  # only what changes: layered on the package's bringup.yaml
+    changes.write_text("/**/controller:\n  ros__parameters:\n    frequencies: [5.0, 6.0]\n")
+    launch = Launch(ros_env, tmp_path, "sim:=false", f"params_file:={changes}")
+    try:
+        launch.wait_for("recording 9 topics", 60.0)
+        # the controller is up, with its voltages [400, 800] from bringup.yaml and frequencies from mine
+        launch.wait_for("4 protocol trials", 60.0)
+        nodes = node_list(ros_env, {"/fin/thrust_estimator", "/fin/controller", "/recorder"})
+        assert {"/fin/thrust_estimator", "/fin/controller", "/recorder"} <= nodes, nodes
+        assert "/fin/fin_sim" not in nodes, nodes
+    finally:
+        out = launch.interrupt()
+    assert "[ERROR]" not in out, out[-3000:]
+    assert out.count("process has finished cleanly") == 3, out[-3000:]
+
+
+def test_ros2_run_refuses_a_mistyped_parameter(ros_env: dict[str, str]) -> None:
+    run = subprocess.run(
+        ["ros2", "run", "piezofin_ros", "fin_sim", "--ros-args", "-p", "realtime_factr:=10.0"],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
+    assert run.returncode != 0
+    assert "unknown parameter realtime_factr" in run.stderr + run.stdout
+    assert "Traceback" not in run.stderr + run.stdout
+
+
+@pytest.mark.parametrize("case", ["two_fins", "without_sim"])
+def test_launch_testing(ros_env: dict[str, str], tmp_path: Path, case: str) -> None:
+    """The launch tests in test/launch/, run by launch_testing's own `launch_test`."""
+    run = subprocess.run(
+        ["launch_test", str(ROOT / "test" / "launch" / f"{case}.py")],
+        env=ros_env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=400,
+        stdin=subprocess.DEVNULL,
+    )
+    out = run.stdout + run.stderr
+    assert run.returncode == 0, out[-6000:]
+    assert "FAILED" not in out and "Ran " in out, out[-3000:]

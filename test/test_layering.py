@@ -1,0 +1,193 @@
+"""The architecture holds: packages in layers, rclpy only in the nodes, one error base (issue 15).
+
+The package is read bottom-up::
+
+    physics  <  bags  <  rig  <  estimation  <  control  <  diagnosis  <  cli  <  nodes
+
+A module may import from its own package and from the packages below it, never from one above
+(``errors`` and ``config``, the error base and the declare-once settings, are below everything).
+Only ``nodes/`` imports rclpy or any other ROS client code, so the
+science runs, and is tested, without ROS.  Every package says in its ``__init__`` docstring what it
+is for, and every error the package raises on purpose derives from :class:`PiezofinError`.
+"""
+
+from __future__ import annotations
+
+import ast
+import builtins
+import re
+from pathlib import Path
+
+import pytest
+
+import piezofin_ros
+from piezofin_ros import errors
+
+PACKAGE = Path(piezofin_ros.__file__).parent
+LAYERS = ("base", "physics", "bags", "rig", "estimation", "control", "diagnosis", "cli", "nodes")
+ROS_CLIENT = (
+    "rclpy",
+    "launch",
+    "launch_ros",
+    "rosidl_runtime_py",
+    "ros2cli",
+    "builtin_interfaces",
+    "std_msgs",
+)
+
+
+def _modules() -> list[Path]:
+    return sorted(p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def _layer_of(path: Path) -> str:
+    rel = path.relative_to(PACKAGE)
+    return rel.parts[0] if len(rel.parts) > 1 else "base"  # errors.py and config.py: the bottom
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    """(line, absolute dotted name) of every import in the module, relative ones resolved."""
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    package = list(rel.parts[:-1])  # the package a relative import starts from
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+                if node.module is None:  # from .. import x: x may be a module
+                    out += [(node.lineno, f"{name}.{a.name}") for a in node.names]
+                    continue
+            else:
+                name = node.module or ""
+            out.append((node.lineno, name))
+    return out
+
+
+def test_the_top_level_holds_only_the_packages() -> None:
+    loose = sorted(
+        p.name for p in PACKAGE.glob("*.py") if p.name not in ("__init__.py", "errors.py", "config.py")
+    )
+    assert loose == [], f"modules outside the layer packages: {loose}"
+    packages = sorted(p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists())
+    assert sorted(set(LAYERS) - {"base"}) == packages
+
+
+@pytest.mark.parametrize("layer", [x for x in LAYERS if x != "base"])
+def test_every_package_says_what_it_is_for(layer: str) -> None:
+    doc = ast.get_docstring(ast.parse((PACKAGE / layer / "__init__.py").read_text()))
+    assert doc is not None and len(doc.split()) >= 25, f"{layer}/__init__.py needs a paragraph"
+
+
+def test_nothing_imports_from_a_layer_above_it() -> None:
+    bad = []
+    for path in _modules():
+        own = LAYERS.index(_layer_of(path))
+        for line, name in _imports(path):
+            parts = name.split(".")
+            if parts[0] != "piezofin_ros" or len(parts) < 2:
+                continue
+            target = parts[1]
+            if target in LAYERS and LAYERS.index(target) > own:  # errors and config are "base" modules
+                bad.append(f"{path.relative_to(PACKAGE)}:{line} imports {name}")
+    assert bad == []
+
+
+def test_only_the_nodes_import_ros_client_code() -> None:
+    bad = []
+    for path in _modules():
+        if _layer_of(path) == "nodes":
+            continue
+        for line, name in _imports(path):
+            if name.split(".")[0] in ROS_CLIENT:
+                bad.append(f"{path.relative_to(PACKAGE)}:{line} imports {name}")
+    assert bad == []
+
+
+def test_the_layering_check_sees_a_violation(tmp_path: Path) -> None:
+    # the checker itself: a physics module importing the controller is reported
+    fake = PACKAGE / "physics" / "_layering_probe.py"
+    try:
+        fake.write_text("from ..control import optimise\nimport rclpy\n")
+        assert (2, "rclpy") in _imports(fake) and (1, "piezofin_ros.control") in _imports(fake)
+        with pytest.raises(AssertionError):
+            test_nothing_imports_from_a_layer_above_it()
+        with pytest.raises(AssertionError):
+            test_only_the_nodes_import_ros_client_code()
+    finally:
+        fake.unlink()
+
+
+def test_every_error_raised_on_purpose_derives_from_the_base() -> None:
+    """``raise X(...)`` names one of the package's errors, never a bare builtin one.
+
+    Python's own protocol errors keep their meaning: ``KeyError`` from a lookup by name,
+    ``TypeError`` for a programming error (a malformed effect class), ``FileNotFoundError`` and
+    ``FileExistsError`` as the OS says them, ``NotImplementedError`` in abstract methods.
+    """
+    allowed = {"NotImplementedError", "KeyError", "TypeError", "FileNotFoundError", "FileExistsError"}
+    bad = []
+    for path in _modules():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(node, ast.Raise) or node.exc is None:
+                continue
+            call = node.exc.func if isinstance(node.exc, ast.Call) else node.exc
+            name = call.id if isinstance(call, ast.Name) else getattr(call, "attr", "")
+            builtin = getattr(builtins, name, None)
+            if isinstance(builtin, type) and issubclass(builtin, BaseException) and name not in allowed:
+                bad.append(f"{path.relative_to(PACKAGE)}:{node.lineno} raises {name}")
+    assert bad == []
+
+
+def test_each_layer_has_its_error_and_every_error_class_derives_from_the_base() -> None:
+    import importlib
+
+    for path in _modules():
+        mod = importlib.import_module(".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts))
+        for obj in vars(mod).values():
+            if isinstance(obj, type) and issubclass(obj, Exception) and obj.__module__ == mod.__name__:
+                assert issubclass(obj, errors.PiezofinError), f"{mod.__name__}.{obj.__name__}"
+    for name in ("PhysicsError", "BagError", "EstimationError", "RigError", "ControlError", "DiagnosisError"):
+        assert issubclass(getattr(errors, name), errors.PiezofinError)
+
+
+def test_every_node_parameter_is_declared_once_and_documented() -> None:
+    """Each node's parameters come from one config dataclass, and docs/reference.md lists them all."""
+    from piezofin_ros.config import settings_of
+    from piezofin_ros.estimation.estimator import EstimatorConfig
+    from piezofin_ros.nodes.controller import ControllerConfig
+    from piezofin_ros.nodes.fin_sim import FinSimConfig
+    from piezofin_ros.nodes.player import PlayerConfig
+    from piezofin_ros.nodes.recorder import RecorderConfig
+    from piezofin_ros.nodes.thrust_estimator import ThrustEstimatorConfig
+    from piezofin_ros.rig.simulated import DriveLimits, RigConfig
+
+    reference = (PACKAGE.parent / "docs" / "reference.md").read_text()
+    rows = {line.split("|")[1].strip(" `"): line for line in reference.splitlines() if line.startswith("| `")}
+    nodes = {
+        "fin_sim": [FinSimConfig, RigConfig, DriveLimits],
+        "thrust_estimator": [ThrustEstimatorConfig, EstimatorConfig],
+        "controller": [ControllerConfig],
+        "recorder": [RecorderConfig],
+        "player": [PlayerConfig],
+    }
+    for node, configs in nodes.items():
+        for cls in configs:
+            for f, _default, s in settings_of(cls):  # every field is a setting with a description
+                assert s.description, f"{cls.__name__}.{f.name}"
+                if cls in (
+                    FinSimConfig,
+                    ThrustEstimatorConfig,
+                    ControllerConfig,
+                    RecorderConfig,
+                    PlayerConfig,
+                ):
+                    assert f"`{f.name}`" in rows[node], f"docs/reference.md: {node} row lacks `{f.name}`"
+    for node in nodes:  # nothing the nodes do not declare
+        declared = {f.name for cls in nodes[node] for f, _, _ in settings_of(cls)}
+        listed = set(re.findall(r"`([a-z_]+)`", rows[node].split("|")[2]))
+        stray = listed - declared - {"rig", "limits", "estimator", "self", "vibrometer", "stop", "hold"}
+        stray -= {"protocol", "continuous", "optimise", "thrust_estimator", "diagnose", "ros2", "launch"}
+        assert not stray, f"docs/reference.md: {node} row lists {sorted(stray)}, not parameters"
