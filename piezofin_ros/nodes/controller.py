@@ -101,8 +101,6 @@ class Controller(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "controller", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         c = self.config = declare(self, ControllerConfig)
-        self.voltage_limit = c.voltage_pp_max  # every command is clamped to it (_send)
-        self.wait_estimator_s = c.wait_estimator_s
         freeze_parameters(self)
         self._created = time.monotonic()
         self._waiting_logged = False
@@ -192,7 +190,7 @@ class Controller(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _send(self, f: float, v: float, on: float) -> None:
-        v = min(max(v, 0.0), self.voltage_limit)  # belt and braces: the plan was checked at start
+        v = min(max(v, 0.0), self.config.voltage_pp_max)  # belt and braces: the plan was checked at start
         self._cmd_pub.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on})))
 
     def _estimator_ready(self) -> bool:
@@ -200,10 +198,10 @@ class Controller(Node):
         if self.count_publishers(TOPIC_ESTIMATE) > 0:
             return True
         waited = time.monotonic() - self._created
-        if waited >= self.wait_estimator_s:
+        if waited >= self.config.wait_estimator_s:
             if self._waiting_logged:
                 self.get_logger().warning(
-                    f"no thrust_estimator after {self.wait_estimator_s:g} s: starting without one"
+                    f"no thrust_estimator after {self.config.wait_estimator_s:g} s: starting without one"
                 )
                 self._waiting_logged = False
             return True
@@ -211,7 +209,7 @@ class Controller(Node):
             self._waiting_logged = True
             self.get_logger().info(
                 f"waiting for a thrust_estimator on {self.resolve_topic_name(TOPIC_ESTIMATE)} "
-                f"(at most {self.wait_estimator_s:g} s), drive off"
+                f"(at most {self.config.wait_estimator_s:g} s), drive off"
             )
         self._send(0.0, 0.0, 0.0)
         return False
