@@ -333,7 +333,7 @@ def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
             sim.wait(timeout=10)
             time.sleep(5.0)
     finally:
-        out_est, out_ctl = stop(est, ctl)
+        out_est, out_ctl, _ = stop(est, ctl, sim)  # sim too: a failed run must not leave it driving
     assert "/quiet/drive: nothing for" in out_est, out_est
     assert "time (the heartbeat): nothing for" in out_ctl, out_ctl
 
