@@ -239,6 +239,9 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
     est.add_argument("--json", action="store_true", help="print the estimates as JSON")
     est.set_defaults(func=run_estimate)
+    ident = sub.add_parser("identify", help="a fin's parameters from in-air and underwater stepped-sine bags")
+    _add_identify_args(ident)
+    ident.set_defaults(func=run_identify)
     bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
     rec = bag_sub.add_parser(
@@ -248,6 +251,67 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("-o", "--output", help="the new file (default <bag>.recovered.mcap; never overwritten)")
     rec.set_defaults(func=run_bag_recover)
     return parser
+
+
+def _add_identify_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--air", required=True, help="bag of the in-air stepped sine (low voltage)")
+    p.add_argument("--water", help="bag of the underwater stepped sine (gives c_m and c_d)")
+    p.add_argument(
+        "--geometry",
+        required=True,
+        help="Table 1 of the fin: a preset name or a YAML file with L, L_active, b, b_active, h, m_s",
+    )
+    p.add_argument("--name", help="name of the identified fin (default: the geometry's)")
+    p.add_argument("--namespace", default="/fin", help="the fin's namespace in the bags (default /fin)")
+    p.add_argument("-o", "--output", help="write the fin YAML here (never overwritten)")
+    p.add_argument("--plot", help="write Fig. 5 (measured and model velocity FRFs) to this PNG")
+    p.add_argument("--json", action="store_true", help="print the identified values and the points as JSON")
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    from ..bags import BagError
+    from ..identification.frf import IdentificationError, read_sweep
+    from ..identification.identify import identify, load_geometry
+    from .plots import plot_frf
+
+    if args.output and Path(args.output).exists():
+        raise UsageError(f"{args.output} exists; choose another --output (it is never overwritten)")
+    try:
+        geometry = load_geometry(args.geometry)
+        air = read_sweep(args.air, args.namespace)
+        water = read_sweep(args.water, args.namespace) if args.water else None
+        ident = identify(air, water, geometry, args.name)
+    except (BagError, IdentificationError, FinConfigError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        out = {
+            "fin": ident.fin.inputs(),
+            "identified": ident.values(),
+            "cannot_identify": ident.warnings,
+            "air_points": [p.record() for p in ident.air_points],
+            "water_points": [p.record() for p in ident.water_points],
+        }
+        print(json.dumps(out, indent=2, allow_nan=True))
+    else:
+        print(ident.table())
+    if args.output:
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+        with open(args.output, "x") as fh:
+            fh.write(ident.fin_yaml())
+        load_fin(args.output)  # what was written loads
+        print(f"fin: {args.output}", file=sys.stderr if args.json else sys.stdout)
+    if args.plot:
+        plot_frf(args.plot, ident)
+        print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+def identify_main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezofin_ros identify ...``: the ``identify`` sub-command on its own."""
+    parser = argparse.ArgumentParser(prog="identify", description="a fin's parameters from stepped-sine bags")
+    _add_identify_args(parser)
+    parser.set_defaults(func=run_identify)
+    return _run(parser, argv)
 
 
 def run_bag_recover(args: argparse.Namespace) -> int:
