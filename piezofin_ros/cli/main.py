@@ -242,6 +242,26 @@ def build_parser() -> argparse.ArgumentParser:
     ident = sub.add_parser("identify", help="a fin's parameters from in-air and underwater stepped-sine bags")
     _add_identify_args(ident)
     ident.set_defaults(func=run_identify)
+    camp = sub.add_parser("campaign", help="the paper's whole campaign through the live suite (needs ROS 2)")
+    camp.add_argument("which", choices=("paper",), help="the campaign: paper (Figs. 5-11, Table 2)")
+    camp.add_argument("-o", "--out", default="out/campaign", help="output directory (default out/campaign)")
+    camp.add_argument("--fins", nargs="+", help="fin presets (default: M8528-P1 M8514-P1 M8507-P1)")
+    camp.add_argument(
+        "--fin-model",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="an augmented model from `piezofin diagnose --report`: the rig simulates this twin for its fin",
+    )
+    camp.add_argument("--frequencies", nargs="+", help="protocol frequencies, Hz (default 1:11:1)")
+    camp.add_argument(
+        "--voltages", nargs="+", type=float, help="protocol voltages, Vpp (default 400 600 800)"
+    )
+    camp.add_argument("--sweep-points", type=int, default=21, help="points per stepped sine (default 21)")
+    camp.add_argument(
+        "--realtime-factor", type=float, default=200.0, help="fin s per wall s, at most (default 200)"
+    )
+    camp.set_defaults(func=run_campaign_cmd)
     bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
     rec = bag_sub.add_parser(
@@ -303,6 +323,43 @@ def run_identify(args: argparse.Namespace) -> int:
     if args.plot:
         plot_frf(args.plot, ident)
         print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+def run_campaign_cmd(args: argparse.Namespace) -> int:
+    from ..physics.effects import ModelError
+    from ..physics.model import load_model
+    from .campaign import CampaignConfig, CampaignError, run_campaign
+
+    cfg = CampaignConfig(out=Path(args.out))
+    if args.fins:
+        cfg.fins = tuple(args.fins)
+    try:
+        for name in cfg.fins:
+            load_fin(name)
+        for path in args.fin_model:
+            model = load_model(path)
+            cfg.models[model.fin.name] = path
+            if model.fin.name not in cfg.fins:
+                cfg.fins = (*cfg.fins, model.fin.name)
+    except (FinConfigError, ModelError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+    if args.frequencies:
+        cfg.frequencies = tuple(float(f) for f in parse_frequencies(args.frequencies))
+    if args.voltages:
+        if not all(0 < v <= 800 for v in args.voltages):
+            raise UsageError("--voltages: each within (0, 800] Vpp")
+        cfg.voltages = tuple(args.voltages)
+    if not 5 <= args.sweep_points <= 200:
+        raise UsageError("--sweep-points: between 5 and 200")
+    cfg.sweep_points = args.sweep_points
+    if not (np.isfinite(args.realtime_factor) and 1 <= args.realtime_factor <= 1000):
+        raise UsageError("--realtime-factor: within [1, 1000]")
+    cfg.realtime_factor = args.realtime_factor
+    try:
+        run_campaign(cfg, say=lambda m: print(m, flush=True))
+    except CampaignError as exc:
+        raise UsageError(str(exc)) from None
     return 0
 
 

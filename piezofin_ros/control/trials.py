@@ -8,8 +8,9 @@ window starts after the change is the result.  In ``frf`` mode (a stepped sine, 
 the drive also moves from point to point without stopping, but stays at each until it has settled:
 until two consecutive running estimates at that frequency agree within ``settle_tolerance`` (tip
 velocity, or the self-sensed one without a vibrometer), or for ``settle_timeout_s``, when the last
-estimate is taken; the dwell adapts to the fin's damping, so the same plan works on a rig whose fin is unknown.  The runner is a pure state machine driven by
-``command(t)`` and ``add_estimate(estimate)``; the ``controller`` node calls them from its timer
+estimate is taken; the dwell adapts to the fin's damping, so the same plan works on a rig whose
+fin is unknown.  The runner is a pure state machine driven by ``command(t)`` and
+``add_estimate(estimate)``; the ``controller`` node calls them from its timer
 and subscription, tests call them directly.
 """
 
@@ -78,10 +79,17 @@ class TrialResult:
     previous: Estimate | None = None  # frf: the last estimate, not yet settled
 
     def record(self) -> dict[str, float]:
-        rec = {"trial": float(self.index), "frequency_hz": self.frequency_hz, "voltage_pp": self.voltage_pp}
+        rec = {
+            "trial": float(self.index),
+            "frequency_hz": self.frequency_hz,
+            "voltage_pp": self.voltage_pp,
+            "t_start": self.t_start,
+        }
         if self.estimate is not None:
             e = self.estimate
             rec.update(
+                current_rms=e.current_rms,
+                c_tau=e.c_tau,
                 thrust_n=e.thrust_n,
                 thrust_self_n=e.thrust_self_n,
                 thrust_loadcell_n=e.thrust_loadcell_n,

@@ -15,11 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ..physics import hydro, modeshape
 from ..physics.fin import Fin, in_medium
 from ..rig.simulated import DriveLimits, RigConfig, SimulatedRig
 from .frf import FrfPoint, frf_points
 
 FloatArray = NDArray[np.float64]
+
 
 def settling_time(fin: Fin, medium: str, settled: float = 1e-3) -> float:
     """Time for the linear transient to fall to ``settled`` of its size, s (drag only shortens it)."""
@@ -59,11 +61,11 @@ def stepped_sine(
     config = rig or RigConfig()
     limits = DriveLimits(frequency_min_hz=0.1, frequency_max_hz=1000.0, voltage_pp_max=1000.0)
     sim = SimulatedRig(in_medium(fin, medium), config, limits, seed=seed)
-    n_block = max(1, int(round(block_s * config.sample_rate_hz)))
+    n_block = max(1, round(block_s * config.sample_rate_hz))
     out: list[tuple[FloatArray, ...]] = []
     for f in plan.frequencies:
         sim.command(f, plan.voltage_pp, 1)
-        n = int(round(plan.dwell_s * config.sample_rate_hz))
+        n = round(plan.dwell_s * config.sample_rate_hz)
         while n > 0:
             b = sim.step(min(n_block, n))
             n -= b.t.size
@@ -83,3 +85,31 @@ def simulate_sweep(
 
 def frequencies_text(values: Sequence[float]) -> str:
     return " ".join(f"{x:.3g}" for x in values)
+
+
+def random_fin(rng: np.random.Generator, name: str = "random") -> Fin:
+    """A valid fin unlike the presets: geometry, resonance, damping, coupling, capacitance, ``c_m``
+    (Eq. 21 times 0.85-1.2) and ``c_d`` drawn over the ranges MFC bimorph fins span."""
+    L = float(rng.uniform(0.05, 0.12))
+    psi = float(rng.uniform(1.8, 6.0))
+    b = L / psi
+    m_s = float(rng.uniform(0.03, 0.12))
+    f_sc = float(rng.uniform(20.0, 60.0))
+    L_active = 0.83 * L
+    D = (2 * math.pi * f_sc) ** 2 * m_s * L_active**4 / modeshape.LAMBDA1**4
+    return Fin(
+        name=name,
+        L=L,
+        L_active=L_active,
+        b=b,
+        b_active=0.65 * b,
+        h=float(rng.uniform(4e-4, 9e-4)),
+        m_s=m_s,
+        f_sc=f_sc,
+        D=D,
+        zeta=float(rng.uniform(0.008, 0.03)),
+        theta=float(rng.uniform(3e-3, 12e-3)),
+        C_eq=float(rng.uniform(4e-9, 25e-9)),
+        c_d=float(rng.uniform(3.0, 15.0)),
+        c_m_override=float(hydro.inertia_coefficient(psi)) * float(rng.uniform(0.85, 1.2)),
+    )

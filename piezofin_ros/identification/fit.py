@@ -110,7 +110,9 @@ def _columns(points: Sequence[FrfPoint]) -> dict[str, NDArray[Any]]:
     }
 
 
-def _residual(measured: NDArray[Any], model_per_volt: NDArray[Any], c: dict[str, NDArray[Any]], sig: NDArray[Any]) -> FloatArray:
+def _residual(
+    measured: NDArray[Any], model_per_volt: NDArray[Any], c: dict[str, NDArray[Any]], sig: NDArray[Any]
+) -> FloatArray:
     """Weighted complex residual of ``measured - model x V`` (the voltage's own error propagated)."""
     s = np.sqrt(sig**2 + np.abs(model_per_volt) ** 2 * c["sv"] ** 2)
     r = (measured - model_per_volt * c["V"]) / s
@@ -118,7 +120,9 @@ def _residual(measured: NDArray[Any], model_per_volt: NDArray[Any], c: dict[str,
 
 
 def _fit(
-    residual: Callable[[FloatArray], FloatArray], x0: FloatArray, bounds: tuple[Sequence[float], Sequence[float]]
+    residual: Callable[[FloatArray], FloatArray],
+    x0: FloatArray,
+    bounds: tuple[Sequence[float], Sequence[float]],
 ) -> tuple[FloatArray, FloatArray, float, int]:
     """Least squares in parameters scaled by ``x0``; returns value, one-sigma, chi2/dof, dof."""
     scale = np.abs(x0)
@@ -129,7 +133,9 @@ def _fit(
     lo = np.asarray(bounds[0]) / scale
     hi = np.asarray(bounds[1]) / scale
     z0 = np.clip(np.ones_like(x0), lo + 1e-12, hi - 1e-12)
-    sol = optimize.least_squares(scaled, z0, bounds=(lo, hi), x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    sol = optimize.least_squares(
+        scaled, z0, bounds=(lo, hi), x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12
+    )
     dof = max(sol.fun.size - x0.size, 1)
     chi2 = float(sol.fun @ sol.fun) / dof
     jac = sol.jac
@@ -227,15 +233,21 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
 
     x0 = np.array([f_peak, zeta0, theta0, c_eq0])
     bounds = ([0.5 * f_peak, 1e-5, 1e-9, 1e-13], [2.0 * f_peak, 0.5, 1.0, 1e-2])
-    x, sx, chi2, dof = _fit(lambda z: model(z, True, True), x0, bounds)
+    x, sx, chi2, _ = _fit(lambda z: model(z, True, True), x0, bounds)
     others_theta: dict[str, float] = {}
     others_c: dict[str, float] = {}
     if np.any(has_tip):
-        xu, *_ = _fit(lambda z: model(np.array([z[0], z[1], z[2], x[3]]), True, False), x[:3].copy(), (bounds[0][:3], bounds[1][:3]))
+        xu, *_ = _fit(
+            lambda z: model(np.array([z[0], z[1], z[2], x[3]]), True, False),
+            x[:3].copy(),
+            (bounds[0][:3], bounds[1][:3]),
+        )
         others_theta["FRF amplitude (tip velocity alone)"] = float(xu[2])
     xi, *_ = _fit(lambda z: model(z, False, True), x.copy(), bounds)
     others_theta["motional current (current alone)"] = float(xi[2])
-    others_c["as a capacitance meter reads, Im(I/V)/w at the farthest point"] = float((I_[far] / V[far]).imag / w_far)
+    others_c["as a capacitance meter reads, Im(I/V)/w at the farthest point"] = float(
+        (I_[far] / V[far]).imag / w_far
+    )
     others_c["fit of the current alone"] = float(xi[3])
     m_s, ell = geometry.m_s, geometry.L_active
     d_of = modeshape_d(x[0], m_s, ell)
@@ -249,7 +261,11 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
             2.0 * d_of * float(sx[0]) / float(x[0]),
             "N m^2",
             f"Eq. (8) with the active length {ell * 1e3:.1f} mm",
-            {f"Eq. (8) with the overall length {geometry.L * 1e3:.1f} mm": modeshape_d(x[0], m_s, geometry.L)},
+            {
+                f"Eq. (8) with the overall length {geometry.L * 1e3:.1f} mm": modeshape_d(
+                    x[0], m_s, geometry.L
+                )
+            },
         ),
     }
     zeta_fit = float(x[1])
@@ -265,7 +281,9 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
         if not math.isfinite(e.sigma):
             warnings.append(f"{name}: not identified (the fit ends on a bound)")
         elif e.relative > 0.05:
-            warnings.append(f"{name}: poorly identified ({e.relative:.0%} uncertainty); add points near the resonance")
+            warnings.append(
+                f"{name}: poorly identified ({e.relative:.0%} uncertainty); add points near the resonance"
+            )
     return Identified(values, chi2, len(points), warnings)
 
 
@@ -287,13 +305,14 @@ def water_mobility(fin: Fin, f: FloatArray, vpp: FloatArray) -> NDArray[Any]:
     return 1j * w * fin.phi_tip * eta / (0.5 * vpp)  # type: ignore[no-any-return]
 
 
-def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float = 0.2) -> Identified:
+def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float = 0.05) -> Identified:
     """``c_m`` and ``c_d`` from an underwater stepped sine, the in-air parameters of ``air`` fixed."""
     c = _columns(points)
     has_tip = np.isfinite(c["U"].real)
     if np.count_nonzero(has_tip) < 4:
         raise IdentificationError(
-            f"an underwater sweep needs at least 4 points with the tip velocity, got {np.count_nonzero(has_tip)}"
+            "an underwater sweep needs at least 4 points with the tip velocity, "
+            f"got {np.count_nonzero(has_tip)}"
         )
     c = _sub(c, has_tip)
     f, V, U = c["f"], c["V"], c["U"]
@@ -311,7 +330,9 @@ def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float =
         f_w = float(fo[i] + po[i] * (fo[i + 1] - fo[i]) / (po[i] - po[i + 1]))
     else:
         f_w = float(f[int(np.argmax(np.abs(mob)))])
-        warnings.append("c_m (resonance shift): the phase does not cross zero in the sweep; sweep across the resonance")
+        warnings.append(
+            "c_m (resonance shift): the phase does not cross zero in the sweep; sweep across the resonance"
+        )
     mu_w = (air.f_sc / f_w) ** 2 - 1.0
     cm_shift = mu_w / area if mu_w > 0 else math.nan
     # c_d from the amplitude at resonance (closed form of Eq. 15-16 with a = 0)
@@ -336,22 +357,30 @@ def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float =
     wr = 2 * np.pi * f_w
     drag = DRAG_HARMONIC * fit.gamma * wr**2 * float(s.modal_amplitude)
     share = drag / (drag + 2 * air.zeta * air.omega_n * wr)
-    if share < min_drag_share:
+    rel_cd = sx[1] / x[1] if x[1] > 0 else math.inf
+    if share < min_drag_share or not rel_cd <= 0.1:
         warnings.append(
-            f"c_d: the drag is only {share:.0%} of the damping at resonance at {np.median(vpp):.0f} Vpp; "
-            "the drive is too small to identify it: sweep at a higher voltage"
+            f"c_d: the drag is only {share:.1%} of the damping at resonance at {np.median(vpp):.0f} Vpp; "
+            f"the drive is too small to identify it (+-{rel_cd:.0%}): sweep at a higher voltage"
         )
     near = np.count_nonzero(np.abs(f - f_w) <= 0.5 * _half_band(fit, f_w, float(np.median(vpp))))
     if near < 3:
-        warnings.append(f"c_m: only {near} point(s) near the underwater resonance {f_w:.2f} Hz; add points there")
+        warnings.append(
+            f"c_m: only {near} point(s) near the underwater resonance {f_w:.2f} Hz; add points there"
+        )
     values = {
-        "c_m": Estimate(float(x[0]), float(sx[0]), "-", "fit of the harmonic balance", {
-            "resonance shift": cm_shift, "Eq. (21)": float(hydro.inertia_coefficient(air.psi))}),
-        "c_d": Estimate(float(x[1]), float(sx[1]), "-", "fit of the harmonic balance", {"amplitude at resonance": cd_amp}),
+        "c_m": Estimate(
+            float(x[0]),
+            float(sx[0]),
+            "-",
+            "fit of the harmonic balance",
+            {"resonance shift": cm_shift, "Eq. (21)": float(hydro.inertia_coefficient(air.psi))},
+        ),
+        "c_d": Estimate(
+            float(x[1]), float(sx[1]), "-", "fit of the harmonic balance", {"amplitude at resonance": cd_amp}
+        ),
         "f_w": Estimate(f_w, math.nan, "Hz", "phase crossing of U/V", {"drag share of the damping": share}),
     }
-    if not math.isfinite(sx[1]) or (x[1] > 0 and sx[1] / x[1] > 0.5):
-        warnings.append("c_d: not identified by this sweep (uncertainty above 50 %)")
     return Identified(values, chi2, len(points), warnings)
 
 

@@ -5,19 +5,22 @@ A stepped-sine test drives the fin at one frequency until it settles, then steps
 per step, without being told what was commanded, so a real rig's recording works as well as the
 simulated rig's:
 
-* **Steps** are found in the drive voltage itself (:func:`find_steps`): upward zero crossings with
-  hysteresis give the periods; a period smoothed over ``2 k`` crossings (so the timing jitter of
-  the noise is divided by ``2 k``) that leaves the running median of its step by more than
-  ``tolerance`` starts a new step.  Steps finer than ``tolerance`` (0.3 %) merge.
-* **Amplitudes** are a lock-in over the last half of each step in whole periods: the complex
+* **Steps** are found in the drive voltage itself (:func:`find_steps`): the phase of its analytic
+  signal (Hilbert transform), fitted by a line over blocks of ``BLOCK_S`` (0.2 s), gives each
+  block's frequency from every sample (far more precise than zero crossings, which the voltage
+  noise moves).  A block that leaves the median of its step by more than ``tolerance`` (0.3 %) and
+  by more than five times the blocks' own scatter starts a new step; a block with the drive off
+  ends one.  Finer steps merge.
+* **Amplitudes** are a lock-in over the last half of each step (whole periods, the last block left
+  out), at the frequency refined by the voltage's phase drift: the complex
   fundamental amplitudes ``V``, ``I`` and ``U`` (tip velocity) with ``x ~ Re(X e^{j w t})``, and odd
   harmonics up to the 5th and a constant in the same least squares so that neither leaks into the
   fundamental.
 * **Noise** is measured, not assumed: the residual of that fit gives each channel's noise, and the
   standard error of each part of a complex amplitude is ``s sqrt(2 / n)`` for ``n`` samples.  A
   step that has not settled shows as a difference between the third and the last quarter of the
-  step; what of it exceeds the noise is added to the error, so an unsettled point weighs less
-  instead of biasing the fit.
+  step; when it exceeds what the noise makes 99 % of the time, half of it is added to the error,
+  so an unsettled point weighs less instead of biasing the fit.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import signal
 
 from ..bags import block_of, read_messages
 from ..bags.blocks import DRIVE_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
@@ -36,12 +40,11 @@ from ..errors import EstimationError
 
 FloatArray = NDArray[np.float64]
 
-#: Relative change of the smoothed period that starts a new step.
+#: Relative change of a block's frequency that starts a new step.
 STEP_TOLERANCE = 3e-3
-#: Periods of smoothing on each side of a period in :func:`find_steps`; a small step is found up
-#: to this many periods late, so the analysis leaves out one more than this at the end of each step.
-SMOOTH_PERIODS = 4
-GUARD_PERIODS = SMOOTH_PERIODS + 1
+#: Length of the blocks whose frequencies :func:`find_steps` compares, s.  The block in which the
+#: drive steps belongs to either side, so the analysis leaves one block out at the end of a step.
+BLOCK_S = 0.2
 #: Fewest whole periods a step must have in its analysed half to give a point.
 MIN_PERIODS = 8
 
@@ -106,69 +109,64 @@ class FrfPoint:
 
 @dataclass(frozen=True)
 class Step:
-    """A run of drive periods at one frequency: crossing times ``crossings[0] .. crossings[-1]``."""
+    """A stretch of drive at one frequency, ``t_start`` to ``t_end`` (s)."""
 
-    crossings: FloatArray
-
-    @property
-    def frequency_hz(self) -> float:
-        c = self.crossings
-        return float((len(c) - 1) / (c[-1] - c[0]))
+    t_start: float
+    t_end: float
+    frequency_hz: float
 
 
-def _upward_crossings(t: FloatArray, v: FloatArray, hysteresis: float) -> FloatArray:
-    """Interpolated times of upward zero crossings, each after ``v`` went below ``-hysteresis``."""
-    up = np.flatnonzero((v[:-1] < 0) & (v[1:] >= 0))
-    below = np.flatnonzero(v < -hysteresis)
-    if up.size == 0 or below.size == 0:
-        return np.empty(0)
-    # a crossing counts if the signal dipped below -h since the previous counted crossing
-    last_below = np.searchsorted(below, up, side="right") - 1  # index into `below` of the last dip
-    keep = []
-    prev = -1
-    for k, lb in zip(up.tolist(), last_below.tolist(), strict=True):
-        if lb >= 0 and below[lb] > prev:
-            keep.append(k)
-            prev = k
-    idx = np.asarray(keep, dtype=int)
-    if idx.size == 0:
-        return np.empty(0)
-    t0, t1, v0, v1 = t[idx], t[idx + 1], v[idx], v[idx + 1]
-    return t0 - v0 * (t1 - t0) / (v1 - v0)  # type: ignore[no-any-return]
+def _block_frequencies(t: FloatArray, v: FloatArray, n: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per block of ``n`` samples: start time, amplitude and frequency from the slope of the
+    analytic signal's phase (least squares over the block: every sample counts, so the frequency
+    is far more precise than from zero crossings)."""
+    analytic = signal.hilbert(v - np.mean(v))
+    phase = np.unwrap(np.angle(analytic))
+    amp = np.abs(analytic)
+    m = t.size // n
+    tb = t[: m * n].reshape(m, n)
+    pb = phase[: m * n].reshape(m, n)
+    tc = tb - tb.mean(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.sum(tc * (pb - pb.mean(axis=1, keepdims=True)), axis=1) / np.sum(tc * tc, axis=1)
+    return tb[:, 0], np.median(amp[: m * n].reshape(m, n), axis=1), slope / (2 * math.pi)
 
 
 def find_steps(
-    t: FloatArray, v: FloatArray, tolerance: float = STEP_TOLERANCE, smooth: int = SMOOTH_PERIODS
+    t: FloatArray, v: FloatArray, tolerance: float = STEP_TOLERANCE, block_s: float = BLOCK_S
 ) -> list[Step]:
     """The stepped sine's steps, found in the drive voltage (see the module docstring)."""
-    amplitude = float(np.percentile(np.abs(v), 99.5)) if v.size else 0.0
-    if not amplitude > 0:
+    if t.size < 64:
         return []
-    cross = _upward_crossings(t, v, 0.2 * amplitude)
-    if cross.size < 2 * smooth + 2:
-        return []
-    period = np.diff(cross)
-    # a gap (drive off, samples missing) is a step boundary: periods far longer than their neighbours
-    n = period.size
-    k = smooth
-    pad = np.concatenate([np.full(k, period[0]), period, np.full(k, period[-1])])
-    smoothed = np.convolve(pad, np.ones(2 * k + 1) / (2 * k + 1), mode="valid")
+    dt = float(np.median(np.diff(t)))
+    n = max(16, round(block_s / dt))
+    t0, amp, freq = _block_frequencies(t, v, n)
+    on = amp > 0.3 * float(np.percentile(amp, 99))
+    on &= np.isfinite(freq) & (freq > 0)
+    # the blocks' own scatter (noise on the voltage): a block must leave its step's median by five
+    # of it, and by ``tolerance``, to start a new step
+    good = freq[on]
+    jitter = 1.4826 * float(np.median(np.abs(np.diff(good)))) / math.sqrt(2.0) if good.size > 2 else 0.0
     steps: list[Step] = []
-    start = 0
-    ref: list[float] = []  # raw periods of the step so far
-    for i in range(n):
-        if ref:
-            med = float(np.median(ref[-50:]))
-            gap = abs(period[i] - med) > 0.25 * med  # the drive stopped, or a large step
-            moved = abs(smoothed[i] - med) > tolerance * med and len(ref) > k
-            if gap or moved:
-                steps.append(Step(cross[start : i + 1]))
-                start, ref = (i + 1, []) if gap else (i, [])
-                if gap:
-                    continue
-        ref.append(float(period[i]))
-    steps.append(Step(cross[start:]))
-    return [s for s in steps if len(s.crossings) > 2 * MIN_PERIODS + GUARD_PERIODS + 1]
+    cur: list[int] = []
+
+    def close() -> None:
+        if len(cur) >= 2:
+            steps.append(Step(float(t0[cur[0]]), float(t0[cur[-1]]) + n * dt, float(np.median(freq[cur]))))
+
+    for j in range(freq.size):
+        if not on[j]:
+            close()
+            cur = []
+            continue
+        if cur:
+            med = float(np.median(freq[cur[-25:]]))
+            if abs(freq[j] - med) > max(tolerance * med, 5.0 * jitter):
+                close()
+                cur = []
+        cur.append(j)
+    close()
+    return [s for s in steps if (s.t_end - s.t_start) * s.frequency_hz >= 2 * MIN_PERIODS + 2]
 
 
 def _lockin(tt: FloatArray, x: FloatArray, omega: float, t_ref: float) -> tuple[complex, float]:
@@ -196,20 +194,17 @@ def _amplitude(
     if np.count_nonzero(a) >= 16 and np.count_nonzero(b) >= 16:
         xa, _ = _lockin(t[a], x[a], omega, t_ref)
         xb, _ = _lockin(t[b], x[b], omega, t_ref)
-        drift = abs(xb - xa) / 2.0  # half the change between the quarters: what is left in the mean
-        excess = drift**2 - 2.0 * sigma**2  # each quarter's noise alone gives about this much
-        if excess > 0:
-            sigma = math.sqrt(sigma**2 + excess)
+        # noise alone makes |xb - xa| about 2 sigma (each half has twice the variance), beyond
+        # 6 sigma 1 % of the time: a larger change is a transient, and half of it is in the mean
+        change = abs(xb - xa)
+        if change > 6.0 * sigma:
+            sigma = math.hypot(sigma, change / 2.0)
     return value, sigma
 
 
-def _frequency(t: FloatArray, v: FloatArray, crossings: FloatArray, q: tuple[float, float, float]) -> float:
-    """The drive frequency over ``crossings``: the slope of the crossing times against their count,
-    refined by the voltage's phase drift between the two quarters (a lock-in at a frequency off by
-    ``df`` turns the phase by ``2 pi df`` per second)."""
-    k = np.arange(len(crossings), dtype=float)
-    period = float(np.polyfit(k, crossings, 1)[0])
-    f = 1.0 / period
+def _frequency(t: FloatArray, v: FloatArray, f: float, q: tuple[float, float, float]) -> float:
+    """The drive frequency over ``[q0, q2)``, refined from ``f`` by the voltage's phase drift between
+    the two halves (a lock-in at a frequency off by ``df`` turns the phase by ``2 pi df`` per second)."""
     for _ in range(2):
         a = (t >= q[0]) & (t < q[1])
         b = (t >= q[1]) & (t < q[2])
@@ -237,25 +232,24 @@ def frf_points(
         tip_t, tip = tip_t[o], tip[o]
     points = []
     for step in find_steps(t, voltage, tolerance):
-        c = step.crossings[: len(step.crossings) - GUARD_PERIODS]  # a step may end late: see find_steps
-        n = len(c) - 1
-        half = c[n - n // 2 :]  # whole periods of the last half
-        if len(half) - 1 < MIN_PERIODS:
+        end = step.t_end - BLOCK_S  # the last block may hold the next step's start
+        n = int(0.5 * (end - step.t_start) * step.frequency_hz)  # whole periods in the last half
+        if n < MIN_PERIODS:
             continue
-        mid = half[(len(half) - 1) // 2]
-        q = (float(half[0]), float(mid), float(half[-1]))
-        t_ref = float(half[0])
-        f = _frequency(t, voltage, half, q)
+        n -= n % 2
+        span = n / step.frequency_hz
+        q = (end - span, end - 0.5 * span, end)
+        f = _frequency(t, voltage, step.frequency_hz, q)
         w = 2.0 * math.pi * f
-        V, sv = _amplitude(t, voltage, w, t_ref, q)
-        I_, si = _amplitude(t, current, w, t_ref, q)
+        V, sv = _amplitude(t, voltage, w, q[0], q)
+        I_, si = _amplitude(t, current, w, q[0], q)
         if tip is not None and tip_t is not None:
-            U, su = _amplitude(tip_t, tip, w, t_ref, q)
+            U, su = _amplitude(tip_t, tip, w, q[0], q)
         else:
             U, su = complex(math.nan, math.nan), math.nan
         if not (abs(V) > 0 and math.isfinite(abs(V))):
             continue
-        points.append(FrfPoint(f, V, I_, U, sv, si, su, q[0], q[2], len(half) - 1))
+        points.append(FrfPoint(f, V, I_, U, sv, si, su, q[0], q[2], n))
     return points
 
 
@@ -285,7 +279,9 @@ def read_sweep(
         except (BlockFormatError, KeyError, ValueError):
             skipped += 1
             continue
-        (drive if channels is DRIVE_CHANNELS else tips).append(tuple(np.asarray(b[c], float) for c in channels))
+        (drive if channels is DRIVE_CHANNELS else tips).append(
+            tuple(np.asarray(b[c], float) for c in channels)
+        )
     if not drive:
         raise IdentificationError(f"{path}: no drive samples on {ns}/drive (is the namespace right?)")
     t, v, i = _concat(drive, 3)
@@ -294,7 +290,7 @@ def read_sweep(
     if not points:
         raise IdentificationError(
             f"{path}: no settled stepped-sine step found in {ns}/drive ({t.size} samples); "
-            f"each step needs at least {2 * MIN_PERIODS + GUARD_PERIODS + 2} periods"
+            f"each step needs at least {2 * MIN_PERIODS + 2} periods and {2 * BLOCK_S:g} s"
         )
     return points
 

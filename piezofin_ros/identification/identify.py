@@ -81,8 +81,10 @@ class Identification:
 
     def table(self) -> str:
         """The identified parameters, one line each: value +- sigma, method, other estimates."""
-        lines = [f"# {self.fin.name}: identified from {len(self.air_points)} in-air and "
-                 f"{len(self.water_points)} underwater points (+- one sigma)"]
+        lines = [
+            f"# {self.fin.name}: identified from {len(self.air_points)} in-air and "
+            f"{len(self.water_points)} underwater points (+- one sigma)"
+        ]
         for stage, label in ((self.air, "in air"), (self.water, "under water")):
             if stage is None:
                 continue
@@ -90,7 +92,10 @@ class Identification:
             for name, e in stage.values.items():
                 sig = f" +- {_fmt(e.sigma)}" if math.isfinite(e.sigma) else ""
                 others = "; ".join(f"{k}: {_fmt(v)}" for k, v in e.others.items())
-                lines.append(f"  {name:<6} {_fmt(e.value)}{sig} {e.unit}  ({e.method}{'; ' + others if others else ''})")
+                lines.append(
+                    f"  {name:<6} {_fmt(e.value)}{sig} {e.unit}  "
+                    f"({e.method}{'; ' + others if others else ''})"
+                )
         for w in self.warnings:
             lines.append(f"note: {w}")
         return "\n".join(lines)
@@ -132,7 +137,12 @@ def identify(
     v = {k: e.value for k, e in air.values.items()}
     try:
         fin = geometry.replace(
-            name=name or geometry.name, f_sc=v["f_sc"], D=v["D"], zeta=v["zeta"], theta=v["theta"], C_eq=v["C_eq"]
+            name=name or geometry.name,
+            f_sc=v["f_sc"],
+            D=v["D"],
+            zeta=v["zeta"],
+            theta=v["theta"],
+            C_eq=v["C_eq"],
         )
     except FinConfigError as exc:
         raise IdentificationError(f"the in-air sweep gives no valid fin: {exc}") from None

@@ -66,7 +66,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--medium",
         choices=("water", "air"),
-        help="fin_sim's medium (override; air: no hydrodynamic load, for the in-air sweep of `piezofin identify`)",
+        help="fin_sim's medium (override; air: no hydrodynamic load, for the in-air sweep of "
+        "`piezofin identify`)",
     )
     p.add_argument(
         "--frequency-max",
@@ -90,7 +91,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             args.frequencies = [float(f) for f in parse_frequencies(args.frequencies)]
         except UsageError as exc:
             p.error(str(exc).replace("--freq", "--frequencies"))
-    if args.frequency_max is not None and not (math.isfinite(args.frequency_max) and 0 < args.frequency_max <= 1000):
+    if args.frequency_max is not None and not (
+        math.isfinite(args.frequency_max) and 0 < args.frequency_max <= 1000
+    ):
         p.error("--frequency-max must be within (0, 1000] Hz")
     if args.fins and len(args.fins) != len(args.namespaces):
         p.error(f"--fins gives {len(args.fins)} fins for {len(args.namespaces)} namespaces")

@@ -70,9 +70,7 @@ class ControllerConfig:
         ProtocolTiming.off_s, "protocol: time without voltage before and after, s", 0.5, 600.0
     )
     on_s: float = setting(ProtocolTiming.on_s, "protocol: time of sine drive, s", 1.0, 600.0)
-    settle_timeout_s: float = setting(
-        30.0, "continuous and frf: longest stay at one point, s", 1.0, 3600.0
-    )
+    settle_timeout_s: float = setting(30.0, "continuous and frf: longest stay at one point, s", 1.0, 3600.0)
     settle_tolerance: float = setting(
         0.005, "frf: consecutive estimates agreeing this closely (relative) mean settled", 1e-5, 0.5
     )

@@ -90,7 +90,9 @@ class FinSimConfig:
         "", "augmented model YAML from `piezofin diagnose --report` (its fin and effects; replaces fin)"
     )
     medium: str = setting(
-        "water", "water, or air: no hydrodynamic load (the paper's in-air identification tests)", choices=MEDIA
+        "water",
+        "water, or air: no hydrodynamic load (the paper's in-air identification tests)",
+        choices=MEDIA,
     )
     seed: int = setting(0, "noise seed", 0, 2**31 - 1)
     block_s: float = setting(0.05, "simulated time per published block, s", 0.0005, 1.0)
