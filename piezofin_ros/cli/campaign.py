@@ -23,9 +23,7 @@ a campaign recorded elsewhere (a real rig, same topics) can be analysed too.
 from __future__ import annotations
 
 import json
-import math
 import os
-import re
 import subprocess
 import sys
 import threading
@@ -41,48 +39,11 @@ import yaml
 from ..errors import CliError
 from ..identification.frf import read_sweep
 from ..identification.identify import Identification, identify
-from ..physics import hydro
 from ..physics.fin import Fin, config_dir, load_fin, read_yaml_file
 from ..physics.model import load_model
-from ..physics.steady import harmonic_balance
+from .campaign_report import analyse, filename, namespace
 
 FloatArray = np.ndarray
-
-#: What the paper publishes, per fin (Tables 1-2, Eq. 21, Sec. 3.3).
-PAPER: dict[str, dict[str, float]] = {
-    "M8507-P1": {
-        "psi": 5.4,
-        "f_sc": 35.5,
-        "D": 0.0045,
-        "zeta": 0.016,
-        "theta": 4.5e-3,
-        "C_eq": 5.5e-9,
-        "c_m": 1.00,
-    },
-    "M8514-P1": {
-        "psi": 3.9,
-        "f_sc": 46.4,
-        "D": 0.0101,
-        "zeta": 0.018,
-        "theta": 7.5e-3,
-        "C_eq": 6.7e-9,
-        "c_m": 0.95,
-    },
-    "M8528-P1": {
-        "psi": 2.1,
-        "f_sc": 38.1,
-        "D": 0.0125,
-        "zeta": 0.013,
-        "theta": 10e-3,
-        "C_eq": 19.3e-9,
-        "c_m": 0.70,
-    },
-}
-#: Sec. 3.3: M8528-P1's representative run (Fig. 6), the common maximum of T/P (Fig. 10b), and the
-#: power near resonance at 800 Vpp, psi 5.4 : 3.9 : 2.1 about 1 : 2 : 5.
-PAPER_OPERATION_HZ = 5.5
-PAPER_MAX_TPW = 0.0607
-PAPER_POWER_RATIO = {"M8507-P1": 1.0, "M8514-P1": 2.0, "M8528-P1": 5.0}
 
 
 class CampaignError(CliError):
@@ -104,12 +65,6 @@ class CampaignConfig:
 
     def truth(self, name: str) -> Fin:
         return load_model(self.models[name]).fin if name in self.models else load_fin(name)
-
-
-def namespace(name: str) -> str:
-    """A ROS namespace for a fin name (``M8528-P1`` -> ``m8528_p1``)."""
-    ns = re.sub(r"[^a-z0-9_]", "_", name.lower())
-    return ns if ns[:1].isalpha() else f"fin_{ns}"
 
 
 def sweep_frequencies(f0: float, n: int, low: float, high: float) -> list[float]:
@@ -187,7 +142,10 @@ def run_bringups(jobs: dict[str, list[str]], logs: dict[str, Path], say: Callabl
     threads = []
     lock = threading.Lock()
     for (name, args), domain in zip(jobs.items(), _domains(len(jobs)), strict=True):
-        env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
+        # the ROS wheels' bootstrapper re-executes a child python with its library path unless told it
+        # has done so: an inherited flag from a parent that imported rclpy would skip that
+        env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+        env["ROS_DOMAIN_ID"] = str(domain)
         env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # a simulation needs no network
         handles[name] = fh = open(logs[name], "w")  # noqa: SIM115 (closed below)
         procs[name] = proc = subprocess.Popen(
@@ -238,11 +196,11 @@ def run_stage(
     params.write_text(yaml.safe_dump(_stage_config(cfg, stage, fin_files), sort_keys=False))
     jobs, logs, statuses = {}, {}, {}
     for name in cfg.fins:
-        bag = out / "bags" / f"{stage}_{name}.mcap"
+        bag = out / "bags" / f"{stage}_{filename(name)}.mcap"
         if bag.exists():
             bag.unlink()  # a campaign's own output directory: the previous run's bag is replaced
-        statuses[name] = out / "logs" / f"{stage}_{name}.status.json"
-        logs[name] = out / "logs" / f"{stage}_{name}.log"
+        statuses[name] = out / "logs" / f"{stage}_{filename(name)}.status.json"
+        logs[name] = out / "logs" / f"{stage}_{filename(name)}.log"
         jobs[name] = [
             "--config",
             str(params),
@@ -269,9 +227,9 @@ def run_campaign(cfg: CampaignConfig, say: Callable[[str], None] = print) -> dic
     (cfg.out / "logs").mkdir(parents=True, exist_ok=True)
     fin_files: dict[str, str] = {}
     for name in cfg.models:  # the twin's bare fin, for the in-air sweep
-        path = cfg.out / "fins" / f"{name}.truth.yaml"
+        path = cfg.out / "fins" / f"{filename(name)}.truth.yaml"
         path.write_text(yaml.safe_dump(cfg.truth(name).inputs(), sort_keys=False))
-        fin_files[f"{name}:truth"] = str(path.resolve())
+        fin_files[f"{name}:truth"] = fin_files[name] = str(path.resolve())  # until it is identified
     n = len(cfg.fins)
     say(f"[1/4] in-air stepped sines, {n} fin(s) x {cfg.sweep_points} points at {cfg.air_vpp:g} Vpp")
     run_stage(cfg, "air", fin_files, say)
@@ -286,12 +244,12 @@ def run_campaign(cfg: CampaignConfig, say: Callable[[str], None] = print) -> dic
         ns = namespace(name)
         bags = cfg.out / "bags"
         ident = identify(
-            read_sweep(bags / f"air_{name}.mcap", ns),
-            read_sweep(bags / f"water_{name}.mcap", ns),
+            read_sweep(bags / f"air_{filename(name)}.mcap", ns),
+            read_sweep(bags / f"water_{filename(name)}.mcap", ns),
             load_fin(name) if name not in cfg.models else cfg.truth(name),
             name,
         )
-        path = cfg.out / "fins" / f"{name}.yaml"
+        path = cfg.out / "fins" / f"{filename(name)}.yaml"
         path.write_text(ident.fin_yaml())
         fin_files[name] = str(path.resolve())
         idents[name] = ident
@@ -303,28 +261,9 @@ def run_campaign(cfg: CampaignConfig, say: Callable[[str], None] = print) -> dic
     trials = len(cfg.frequencies) * len(cfg.voltages)
     say(f"[4/4] thrust protocol, {n} fin(s) x {trials} trials of 30 s ({time.monotonic() - t0:.0f} s)")
     status = run_stage(cfg, "protocol", fin_files, say)
-    from .campaign_report import analyse
 
     report = analyse(cfg, idents, {name: json.loads(p.read_text()) for name, p in status.items()})
     report["wall_s"] = time.monotonic() - t0
     (cfg.out / "report.json").write_text(json.dumps(report, indent=1, default=float))
     say(f"done in {report['wall_s']:.0f} s: {cfg.out / 'report.md'}")
     return report
-
-
-def cm_eq21(psi: float) -> float:
-    return float(hydro.inertia_coefficient(psi))
-
-
-def model_curves(fin: Fin, freqs: FloatArray, vpp: float) -> dict[str, FloatArray]:
-    s = harmonic_balance(fin, freqs, vpp, harmonics=3)
-    return {
-        "tip_velocity_rms": np.asarray(s.tip_velocity_rms),
-        "thrust_n": np.asarray(s.thrust_n),
-        "current_rms": np.asarray(s.current_rms),
-        "power_w": np.asarray(s.power_w),
-    }
-
-
-def finite(x: Any) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(x)

@@ -245,7 +245,9 @@ def build_parser() -> argparse.ArgumentParser:
     camp = sub.add_parser("campaign", help="the paper's whole campaign through the live suite (needs ROS 2)")
     camp.add_argument("which", choices=("paper",), help="the campaign: paper (Figs. 5-11, Table 2)")
     camp.add_argument("-o", "--out", default="out/campaign", help="output directory (default out/campaign)")
-    camp.add_argument("--fins", nargs="+", help="fin presets (default: M8528-P1 M8514-P1 M8507-P1)")
+    camp.add_argument(
+        "--fins", nargs="+", help="the paper's fins to run (default: M8528-P1 M8514-P1 M8507-P1)"
+    )
     camp.add_argument(
         "--fin-model",
         action="append",
@@ -334,9 +336,13 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
     cfg = CampaignConfig(out=Path(args.out))
     if args.fins:
         cfg.fins = tuple(args.fins)
+    unknown = [n for n in cfg.fins if n not in preset_names()]
+    if unknown:
+        raise UsageError(
+            f"--fins: {', '.join(unknown)} not a preset ({', '.join(preset_names())}); for another fin, "
+            "record its sweeps and use `piezofin identify`, or give a diagnosed model with --fin-model"
+        )
     try:
-        for name in cfg.fins:
-            load_fin(name)
         for path in args.fin_model:
             model = load_model(path)
             cfg.models[model.fin.name] = path

@@ -39,6 +39,22 @@ def trial_table(records: Sequence[dict[str, float]], chosen: dict[str, float] | 
     return "\n".join(lines)
 
 
+def frf_table(records: Sequence[dict[str, float]]) -> str:
+    """A stepped sine's points: frequency, voltage, RMS tip velocity and current, dwell."""
+    head = f"{'point':>5} {'f [Hz]':>8} {'Vpp':>5} {'u [mm/s]':>9} {'I [uA]':>8} {'dwell [s]':>9}"
+    lines = [head, "-" * len(head)]
+    starts = [r["t_start"] for r in records] + [math.nan]
+    for r, t_next in zip(records, starts[1:], strict=True):
+        dwell = t_next - r["t_start"]
+        lines.append(
+            f"{int(r['trial']):>5} {r['frequency_hz']:>8.3f} {r['voltage_pp']:>5.0f} "
+            f"{_fmt(r.get('tip_velocity_rms'), 1e3, 2):>9} {_fmt(r.get('current_rms'), 1e6, 2):>8} "
+            f"{_fmt(dwell, 1.0, 1):>9}"
+        )
+    lines.append("(a stepped sine: `piezofin identify --air/--water <bag>` fits the fin to it)")
+    return "\n".join(lines)
+
+
 def plot_trials(
     path: str | os.PathLike[str],
     fin: Fin,

@@ -49,6 +49,9 @@ from .frf import FrfPoint, IdentificationError
 
 FloatArray = NDArray[np.float64]
 
+#: A reduced chi-square above this says the model does not describe the data (the sigmas are then
+#: scaled by it, but the values themselves are suspect).
+POOR_FIT_CHI2 = 10.0
 #: Table 1: what a frequency response cannot give, measured with a ruler and a balance.
 GEOMETRY = ("L", "L_active", "b", "b_active", "h", "m_s")
 
@@ -80,10 +83,6 @@ class Identified:
 
     def __getitem__(self, name: str) -> Estimate:
         return self.values[name]
-
-
-def _tip_value(geometry: Fin) -> float:
-    return geometry.phi_tip
 
 
 def air_mobility(f: FloatArray, f_sc: float, zeta: float, theta: float, phi_tip: float) -> NDArray[Any]:
@@ -185,7 +184,7 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
         raise IdentificationError(f"an in-air sweep needs at least 4 points, got {len(points)}")
     c = _columns(points)
     f, V, I_, U = c["f"], c["V"], c["I"], c["U"]
-    phi = _tip_value(geometry)
+    phi = geometry.phi_tip
     has_tip = np.isfinite(U.real)
     warnings: list[str] = []
     # --- the paper's estimates, which also start the fit
@@ -213,7 +212,8 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
     if mob is not None:
         theta0 = float(np.max(mob)) * 2 * zeta0 * wn0 / phi
     else:
-        theta0 = math.sqrt(max(float(np.max(np.abs(I_ / V).real)), 1e-12) * 2 * zeta0 * wn0 / wn0)
+        # at resonance Re(I/V) = theta^2 / (2 zeta w_n)
+        theta0 = math.sqrt(max(float(np.max((I_ / V).real)), 1e-15) * 2 * zeta0 * wn0)
     far = int(np.argmax(np.abs(f - f_peak)))
     w_far = 2 * np.pi * f[far]
     c_far = float((I_[far] / V[far]).imag / w_far - theta0**2 / (wn0**2 - w_far**2))
@@ -275,6 +275,11 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
             f"zeta (half-power points): only {in_band} point(s) inside the half-power band "
             f"{x[0] * (1 - zeta_fit):.2f}-{x[0] * (1 + zeta_fit):.2f} Hz, so the paper's method is coarse "
             f"({zeta_hp:.4g}); the fit uses the whole curve. Add points there to check it"
+        )
+    if chi2 > POOR_FIT_CHI2:
+        warnings.append(
+            f"the in-air model does not fit these points (chi2/n {chi2:.3g}): is this a low-voltage stepped "
+            "sine in air, settled at each point?"
         )
     for name in ("f_sc", "zeta", "theta", "C_eq"):
         e = values[name]
@@ -357,6 +362,11 @@ def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float =
     wr = 2 * np.pi * f_w
     drag = DRAG_HARMONIC * fit.gamma * wr**2 * float(s.modal_amplitude)
     share = drag / (drag + 2 * air.zeta * air.omega_n * wr)
+    if chi2 > POOR_FIT_CHI2:
+        warnings.append(
+            f"the underwater model does not fit these points (chi2/n {chi2:.3g}): an effect the fin model "
+            "lacks (try `piezofin diagnose`), or steps that had not settled"
+        )
     rel_cd = sx[1] / x[1] if x[1] > 0 else math.inf
     if share < min_drag_share or not rel_cd <= 0.1:
         warnings.append(

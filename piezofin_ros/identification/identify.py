@@ -106,6 +106,7 @@ class Identification:
         lines = [
             f"# {self.fin.name}: identified by `piezofin identify` from stepped-sine sweeps",
             "# (in air: f_sc, zeta, theta, C_eq, D; under water: c_m, c_d).  SI units; +- is one sigma.",
+            *(f"# note: {w}" for w in self.warnings),
         ]
         for key in ("name", *FIELDS):
             value = self.fin.inputs().get(key)

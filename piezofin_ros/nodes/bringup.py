@@ -32,7 +32,7 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 from ..cli.main import UsageError, parse_frequencies
-from ..cli.plots import plot_trials, trial_table
+from ..cli.plots import frf_table, plot_trials, trial_table
 from ..errors import PiezofinError
 from ..physics.fin import config_dir
 from ._common import StartupError, StopFlag
@@ -275,6 +275,9 @@ def _report_fin(ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace,
         )
         return
     print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))
+    if st.get("mode") == "frf":  # a sweep for `piezofin identify`: the response, not thrust per watt
+        print(frf_table(st["results"]))
+        return
     print(trial_table(st["results"], st["chosen"]))
     if args.plot:
         out = Path(args.plot)

@@ -173,3 +173,17 @@ def test_half_power_of_a_sampled_resonance() -> None:
     peak, f1, f2 = hp
     assert peak == pytest.approx(fin.f_sc, rel=1e-4)
     assert (f2 - f1) / (2 * peak) == pytest.approx(fin.zeta, rel=0.01)
+
+
+def test_the_drive_alone_identifies_the_fin_in_air() -> None:
+    """No vibrometer (a fish, or a rig without one): the motional current carries the resonance, so
+    `f_sc`, `zeta`, `theta` and `C_eq` still come back, from the current per volt alone."""
+    fin = load_fin("M8514-P1")
+    t, v, i, _u = stepped_sine(fin, SweepPlan.around(fin, "air", 50.0), "air", seed=5)
+    points = frf_points(t, v, i)
+    assert not any(p.has_tip for p in points)
+    got = identify_air(points, fin)
+    for name in ("f_sc", "zeta", "theta", "C_eq"):
+        e, truth = got[name], float(getattr(fin, name))
+        assert abs(e.value - truth) <= TOLERANCE[name] * truth, (name, e.value, truth)
+        assert abs(e.value - truth) <= MAX_Z * e.sigma, (name, e.value, e.sigma, truth)
