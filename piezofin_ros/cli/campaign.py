@@ -219,30 +219,14 @@ def run_stage(
     return statuses
 
 
-def run_campaign(cfg: CampaignConfig, say: Callable[[str], None] = print) -> dict[str, Any]:
-    """The whole campaign (module docstring); returns the report's numbers (also in ``report.json``)."""
-    t0 = time.monotonic()
-    (cfg.out / "bags").mkdir(parents=True, exist_ok=True)
-    (cfg.out / "fins").mkdir(parents=True, exist_ok=True)
-    (cfg.out / "logs").mkdir(parents=True, exist_ok=True)
-    fin_files: dict[str, str] = {}
-    for name in cfg.models:  # the twin's bare fin, for the in-air sweep
-        path = cfg.out / "fins" / f"{filename(name)}.truth.yaml"
-        path.write_text(yaml.safe_dump(cfg.truth(name).inputs(), sort_keys=False))
-        fin_files[f"{name}:truth"] = fin_files[name] = str(path.resolve())  # until it is identified
-    n = len(cfg.fins)
-    say(f"[1/4] in-air stepped sines, {n} fin(s) x {cfg.sweep_points} points at {cfg.air_vpp:g} Vpp")
-    run_stage(cfg, "air", fin_files, say)
-    say(
-        f"[2/4] underwater stepped sines, {n} fin(s) x {cfg.sweep_points} points at {cfg.water_vpp:g} Vpp "
-        f"({time.monotonic() - t0:.0f} s)"
-    )
-    run_stage(cfg, "water", fin_files, say)
-    say(f"[3/4] identification of {n} fin(s) ({time.monotonic() - t0:.0f} s)")
+def identify_all(
+    cfg: CampaignConfig, fin_files: dict[str, str], say: Callable[[str], None]
+) -> dict[str, Identification]:
+    """Each fin from its two sweep bags in ``cfg.out/bags``; writes ``fins/<fin>.yaml`` and notes its path."""
     idents: dict[str, Identification] = {}
+    bags = cfg.out / "bags"
     for name in cfg.fins:
         ns = namespace(name)
-        bags = cfg.out / "bags"
         ident = identify(
             read_sweep(bags / f"air_{filename(name)}.mcap", ns),
             read_sweep(bags / f"water_{filename(name)}.mcap", ns),
@@ -258,12 +242,53 @@ def run_campaign(cfg: CampaignConfig, say: Callable[[str], None] = print) -> dic
             f"theta {ident.fin.theta * 1e3:.2f}e-3, C_eq {ident.fin.C_eq * 1e9:.2f} nF, "
             f"c_m {ident.fin.c_m:.3f}, c_d {ident.fin.c_d:.2f}"
         )
-    trials = len(cfg.frequencies) * len(cfg.voltages)
-    say(f"[4/4] thrust protocol, {n} fin(s) x {trials} trials of 30 s ({time.monotonic() - t0:.0f} s)")
-    status = run_stage(cfg, "protocol", fin_files, say)
+    return idents
 
-    report = analyse(cfg, idents, {name: json.loads(p.read_text()) for name, p in status.items()})
+
+def _statuses(cfg: CampaignConfig) -> dict[str, dict[str, Any]]:
+    out = {}
+    for name in cfg.fins:
+        path = cfg.out / "logs" / f"protocol_{filename(name)}.status.json"
+        try:
+            out[name] = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise CampaignError(f"{path}: cannot read the protocol's status ({exc})") from None
+    return out
+
+
+def run_campaign(
+    cfg: CampaignConfig, say: Callable[[str], None] = print, analyse_only: bool = False
+) -> dict[str, Any]:
+    """The whole campaign (module docstring); returns the report's numbers (also in ``report.json``).
+
+    ``analyse_only``: no live stage; identify and report from the bags and status files already in
+    ``cfg.out`` (a campaign recorded before, or on a real rig with the same topics and file names).
+    """
+    t0 = time.monotonic()
+    for sub in ("bags", "fins", "logs"):
+        (cfg.out / sub).mkdir(parents=True, exist_ok=True)
+    fin_files: dict[str, str] = {}
+    for name in cfg.models:  # the twin's bare fin, for the in-air sweep
+        path = cfg.out / "fins" / f"{filename(name)}.truth.yaml"
+        path.write_text(yaml.safe_dump(cfg.truth(name).inputs(), sort_keys=False))
+        fin_files[f"{name}:truth"] = fin_files[name] = str(path.resolve())  # until it is identified
+    n = len(cfg.fins)
+    if not analyse_only:
+        say(f"[1/4] in-air stepped sines, {n} fin(s) x {cfg.sweep_points} points at {cfg.air_vpp:g} Vpp")
+        run_stage(cfg, "air", fin_files, say)
+        say(
+            f"[2/4] underwater stepped sines, {n} fin(s) x {cfg.sweep_points} points at "
+            f"{cfg.water_vpp:g} Vpp ({time.monotonic() - t0:.0f} s)"
+        )
+        run_stage(cfg, "water", fin_files, say)
+    say(f"[3/4] identification of {n} fin(s) ({time.monotonic() - t0:.0f} s)")
+    idents = identify_all(cfg, fin_files, say)
+    if not analyse_only:
+        trials = len(cfg.frequencies) * len(cfg.voltages)
+        say(f"[4/4] thrust protocol, {n} fin(s) x {trials} trials of 30 s ({time.monotonic() - t0:.0f} s)")
+        run_stage(cfg, "protocol", fin_files, say)
+    report = analyse(cfg, idents, _statuses(cfg))
     report["wall_s"] = time.monotonic() - t0
-    (cfg.out / "report.json").write_text(json.dumps(report, indent=1, default=float))
+    (cfg.out / "report.json").write_text(json.dumps(report, indent=1, default=float))  # with the time
     say(f"done in {report['wall_s']:.0f} s: {cfg.out / 'report.md'}")
     return report

@@ -7,6 +7,7 @@ times) and the protocol bag (for the time trace of Fig. 6).
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import re
 from pathlib import Path
@@ -338,143 +339,129 @@ def _fmt(x: Any, digits: int = 3) -> str:
     return f"{x:.{digits}g}" if finite(x) else "-"
 
 
-def facts_table(numbers: dict[str, dict[str, Any]]) -> list[tuple[str, str, str, str]]:
-    """(fact, paper, suite, verdict) rows: every number the paper publishes beside the suite's."""
+Row = tuple[str, str, str, str]  # fact, paper, suite, verdict
+
+#: Table 2 and c_m: key, unit, scale to that unit.
+TABLE2 = (
+    ("f_sc", "Hz", 1.0),
+    ("zeta", "%", 100.0),
+    ("theta", "1e-3 C/(m sqrt(kg))", 1e3),
+    ("C_eq", "nF", 1e9),
+    ("D", "N m^2", 1.0),
+    ("c_m", "-", 1.0),
+)
+
+
+def _table2_rows(name: str, n: dict[str, Any]) -> list[Row]:
     rows = []
-    for name, n in numbers.items():
-        paper = PAPER.get(name)
-        if paper is None:
-            continue
-        ident = n["identified"]
-        for key, unit, scale in (
-            ("f_sc", "Hz", 1.0),
-            ("zeta", "%", 100.0),
-            ("theta", "1e-3 C/(m sqrt(kg))", 1e3),
-            ("C_eq", "nF", 1e9),
-            ("D", "N m^2", 1.0),
-            ("c_m", "-", 1.0),
-        ):
-            got = ident[key]["value"] * scale
-            want = paper[key] * scale
-            rel = abs(got - want) / abs(want)
-            verdict = "agrees" if rel <= 0.05 else f"{(got - want) / want:+.0%}"
-            if key == "D":
-                verdict += (
-                    " (Eq. 8 with the active length; Table 2's D gives 40.1/46.5/39.4 Hz, not its f_sc)"
-                    if rel > 0.05
-                    else ""
-                )
-            rows.append(
-                (
-                    f"{name} {key} [{unit}]",
-                    _fmt(want),
-                    _fmt(got, 4) + f" +- {_fmt(ident[key]['sigma'] * scale, 2)}",
-                    verdict,
-                )
-            )
-    if "M8528-P1" in numbers and "resonance_hz_trials" in numbers["M8528-P1"]:
-        n = numbers["M8528-P1"]
-        got = n["resonance_hz_trials"]
-        rows.append(
-            (
-                "M8528-P1 operation at 800 Vpp [Hz] (peak tip velocity)",
-                f"~{PAPER_OPERATION_HZ:g}",
-                f"{got:g} (trials), {n['resonance_hz_model']:.2f} (model)",
-                "agrees"
-                if abs(got - PAPER_OPERATION_HZ) <= 0.5
-                else "does not: the model's resonance is higher (`piezofin diagnose --paper`: what moves it)",
-            )
-        )
-    for name, n in numbers.items():
-        if "max_tpw_trials" in n:
-            got = n["max_tpw_trials"]
-            rows.append(
-                (
-                    f"{name} max T/P at 800 Vpp [mN/W]",
-                    f"~{PAPER_MAX_TPW * 1e3:.1f}",
-                    f"{got * 1e3:.4g} at {n['max_tpw_at_hz']:g} Hz (trials of >= {MIN_THRUST_N * 1e3:g} mN)",
-                    "agrees"
-                    if abs(got - PAPER_MAX_TPW) <= 0.1 * PAPER_MAX_TPW
-                    else f"x{got / PAPER_MAX_TPW:.0f}: the model's power is the mechanical dissipation only",
-                )
-            )
-    ref = numbers.get("M8507-P1", {}).get("power_at_resonance_w")
-    if finite(ref):
-        suite = " : ".join(
-            f"{numbers[nm]['power_at_resonance_w'] / ref:.2g}"
-            for nm in PAPER_POWER_RATIO
-            if nm in numbers and "power_at_resonance_w" in numbers[nm]
-        )
-        paper_ratio = " : ".join(f"{PAPER_POWER_RATIO[nm]:g}" for nm in PAPER_POWER_RATIO if nm in numbers)
-        ok = all(
-            abs(numbers[nm]["power_at_resonance_w"] / ref - PAPER_POWER_RATIO[nm])
-            <= 0.3 * PAPER_POWER_RATIO[nm]
-            for nm in PAPER_POWER_RATIO
-            if nm in numbers and "power_at_resonance_w" in numbers[nm]
-        )
-        rows.append(
-            (
-                "power at the trial of largest tip velocity, 800 Vpp, 1-11 Hz, psi 5.4 : 3.9 : 2.1",
-                paper_ratio,
-                suite,
-                "agrees" if ok else "does not",
-            )
-        )
-    ref_m = numbers.get("M8507-P1", {}).get("power_at_resonance_model_w")
-    if finite(ref_m) and len(numbers) > 1:
-        names = [nm for nm in PAPER_POWER_RATIO if nm in numbers]
-        ratios = [numbers[nm]["power_at_resonance_model_w"] / ref_m for nm in names]
-        ok = all(
-            abs(r - PAPER_POWER_RATIO[nm]) <= 0.3 * PAPER_POWER_RATIO[nm]
-            for r, nm in zip(ratios, names, strict=True)
-        )
-        rows.append(
-            (
-                "power at the model's resonance at 800 Vpp, psi 5.4 : 3.9 : 2.1",
-                " : ".join(f"{PAPER_POWER_RATIO[nm]:g}" for nm in names),
-                " : ".join(f"{r:.2g}" for r in ratios)
-                + " (at "
-                + ", ".join(f"{numbers[nm]['resonance_hz_model']:.1f}" for nm in names)
-                + " Hz)",
-                "agrees" if ok else "does not",
-            )
-        )
+    for key, unit, scale in TABLE2:
+        got = n["identified"][key]["value"] * scale
+        want = PAPER[name][key] * scale
+        rel = abs(got - want) / abs(want)
+        verdict = "agrees" if rel <= 0.05 else f"{(got - want) / want:+.0%}"
+        if key == "D" and rel > 0.05:
+            verdict += " (Eq. 8 with the active length; Table 2's D gives 40.1/46.5/39.4 Hz, not its f_sc)"
+        sigma = _fmt(n["identified"][key]["sigma"] * scale, 2)
+        rows.append((f"{name} {key} [{unit}]", _fmt(want), f"{_fmt(got, 4)} +- {sigma}", verdict))
+    return rows
+
+
+def _operation_row(n: dict[str, Any]) -> Row:
+    got = n["resonance_hz_trials"]
+    return (
+        "M8528-P1 operation at 800 Vpp [Hz] (peak tip velocity)",
+        f"~{PAPER_OPERATION_HZ:g}",
+        f"{got:g} (trials), {n['resonance_hz_model']:.2f} (model)",
+        "agrees"
+        if abs(got - PAPER_OPERATION_HZ) <= 0.5
+        else "does not: the model's resonance is higher (`piezofin diagnose --paper`: what moves it)",
+    )
+
+
+def _tpw_row(name: str, n: dict[str, Any]) -> Row:
+    got = n["max_tpw_trials"]
+    return (
+        f"{name} max T/P at 800 Vpp [mN/W]",
+        f"~{PAPER_MAX_TPW * 1e3:.1f}",
+        f"{got * 1e3:.4g} at {n['max_tpw_at_hz']:g} Hz (trials of >= {MIN_THRUST_N * 1e3:g} mN)",
+        "agrees"
+        if abs(got - PAPER_MAX_TPW) <= 0.1 * PAPER_MAX_TPW
+        else f"x{got / PAPER_MAX_TPW:.0f}: the model's power is the mechanical dissipation only",
+    )
+
+
+def _ratio_row(numbers: dict[str, dict[str, Any]], key: str, label: str, at: str | None = None) -> Row | None:
+    """The power of each paper fin relative to M8507-P1's (the paper: about 1 : 2 : 5), each within 30 %."""
+    names = [nm for nm in PAPER_POWER_RATIO if nm in numbers and finite(numbers[nm].get(key))]
+    if "M8507-P1" not in names or len(names) < 2:
+        return None
+    ratios = [numbers[nm][key] / numbers["M8507-P1"][key] for nm in names]
+    ok = all(
+        abs(r - PAPER_POWER_RATIO[nm]) <= 0.3 * PAPER_POWER_RATIO[nm]
+        for r, nm in zip(ratios, names, strict=True)
+    )
+    suite = " : ".join(f"{r:.2g}" for r in ratios)
+    if at:
+        suite += " (at " + ", ".join(f"{numbers[nm][at]:.1f}" for nm in names) + " Hz)"
+    paper = " : ".join(f"{PAPER_POWER_RATIO[nm]:g}" for nm in names)
+    return (label, paper, suite, "agrees" if ok else "does not (each within 30 %)")
+
+
+def _band_row(numbers: dict[str, dict[str, Any]]) -> Row | None:
     widths = {nm: n["tpw_band_model"][1] - n["tpw_band_model"][0] for nm, n in numbers.items()}
-    if len(widths) > 1:
-        order = sorted(numbers, key=lambda nm: numbers[nm]["psi"])
-        if all(finite(w) for w in widths.values()):
-            broader = all(widths[a] <= widths[b] for a, b in itertools.pairwise(order))
-            suite = ", ".join(f"psi {numbers[nm]['psi']:.1f}: {widths[nm]:.1f} Hz" for nm in order)
-            verdict = "agrees" if broader else "does not"
-        else:
-            suite = "no peak of T/P inside 1-11 Hz for " + ", ".join(
-                nm for nm in order if not finite(widths[nm])
-            )
-            verdict = "does not: the model's T/P falls with frequency (its power is mechanical only)"
-        rows.append(
-            ("T/P band around its peak (half max, model) broader for larger psi", "yes", suite, verdict)
-        )
-    for name, n in numbers.items():
-        if "c_tau_trials" in n:
-            rows.append(
-                (
-                    f"{name} c_tau (Eq. 23 at psi {n['psi']:.2f})",
-                    _fmt(n["c_tau_eq23"]),
-                    _fmt(n["c_tau_trials"]) + " (trials)",
-                    "agrees"
-                    if abs(n["c_tau_trials"] - n["c_tau_eq23"]) <= 0.05 * n["c_tau_eq23"]
-                    else f"{n['c_tau_trials'] / n['c_tau_eq23'] - 1:+.0%} "
-                    f"(identified c_m {n['identified']['c_m']['value']:.3f})",
-                )
-            )
+    if len(widths) < 2:
+        return None
+    order = sorted(numbers, key=lambda nm: numbers[nm]["psi"])
+    if all(finite(w) for w in widths.values()):
+        broader = all(widths[a] <= widths[b] for a, b in itertools.pairwise(order))
+        suite = ", ".join(f"psi {numbers[nm]['psi']:.1f}: {widths[nm]:.1f} Hz" for nm in order)
+        verdict = "agrees" if broader else "does not"
+    else:
+        suite = "no peak of T/P inside 1-11 Hz for " + ", ".join(nm for nm in order if not finite(widths[nm]))
+        verdict = "does not: the model's T/P falls with frequency (its power is mechanical only)"
+    return ("T/P band around its peak (half max, model) broader for larger psi", "yes", suite, verdict)
+
+
+def _ctau_row(name: str, n: dict[str, Any]) -> Row:
+    got, want = n["c_tau_trials"], n["c_tau_eq23"]
+    verdict = (
+        "agrees"
+        if abs(got - want) <= 0.05 * want
+        else f"{got / want - 1:+.0%} (identified c_m {n['identified']['c_m']['value']:.3f})"
+    )
+    return (f"{name} c_tau (Eq. 23 at psi {n['psi']:.2f})", _fmt(want), _fmt(got) + " (trials)", verdict)
+
+
+def facts_table(numbers: dict[str, dict[str, Any]]) -> list[Row]:
+    """(fact, paper, suite, verdict) rows: every number the paper publishes beside the suite's."""
+    rows = [r for name, n in numbers.items() if name in PAPER for r in _table2_rows(name, n)]
+    if "resonance_hz_trials" in numbers.get("M8528-P1", {}):
+        rows.append(_operation_row(numbers["M8528-P1"]))
+    rows += [_tpw_row(name, n) for name, n in numbers.items() if "max_tpw_trials" in n]
+    optional = (
+        _ratio_row(
+            numbers,
+            "power_at_resonance_w",
+            "power at the trial of largest tip velocity, 800 Vpp, 1-11 Hz, psi 5.4 : 3.9 : 2.1",
+        ),
+        _ratio_row(
+            numbers,
+            "power_at_resonance_model_w",
+            "power at the model's resonance at 800 Vpp, psi 5.4 : 3.9 : 2.1",
+            at="resonance_hz_model",
+        ),
+        _band_row(numbers),
+    )
+    rows += [r for r in optional if r is not None]
+    rows += [_ctau_row(name, n) for name, n in numbers.items() if "c_tau_trials" in n]
     return rows
 
 
 def analyse(
     cfg: CampaignConfig, idents: dict[str, Identification], status: dict[str, dict[str, Any]]
 ) -> dict[str, Any]:
-    """Figures, ``report.md`` and the numbers, from the identifications and each fin's protocol status
-    (``bringup --json``)."""
+    """Figures, ``report.md`` and ``report.json``, from the identifications and each fin's protocol
+    status (``bringup --json``); returns the report's numbers."""
     out = cfg.out
     statuses = {name: status[name]["fins"][f"/{namespace(name)}"] for name in idents}
     top = max(cfg.voltages)
@@ -525,8 +512,10 @@ def analyse(
         f"- `bags/{s}_{filename(n)}.mcap`" for n in idents for s in ("air", "water", "protocol")
     ]
     (out / "report.md").write_text("\n".join(lines) + "\n")
-    return {
+    report = {
         "fins": numbers,
         "facts": [dict(zip(("fact", "paper", "suite", "verdict"), r, strict=True)) for r in rows],
         "figures": figures,
     }
+    (out / "report.json").write_text(json.dumps(report, indent=1, default=float))
+    return report

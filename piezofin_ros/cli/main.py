@@ -263,6 +263,11 @@ def build_parser() -> argparse.ArgumentParser:
     camp.add_argument(
         "--realtime-factor", type=float, default=200.0, help="fin s per wall s, at most (default 200)"
     )
+    camp.add_argument(
+        "--analyse-only",
+        action="store_true",
+        help="no live stage: identify and report from the bags and status files already in --out",
+    )
     camp.set_defaults(func=run_campaign_cmd)
     bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
@@ -329,6 +334,8 @@ def run_identify(args: argparse.Namespace) -> int:
 
 
 def run_campaign_cmd(args: argparse.Namespace) -> int:
+    from ..bags import BagError
+    from ..identification.frf import IdentificationError
     from ..physics.effects import ModelError
     from ..physics.model import load_model
     from .campaign import CampaignConfig, CampaignError, run_campaign
@@ -363,8 +370,8 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
         raise UsageError("--realtime-factor: within [1, 1000]")
     cfg.realtime_factor = args.realtime_factor
     try:
-        run_campaign(cfg, say=lambda m: print(m, flush=True))
-    except CampaignError as exc:
+        run_campaign(cfg, say=lambda m: print(m, flush=True), analyse_only=args.analyse_only)
+    except (CampaignError, BagError, IdentificationError) as exc:
         raise UsageError(str(exc)) from None
     return 0
 

@@ -168,6 +168,18 @@ def test_identify_from_the_two_recorded_sweeps(campaign: Path, tmp_path: Path) -
 
 
 @pytest.mark.slow
+def test_a_recorded_campaign_is_analysed_again_without_ros(campaign: Path) -> None:
+    """`--analyse-only`: identification and report from the bags and status files already there."""
+    before = json.loads((campaign / "report.json").read_text())["facts"]
+    (campaign / "report.md").unlink()
+    proc = run("campaign", "paper", "-o", str(campaign), "--fins", "M8528-P1", "--analyse-only", timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "[1/4]" not in proc.stdout and "[4/4]" not in proc.stdout and "done in" in proc.stdout
+    assert (campaign / "report.md").exists()
+    assert json.loads((campaign / "report.json").read_text())["facts"] == before
+
+
+@pytest.mark.slow
 def test_the_protocol_bag_is_no_in_air_sweep(campaign: Path) -> None:
     """Data that are not an in-air stepped sine are said to be so, not fitted silently."""
     proc = run(
@@ -199,4 +211,7 @@ def test_campaign_mistakes_end_in_one_line(tmp_path: Path) -> None:
     one_line_error(run("campaign", "paper", "-o", str(tmp_path), "--voltages", "900"), "--voltages")
     one_line_error(
         run("campaign", "paper", "-o", str(tmp_path), "--fin-model", str(tmp_path / "x.yaml")), "x.yaml"
+    )
+    one_line_error(
+        run("campaign", "paper", "-o", str(tmp_path / "empty"), "--analyse-only"), "air_M8528-P1.mcap"
     )
