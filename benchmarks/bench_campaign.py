@@ -3,10 +3,11 @@
     python benchmarks/bench_campaign.py                 # runs `piezofin campaign paper -o out/campaign`
     python benchmarks/bench_campaign.py --docs          # and copies the figures and report to docs/campaign/
 
-Three fins, each through the live suite: in-air and underwater stepped sines of 21 points, the
-identification, and the thrust protocol at 1-11 Hz and 400/600/800 Vpp (33 trials of 30 s, plus
-5.5 Hz for M8528-P1): 3 x 1,080 s of protocol fin time.  Prints the wall time of the whole command
-(start-up included) and the report's table of the paper's facts.
+Three fins, each through the live suite (one `bringup` process per fin and stage, in parallel):
+in-air and underwater stepped sines of 21 points, the identification, and the thrust protocol at
+400/600/800 Vpp over 1-11 Hz widened to each fin's band (42, 60 and 48 trials of 30 s: 4,500 s of
+fin time).  Prints the wall time of the whole command (start-up included) and the report's table of
+the paper's facts.
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ from piezofin_ros.physics.steady import harmonic_balance
 PARAMS = ("f_sc", "zeta", "theta", "C_eq", "c_m", "c_d")
 TOLERANCE = {"f_sc": 0.005, "zeta": 0.05, "theta": 0.02, "C_eq": 0.02, "c_m": 0.03, "c_d": 0.10}
 PAPER_METHOD = {
-    "f_sc": "peak of |U/V|",
+    "f_sc": "peak of the response",
     "zeta": "half-power points",
     "theta": "FRF amplitude (tip velocity alone)",
     "C_eq": "as a capacitance meter reads, Im(I/V)/w at the farthest point",

@@ -7,8 +7,9 @@ fins at once on one clock):
 1. an in-air stepped sine (``fin_sim`` ``medium:=air``, ``controller`` ``mode:=frf``) and
 2. an underwater one, then the identification of each fin from its two bags (-> Table 2, ``c_m``,
    ``c_d``, Fig. 5);
-3. the thrust protocol (10 s off, 10 s on, 10 s off) at 1-11 Hz and 400/600/800 Vpp with the
-   estimator and controller using the *identified* fin, plus 5.5 Hz (-> Figs. 6-11);
+3. the thrust protocol (10 s off, 10 s on, 10 s off) at 1-11 Hz, widened to the fin's band (up to
+   1.25 times its underwater resonance), and 400/600/800 Vpp, with the estimator and controller
+   using the *identified* fin, plus 5.5 Hz for M8528-P1 (-> Figs. 6-11);
 4. the report: every number the paper publishes beside the suite's (:data:`PAPER`), the figures,
    the bags and the identified fin files.
 
@@ -23,6 +24,7 @@ a campaign recorded elsewhere (a real rig, same topics) can be analysed too.
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -55,13 +57,26 @@ class CampaignConfig:
     fins: tuple[str, ...] = ("M8528-P1", "M8514-P1", "M8507-P1")
     models: dict[str, str] = field(default_factory=dict)  # fin name -> augmented model file
     out: Path = Path("out/campaign")
-    frequencies: tuple[float, ...] = tuple(float(f) for f in range(1, 12))
+    frequencies: tuple[float, ...] | None = None  # None: each fin's band (protocol_frequencies)
     voltages: tuple[float, ...] = (400.0, 600.0, 800.0)
     trace: tuple[float, float] = (5.5, 800.0)  # Fig. 6
     air_vpp: float = 50.0
     water_vpp: float = 100.0
     sweep_points: int = 21
     realtime_factor: float = 200.0
+
+    def protocol_frequencies(self, name: str) -> list[float]:
+        """The protocol's frequencies for a fin: ``frequencies`` if given, else the paper's 1-11 Hz
+        widened to the fin's band (1 Hz steps up to 1.25 times its linear underwater resonance:
+        M8514-P1 and M8507-P1 resonate above 11 Hz), plus 5.5 Hz for M8528-P1 (Fig. 6)."""
+        if self.frequencies is not None:
+            freqs = list(self.frequencies)
+        else:
+            top = max(11, math.ceil(1.25 * self.truth(name).f_water_linear))
+            freqs = [float(f) for f in range(1, top + 1)]
+        if name == "M8528-P1" and self.trace[0] not in freqs:
+            freqs = sorted([*freqs, self.trace[0]])
+        return freqs
 
     def truth(self, name: str) -> Fin:
         return load_model(self.models[name]).fin if name in self.models else load_fin(name)
@@ -113,9 +128,7 @@ def _stage_config(cfg: CampaignConfig, stage: str, fin_files: dict[str, str]) ->
                 frequencies=sweep_frequencies(truth.f_water_linear, cfg.sweep_points, 0.45, 1.6),
             )
         else:
-            freqs = list(cfg.frequencies)
-            if name == "M8528-P1" and cfg.trace[0] not in freqs:
-                freqs = sorted([*freqs, cfg.trace[0]])
+            freqs = cfg.protocol_frequencies(name)
             ctl.update(mode="protocol", frequencies=freqs, voltages=list(cfg.voltages), after="stop")
         doc[f"/{ns}/fin_sim"] = {"ros__parameters": sim}
         doc[f"/{ns}/thrust_estimator"] = {"ros__parameters": {"fin": fin_files.get(name, name)}}
@@ -284,8 +297,8 @@ def run_campaign(
     say(f"[3/4] identification of {n} fin(s) ({time.monotonic() - t0:.0f} s)")
     idents = identify_all(cfg, fin_files, say)
     if not analyse_only:
-        trials = len(cfg.frequencies) * len(cfg.voltages)
-        say(f"[4/4] thrust protocol, {n} fin(s) x {trials} trials of 30 s ({time.monotonic() - t0:.0f} s)")
+        trials = "/".join(str(len(cfg.protocol_frequencies(nm)) * len(cfg.voltages)) for nm in cfg.fins)
+        say(f"[4/4] thrust protocol, {trials} trials of 30 s ({time.monotonic() - t0:.0f} s)")
         run_stage(cfg, "protocol", fin_files, say)
     report = analyse(cfg, idents, _statuses(cfg))
     report["wall_s"] = time.monotonic() - t0

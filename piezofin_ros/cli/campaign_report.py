@@ -114,6 +114,11 @@ def _by_voltage(results: list[dict[str, float]]) -> dict[float, dict[str, np.nda
     return out
 
 
+def _top_hz(status: dict[str, Any]) -> float:
+    """The highest protocol frequency of a fin (its band), Hz."""
+    return float(max((r["frequency_hz"] for r in status["results"]), default=11.0))
+
+
 def half_max_band(f: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """Lowest and highest frequency of the run around the peak of ``y`` where ``y`` is at least half
     its maximum; NaN when the peak is at an end of the samples (no peak inside them)."""
@@ -141,7 +146,7 @@ def fin_numbers(
     data = _by_voltage(status["results"])
     top = max(voltages)
     d = data.get(top, {})
-    dense = np.linspace(1.0, 11.0, 401)
+    dense = np.linspace(1.0, _top_hz(status), 401)
     model = model_curves(fin, dense, top)
     wide = np.linspace(1.0, 2.0 * fin.f_water_linear, 600)  # the model's resonance may lie above 11 Hz
     wide_model = model_curves(fin, wide, top)
@@ -191,7 +196,7 @@ def _plot_fin(path: Path, name: str, ident: Identification, status: dict[str, An
 
     data = _by_voltage(status["results"])
     fig, ax = plt.subplots(2, 2, figsize=(10, 7), constrained_layout=True)
-    dense = np.linspace(1.0, 11.0, 300)
+    dense = np.linspace(1.0, _top_hz(status), 300)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for j, (v, d) in enumerate(data.items()):
         c = colors[j % len(colors)]
@@ -237,8 +242,8 @@ def _plot_fig10_11(
     import matplotlib.pyplot as plt
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
-    dense = np.linspace(1.0, 11.0, 300)
     for name, ident in idents.items():
+        dense = np.linspace(1.0, _top_hz(statuses[name]), 300)
         d = _by_voltage(statuses[name]["results"]).get(top)
         psi = ident.fin.psi
         m = model_curves(ident.fin, dense, top)
@@ -417,7 +422,9 @@ def _band_row(numbers: dict[str, dict[str, Any]]) -> Row | None:
         suite = ", ".join(f"psi {numbers[nm]['psi']:.1f}: {widths[nm]:.1f} Hz" for nm in order)
         verdict = "agrees" if broader else "does not"
     else:
-        suite = "no peak of T/P inside 1-11 Hz for " + ", ".join(nm for nm in order if not finite(widths[nm]))
+        suite = "no peak of T/P inside the band for " + ", ".join(
+            nm for nm in order if not finite(widths[nm])
+        )
         verdict = "does not: the model's T/P falls with frequency (its power is mechanical only)"
     return ("T/P band around its peak (half max, model) broader for larger psi", "yes", suite, verdict)
 
@@ -442,7 +449,7 @@ def facts_table(numbers: dict[str, dict[str, Any]]) -> list[Row]:
         _ratio_row(
             numbers,
             "power_at_resonance_w",
-            "power at the trial of largest tip velocity, 800 Vpp, 1-11 Hz, psi 5.4 : 3.9 : 2.1",
+            "power at the trial of largest tip velocity, 800 Vpp, psi 5.4 : 3.9 : 2.1",
         ),
         _ratio_row(
             numbers,

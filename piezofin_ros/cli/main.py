@@ -255,7 +255,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="an augmented model from `piezofin diagnose --report`: the rig simulates this twin for its fin",
     )
-    camp.add_argument("--frequencies", nargs="+", help="protocol frequencies, Hz (default 1:11:1)")
+    camp.add_argument(
+        "--frequencies",
+        nargs="+",
+        help="protocol frequencies, Hz (default: 1-11 Hz widened to each fin's band)",
+    )
     camp.add_argument(
         "--voltages", nargs="+", type=float, help="protocol voltages, Vpp (default 400 600 800)"
     )

@@ -49,6 +49,9 @@ from .frf import FrfPoint, IdentificationError
 
 FloatArray = NDArray[np.float64]
 
+#: The paper's estimate of ``f_sc``: the peak of the velocity FRF (of the motional admittance without
+#: a vibrometer).
+PEAK = "peak of the response"
 #: A reduced chi-square above this says the model does not describe the data (the sigmas are then
 #: scaled by it, but the values themselves are suspect).
 POOR_FIT_CHI2 = 10.0
@@ -252,7 +255,7 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
     m_s, ell = geometry.m_s, geometry.L_active
     d_of = modeshape_d(x[0], m_s, ell)
     values = {
-        "f_sc": Estimate(float(x[0]), float(sx[0]), "Hz", "fit of Eqs. (10)-(11)", {"peak of |U/V|": f_peak}),
+        "f_sc": Estimate(float(x[0]), float(sx[0]), "Hz", "fit of Eqs. (10)-(11)", {PEAK: f_peak}),
         "zeta": Estimate(float(x[1]), float(sx[1]), "-", "fit of Eq. (11)", {"half-power points": zeta_hp}),
         "theta": Estimate(float(x[2]), float(sx[2]), "C/(m sqrt(kg))", "fit of Eqs. (10)-(11)", others_theta),
         "C_eq": Estimate(float(x[3]), float(sx[3]), "F", "fit of Eq. (10)", others_c),

@@ -25,9 +25,9 @@ simulated rig's:
 
 from __future__ import annotations
 
+import logging
 import math
 import os
-from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +39,7 @@ from ..bags.blocks import DRIVE_CHANNELS, TIP_CHANNELS, BlockFormatError, check_
 from ..errors import EstimationError
 
 FloatArray = NDArray[np.float64]
+_log = logging.getLogger(__name__)
 
 #: Relative change of a block's frequency that starts a new step.
 STEP_TOLERANCE = 3e-3
@@ -181,19 +182,27 @@ def _lockin(tt: FloatArray, x: FloatArray, omega: float, t_ref: float) -> tuple[
     return complex(coef[1], -coef[4]), s * math.sqrt(2.0 / tt.size)
 
 
+def _span(t: FloatArray, x: FloatArray, t0: float, t1: float) -> tuple[FloatArray, FloatArray]:
+    """The finite samples of ``x`` with ``t0 <= t < t1`` (``t`` sorted: two binary searches)."""
+    i, j = np.searchsorted(t, [t0, t1])
+    tt, xx = t[i:j], x[i:j]
+    ok = np.isfinite(xx)
+    return (tt, xx) if ok.all() else (tt[ok], xx[ok])
+
+
 def _amplitude(
     t: FloatArray, x: FloatArray, omega: float, t_ref: float, q: tuple[float, float, float]
 ) -> tuple[complex, float]:
     """Lock-in over ``[q0, q2)`` with the unsettled part added to the error (3rd vs 4th quarter)."""
-    sel = (t >= q[0]) & (t < q[2]) & np.isfinite(x)
-    if np.count_nonzero(sel) < 16:
+    tt, xx = _span(t, x, q[0], q[2])
+    if tt.size < 16:
         return complex(math.nan, math.nan), math.nan
-    value, sigma = _lockin(t[sel], x[sel], omega, t_ref)
-    a = (t >= q[0]) & (t < q[1]) & np.isfinite(x)
-    b = (t >= q[1]) & (t < q[2]) & np.isfinite(x)
-    if np.count_nonzero(a) >= 16 and np.count_nonzero(b) >= 16:
-        xa, _ = _lockin(t[a], x[a], omega, t_ref)
-        xb, _ = _lockin(t[b], x[b], omega, t_ref)
+    value, sigma = _lockin(tt, xx, omega, t_ref)
+    ta, xa_ = _span(t, x, q[0], q[1])
+    tb, xb_ = _span(t, x, q[1], q[2])
+    if ta.size >= 16 and tb.size >= 16:
+        xa, _ = _lockin(ta, xa_, omega, t_ref)
+        xb, _ = _lockin(tb, xb_, omega, t_ref)
         # noise alone makes |xb - xa| about 2 sigma (each half has twice the variance), beyond
         # 6 sigma 1 % of the time: a larger change is a transient, and half of it is in the mean
         change = abs(xb - xa)
@@ -205,13 +214,13 @@ def _amplitude(
 def _frequency(t: FloatArray, v: FloatArray, f: float, q: tuple[float, float, float]) -> float:
     """The drive frequency over ``[q0, q2)``, refined from ``f`` by the voltage's phase drift between
     the two halves (a lock-in at a frequency off by ``df`` turns the phase by ``2 pi df`` per second)."""
+    ta, va_ = _span(t, v, q[0], q[1])
+    tb, vb_ = _span(t, v, q[1], q[2])
+    if ta.size < 16 or tb.size < 16:
+        return f
     for _ in range(2):
-        a = (t >= q[0]) & (t < q[1])
-        b = (t >= q[1]) & (t < q[2])
-        if np.count_nonzero(a) < 16 or np.count_nonzero(b) < 16:
-            break
-        va, _ = _lockin(t[a], v[a], 2 * math.pi * f, q[0])
-        vb, _ = _lockin(t[b], v[b], 2 * math.pi * f, q[0])
+        va, _ = _lockin(ta, va_, 2 * math.pi * f, q[0])
+        vb, _ = _lockin(tb, vb_, 2 * math.pi * f, q[0])
         f += float(np.angle(vb / va)) / (2 * math.pi * 0.5 * (q[2] - q[0]))
     return f
 
@@ -282,6 +291,8 @@ def read_sweep(
         (drive if channels is DRIVE_CHANNELS else tips).append(
             tuple(np.asarray(b[c], float) for c in channels)
         )
+    if skipped:  # a damaged or foreign message is said, not dropped silently
+        _log.warning("%s: %d message(s) on %s skipped (not sample blocks)", path, skipped, ", ".join(topics))
     if not drive:
         raise IdentificationError(f"{path}: no drive samples on {ns}/drive (is the namespace right?)")
     t, v, i = _concat(drive, 3)
@@ -293,8 +304,3 @@ def read_sweep(
             f"each step needs at least {2 * MIN_PERIODS + 2} periods and {2 * BLOCK_S:g} s"
         )
     return points
-
-
-def merge(points: Iterable[FrfPoint]) -> list[FrfPoint]:
-    """Points in frequency order."""
-    return sorted(points, key=lambda p: p.frequency_hz)
