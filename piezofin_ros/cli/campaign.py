@@ -1,8 +1,8 @@
 """``piezofin campaign paper``: the paper's whole campaign through the live suite, in one command.
 
 For each fin (default: the three of Table 1), through ``bringup`` (``fin_sim``, ``thrust_estimator``,
-``controller`` and ``recorder``: the live suite with the simulated rig, one process per stage, all
-fins at once on one clock):
+``controller`` and ``recorder``: the live suite with the simulated rig; one process per fin and
+stage, the fins in parallel, each process in its own ROS domain since each has its own ``/clock``):
 
 1. an in-air stepped sine (``fin_sim`` ``medium:=air``, ``controller`` ``mode:=frf``) and
 2. an underwater one, then the identification of each fin from its two bags (-> Table 2, ``c_m``,
@@ -44,8 +44,6 @@ from ..identification.identify import Identification, identify
 from ..physics.fin import Fin, config_dir, load_fin, read_yaml_file
 from ..physics.model import load_model
 from .campaign_report import analyse, filename, namespace
-
-FloatArray = np.ndarray
 
 
 class CampaignError(CliError):
@@ -92,8 +90,10 @@ def sweep_frequencies(f0: float, n: int, low: float, high: float) -> list[float]
 
 
 def _base_config() -> dict[str, Any]:
-    doc = read_yaml_file(config_dir() / "bringup.yaml")
-    assert isinstance(doc, dict)
+    path = config_dir() / "bringup.yaml"
+    doc = read_yaml_file(path)
+    if not isinstance(doc, dict) or "/**/thrust_estimator" not in doc:
+        raise CampaignError(f"{path}: not the package's bring-up parameter file")
     return doc
 
 

@@ -272,6 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="no live stage: identify and report from the bags and status files already in --out",
     )
+    camp.add_argument("--force", action="store_true", help="replace a campaign already in --out")
     camp.set_defaults(func=run_campaign_cmd)
     bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
@@ -373,9 +374,21 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
     if not (np.isfinite(args.realtime_factor) and 1 <= args.realtime_factor <= 1000):
         raise UsageError("--realtime-factor: within [1, 1000]")
     cfg.realtime_factor = args.realtime_factor
+    if (
+        not args.analyse_only
+        and not args.force
+        and (cfg.out / "bags").is_dir()
+        and any((cfg.out / "bags").iterdir())
+    ):
+        raise UsageError(
+            f"{cfg.out} holds a campaign already; give --force to replace it (or --analyse-only)"
+        )
     try:
         run_campaign(cfg, say=lambda m: print(m, flush=True), analyse_only=args.analyse_only)
-    except (CampaignError, BagError, IdentificationError) as exc:
+    except KeyboardInterrupt:
+        print(f"piezofin: interrupted; what was recorded so far is in {cfg.out}", file=sys.stderr)
+        return 130
+    except (CampaignError, BagError, IdentificationError, FinConfigError, FileNotFoundError) as exc:
         raise UsageError(str(exc)) from None
     return 0
 

@@ -215,3 +215,7 @@ def test_campaign_mistakes_end_in_one_line(tmp_path: Path) -> None:
     one_line_error(
         run("campaign", "paper", "-o", str(tmp_path / "empty"), "--analyse-only"), "air_M8528-P1.mcap"
     )
+    (tmp_path / "done" / "bags").mkdir(parents=True)
+    (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").write_bytes(b"kept")
+    one_line_error(run("campaign", "paper", "-o", str(tmp_path / "done")), "--force")
+    assert (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").read_bytes() == b"kept"
