@@ -219,3 +219,27 @@ def test_campaign_mistakes_end_in_one_line(tmp_path: Path) -> None:
     (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").write_bytes(b"kept")
     one_line_error(run("campaign", "paper", "-o", str(tmp_path / "done")), "--force")
     assert (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").read_bytes() == b"kept"
+
+
+def test_each_fin_is_swept_and_driven_over_its_own_band() -> None:
+    """The plan without running it: sweeps around each fin's resonances, the protocol over 1-11 Hz
+    widened to the fin's band, each node of each fin configured in its own namespace."""
+    from piezofin_ros.cli.campaign import CampaignConfig, _stage_config, sweep_frequencies
+
+    cfg = CampaignConfig()
+    bands = {name: cfg.protocol_frequencies(name) for name in cfg.fins}
+    assert bands["M8528-P1"] == sorted([*map(float, range(1, 14)), 5.5])  # 1.25 x 9.90 Hz -> 13 Hz
+    assert bands["M8514-P1"] == [float(f) for f in range(1, 21)]  # 1.25 x 15.76 Hz -> 20 Hz
+    assert bands["M8507-P1"] == [float(f) for f in range(1, 17)]  # 1.25 x 12.11 Hz -> 16 Hz
+    air = sweep_frequencies(38.1, 21, 0.7, 1.3)
+    assert len(air) == 21 and air[0] == pytest.approx(0.7 * 38.1) and air[-1] == pytest.approx(1.3 * 38.1)
+    assert 38.1 in air and min(abs(f - 38.1) for f in air if f != 38.1) < 0.01 * 38.1  # dense near it
+    doc = _stage_config(cfg, "air", {})
+    for name in cfg.fins:
+        ns = "/" + name.lower().replace("-", "_")
+        ctl = doc[f"{ns}/controller"]["ros__parameters"]
+        assert ctl["mode"] == "frf" and ctl["voltages"] == [50.0]
+        assert min(ctl["frequencies"]) < load_fin(name).f_sc < max(ctl["frequencies"])
+    doc = _stage_config(cfg, "protocol", {"M8528-P1": "/x/M8528-P1.yaml"})
+    assert doc["/m8528_p1/thrust_estimator"]["ros__parameters"]["fin"] == "/x/M8528-P1.yaml"  # identified
+    assert doc["/m8528_p1/fin_sim"]["ros__parameters"]["fin"] == "M8528-P1"  # the rig: the truth
