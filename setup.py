@@ -31,6 +31,7 @@ setup(
             "piezofin = piezofin_ros.cli.main:main",
             "sweep = piezofin_ros.cli.main:sweep_main",
             "diagnose = piezofin_ros.cli.main:diagnose_main",
+            "identify = piezofin_ros.cli.main:identify_main",
             "fin_sim = piezofin_ros.nodes.fin_sim:main",
             "fin_sims = piezofin_ros.nodes.fin_sim:fins_main",
             "thrust_estimator = piezofin_ros.nodes.thrust_estimator:main",

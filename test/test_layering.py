@@ -2,7 +2,7 @@
 
 The package is read bottom-up::
 
-    physics  <  bags  <  rig  <  estimation  <  control  <  diagnosis  <  cli  <  nodes
+    physics  <  bags  <  rig  <  estimation  <  identification  <  control  <  diagnosis  <  cli  <  nodes
 
 A module may import from its own package and from the packages below it, never from one above
 (``errors`` and ``config``, the error base and the declare-once settings, are below everything).
@@ -24,7 +24,18 @@ import piezofin_ros
 from piezofin_ros import errors
 
 PACKAGE = Path(piezofin_ros.__file__).parent
-LAYERS = ("base", "physics", "bags", "rig", "estimation", "control", "diagnosis", "cli", "nodes")
+LAYERS = (
+    "base",
+    "physics",
+    "bags",
+    "rig",
+    "estimation",
+    "identification",
+    "control",
+    "diagnosis",
+    "cli",
+    "nodes",
+)
 ROS_CLIENT = (
     "rclpy",
     "launch",

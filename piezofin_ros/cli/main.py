@@ -239,6 +239,41 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
     est.add_argument("--json", action="store_true", help="print the estimates as JSON")
     est.set_defaults(func=run_estimate)
+    ident = sub.add_parser("identify", help="a fin's parameters from in-air and underwater stepped-sine bags")
+    _add_identify_args(ident)
+    ident.set_defaults(func=run_identify)
+    camp = sub.add_parser("campaign", help="the paper's whole campaign through the live suite (needs ROS 2)")
+    camp.add_argument("which", choices=("paper",), help="the campaign: paper (Figs. 5-11, Table 2)")
+    camp.add_argument("-o", "--out", default="out/campaign", help="output directory (default out/campaign)")
+    camp.add_argument(
+        "--fins", nargs="+", help="the paper's fins to run (default: M8528-P1 M8514-P1 M8507-P1)"
+    )
+    camp.add_argument(
+        "--fin-model",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="an augmented model from `piezofin diagnose --report`: the rig simulates this twin for its fin",
+    )
+    camp.add_argument(
+        "--frequencies",
+        nargs="+",
+        help="protocol frequencies, Hz (default: 1-11 Hz widened to each fin's band)",
+    )
+    camp.add_argument(
+        "--voltages", nargs="+", type=float, help="protocol voltages, Vpp (default 400 600 800)"
+    )
+    camp.add_argument("--sweep-points", type=int, default=21, help="points per stepped sine (default 21)")
+    camp.add_argument(
+        "--realtime-factor", type=float, default=200.0, help="fin s per wall s, at most (default 200)"
+    )
+    camp.add_argument(
+        "--analyse-only",
+        action="store_true",
+        help="no live stage: identify and report from the bags and status files already in --out",
+    )
+    camp.add_argument("--force", action="store_true", help="replace a campaign already in --out")
+    camp.set_defaults(func=run_campaign_cmd)
     bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
     rec = bag_sub.add_parser(
@@ -248,6 +283,122 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("-o", "--output", help="the new file (default <bag>.recovered.mcap; never overwritten)")
     rec.set_defaults(func=run_bag_recover)
     return parser
+
+
+def _add_identify_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--air", required=True, help="bag of the in-air stepped sine (low voltage)")
+    p.add_argument("--water", help="bag of the underwater stepped sine (gives c_m and c_d)")
+    p.add_argument(
+        "--geometry",
+        required=True,
+        help="Table 1 of the fin: a preset name or a YAML file with L, L_active, b, b_active, h, m_s",
+    )
+    p.add_argument("--name", help="name of the identified fin (default: the geometry's)")
+    p.add_argument("--namespace", default="/fin", help="the fin's namespace in the bags (default /fin)")
+    p.add_argument("-o", "--output", help="write the fin YAML here (never overwritten)")
+    p.add_argument("--plot", help="write Fig. 5 (measured and model velocity FRFs) to this PNG")
+    p.add_argument("--json", action="store_true", help="print the identified values and the points as JSON")
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    from ..bags import BagError
+    from ..identification.frf import IdentificationError, read_sweep
+    from ..identification.identify import identify, load_geometry
+    from .plots import plot_frf
+
+    if args.output and Path(args.output).exists():
+        raise UsageError(f"{args.output} exists; choose another --output (it is never overwritten)")
+    try:
+        geometry = load_geometry(args.geometry)
+        air = read_sweep(args.air, args.namespace)
+        water = read_sweep(args.water, args.namespace) if args.water else None
+        ident = identify(air, water, geometry, args.name)
+    except (BagError, IdentificationError, FinConfigError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        out = {
+            "fin": ident.fin.inputs(),
+            "identified": ident.values(),
+            "cannot_identify": ident.warnings,
+            "air_points": [p.record() for p in ident.air_points],
+            "water_points": [p.record() for p in ident.water_points],
+        }
+        print(json.dumps(out, indent=2, allow_nan=True))
+    else:
+        print(ident.table())
+    if args.output:
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+        with open(args.output, "x") as fh:
+            fh.write(ident.fin_yaml())
+        load_fin(args.output)  # what was written loads
+        print(f"fin: {args.output}", file=sys.stderr if args.json else sys.stdout)
+    if args.plot:
+        plot_frf(args.plot, ident)
+        print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+def run_campaign_cmd(args: argparse.Namespace) -> int:
+    from ..bags import BagError
+    from ..identification.frf import IdentificationError
+    from ..physics.effects import ModelError
+    from ..physics.model import load_model
+    from .campaign import CampaignConfig, CampaignError, run_campaign
+
+    cfg = CampaignConfig(out=Path(args.out))
+    if args.fins:
+        cfg.fins = tuple(args.fins)
+    unknown = [n for n in cfg.fins if n not in preset_names()]
+    if unknown:
+        raise UsageError(
+            f"--fins: {', '.join(unknown)} not a preset ({', '.join(preset_names())}); for another fin, "
+            "record its sweeps and use `piezofin identify`, or give a diagnosed model with --fin-model"
+        )
+    try:
+        for path in args.fin_model:
+            model = load_model(path)
+            cfg.models[model.fin.name] = path
+            if model.fin.name not in cfg.fins:
+                cfg.fins = (*cfg.fins, model.fin.name)
+    except (FinConfigError, ModelError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+    if args.frequencies:
+        cfg.frequencies = tuple(float(f) for f in parse_frequencies(args.frequencies))
+    if args.voltages:
+        if not all(0 < v <= 800 for v in args.voltages):
+            raise UsageError("--voltages: each within (0, 800] Vpp")
+        cfg.voltages = tuple(args.voltages)
+    if not 5 <= args.sweep_points <= 200:
+        raise UsageError("--sweep-points: between 5 and 200")
+    cfg.sweep_points = args.sweep_points
+    if not (np.isfinite(args.realtime_factor) and 1 <= args.realtime_factor <= 1000):
+        raise UsageError("--realtime-factor: within [1, 1000]")
+    cfg.realtime_factor = args.realtime_factor
+    if (
+        not args.analyse_only
+        and not args.force
+        and (cfg.out / "bags").is_dir()
+        and any((cfg.out / "bags").iterdir())
+    ):
+        raise UsageError(
+            f"{cfg.out} holds a campaign already; give --force to replace it (or --analyse-only)"
+        )
+    try:
+        run_campaign(cfg, say=lambda m: print(m, flush=True), analyse_only=args.analyse_only)
+    except KeyboardInterrupt:
+        print(f"piezofin: interrupted; what was recorded so far is in {cfg.out}", file=sys.stderr)
+        return 130
+    except (CampaignError, BagError, IdentificationError, FinConfigError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+    return 0
+
+
+def identify_main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezofin_ros identify ...``: the ``identify`` sub-command on its own."""
+    parser = argparse.ArgumentParser(prog="identify", description="a fin's parameters from stepped-sine bags")
+    _add_identify_args(parser)
+    parser.set_defaults(func=run_identify)
+    return _run(parser, argv)
 
 
 def run_bag_recover(args: argparse.Namespace) -> int:

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..identification.fit import water_mobility
+from ..identification.identify import Identification
 from ..physics.fin import Fin
 from ..physics.steady import harmonic_balance
 
@@ -34,6 +36,22 @@ def trial_table(records: Sequence[dict[str, float]], chosen: dict[str, float] | 
             f"{_fmt(r.get('thrust_loadcell_n'), 1e3, 3):>8} {_fmt(r.get('power_w'), 1e3, 3):>8} "
             f"{_fmt(r.get('thrust_per_watt'), 1e3, 1):>10}{mark}"
         )
+    return "\n".join(lines)
+
+
+def frf_table(records: Sequence[dict[str, float]]) -> str:
+    """A stepped sine's points: frequency, voltage, RMS tip velocity and current, dwell."""
+    head = f"{'point':>5} {'f [Hz]':>8} {'Vpp':>5} {'u [mm/s]':>9} {'I [uA]':>8} {'dwell [s]':>9}"
+    lines = [head, "-" * len(head)]
+    starts = [r["t_start"] for r in records] + [math.nan]
+    for r, t_next in zip(records, starts[1:], strict=True):
+        dwell = t_next - r["t_start"]
+        lines.append(
+            f"{int(r['trial']):>5} {r['frequency_hz']:>8.3f} {r['voltage_pp']:>5.0f} "
+            f"{_fmt(r.get('tip_velocity_rms'), 1e3, 2):>9} {_fmt(r.get('current_rms'), 1e6, 2):>8} "
+            f"{_fmt(dwell, 1.0, 1):>9}"
+        )
+    lines.append("(a stepped sine: `piezofin identify --air/--water <bag>` fits the fin to it)")
     return "\n".join(lines)
 
 
@@ -85,6 +103,47 @@ def plot_trials(
     axes[0].legend(fontsize=7)
     axes[2].legend(fontsize=7)
     fig.suptitle(title or f"{fin.name}: protocol trials")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_frf(path: str | os.PathLike[str], ident: Identification) -> Path:
+    """Fig. 5: measured and identified-model tip velocity FRFs, (a) in air and (b) under water."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    stages = [("in air", ident.air_points, ident.fin.replace(rho_w=0.0))]
+    if ident.water_points:
+        stages.append(("under water", ident.water_points, ident.fin))
+    fig, axes = plt.subplots(
+        2, len(stages), figsize=(5.5 * len(stages), 6), sharex="col", squeeze=False, constrained_layout=True
+    )
+    for j, (label, points, fin) in enumerate(stages):
+        pts = [p for p in points if p.has_tip]
+        f = np.array([p.frequency_hz for p in pts])
+        mob = np.array([p.mobility for p in pts])
+        err = np.array([p.sigma_tip / abs(p.voltage) for p in pts])
+        vpp = float(np.median([p.voltage_pp for p in pts]))
+        dense = np.linspace(f.min(), f.max(), 600)
+        model = water_mobility(fin, dense, np.full_like(dense, vpp))
+        ax, axp = axes[0, j], axes[1, j]
+        ax.errorbar(f, np.abs(mob), yerr=err, fmt="o", ms=3, label=f"measured ({vpp:.0f} Vpp)")
+        ax.plot(dense, np.abs(model), "-", lw=1.2, label="model, identified parameters")
+        ax.set_yscale("log")
+        ax.set_ylabel("|tip velocity / voltage| [m/(s V)]")
+        ax.set_title(f"({'ab'[j]}) {label}: {ident.fin.name}")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+        axp.plot(f, np.degrees(np.angle(mob)), "o", ms=3)
+        axp.plot(dense, np.degrees(np.angle(model)), "-", lw=1.2)
+        axp.set_ylabel("phase [deg]")
+        axp.set_xlabel("frequency [Hz]")
+        axp.grid(alpha=0.3)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -165,6 +165,7 @@ class TrialStrategy:
         r = self.runner
         state = "aborted" if r.aborted else ("done" if self.finished else "running")
         return {
+            "mode": r.plan.mode.value,
             "state": state,
             "reason": r.aborted,
             "trial": min(r.index, len(r.plan.points)),

@@ -4,8 +4,13 @@ A :class:`TrialRunner` walks a list of operating points.  In ``protocol`` mode e
 the paper's trial: ``off_s`` without voltage, ``on_s`` of sine, ``off_s`` without voltage; the
 final estimate whose window lies inside the burst is the trial's result.  In ``continuous``
 mode the drive moves from point to point without stopping and the first running estimate whose
-window starts after the change is the result.  The runner is a pure state machine driven by
-``command(t)`` and ``add_estimate(estimate)``; the ``controller`` node calls them from its timer
+window starts after the change is the result.  In ``frf`` mode (a stepped sine, for identification)
+the drive also moves from point to point without stopping, but stays at each until it has settled:
+until two consecutive running estimates at that frequency agree within ``settle_tolerance`` (tip
+velocity, or the self-sensed one without a vibrometer), or for ``settle_timeout_s``, when the last
+estimate is taken; the dwell adapts to the fin's damping, so the same plan works on a rig whose
+fin is unknown.  The runner is a pure state machine driven by ``command(t)`` and
+``add_estimate(estimate)``; the ``controller`` node calls them from its timer
 and subscription, tests call them directly.
 """
 
@@ -30,6 +35,7 @@ SOURCES = {
 class Mode(str, Enum):
     PROTOCOL = "protocol"
     CONTINUOUS = "continuous"
+    FRF = "frf"
 
 
 @dataclass(frozen=True)
@@ -40,6 +46,7 @@ class TrialPlan:
     on_s: float = ProtocolTiming.on_s
     settle_timeout_s: float = 30.0  # continuous: give up on a point after this long
     estimate_timeout_s: float = 10.0  # protocol: wait this long after a trial for its estimate
+    settle_tolerance: float = 0.005  # frf: consecutive estimates agreeing this closely mean settled
 
     def __post_init__(self) -> None:
         if not self.points:
@@ -47,7 +54,7 @@ class TrialPlan:
         for f, v in self.points:
             if not (math.isfinite(f) and f > 0 and math.isfinite(v) and v >= 0):
                 raise ControlError(f"bad operating point ({f} Hz, {v} Vpp)")
-        for name in ("off_s", "on_s", "settle_timeout_s", "estimate_timeout_s"):
+        for name in ("off_s", "on_s", "settle_timeout_s", "estimate_timeout_s", "settle_tolerance"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ControlError(f"{name} must be finite and > 0, got {value}")
@@ -69,12 +76,20 @@ class TrialResult:
     voltage_pp: float
     t_start: float
     estimate: Estimate | None = None
+    previous: Estimate | None = None  # frf: the last estimate, not yet settled
 
     def record(self) -> dict[str, float]:
-        rec = {"trial": float(self.index), "frequency_hz": self.frequency_hz, "voltage_pp": self.voltage_pp}
+        rec = {
+            "trial": float(self.index),
+            "frequency_hz": self.frequency_hz,
+            "voltage_pp": self.voltage_pp,
+            "t_start": self.t_start,
+        }
         if self.estimate is not None:
             e = self.estimate
             rec.update(
+                current_rms=e.current_rms,
+                c_tau=e.c_tau,
                 thrust_n=e.thrust_n,
                 thrust_self_n=e.thrust_self_n,
                 thrust_loadcell_n=e.thrust_loadcell_n,
@@ -117,6 +132,8 @@ class TrialRunner:
                     return (r.frequency_hz, r.voltage_pp, 1.0) if on else (r.frequency_hz, 0.0, 0.0)
             elif r.estimate is None and elapsed < plan.settle_timeout_s:
                 return (r.frequency_hz, r.voltage_pp, 1.0)
+            elif r.estimate is None and r.previous is not None and plan.mode is Mode.FRF:
+                r.estimate = r.previous  # not settled within the timeout: the last estimate is the point
             self.index += 1
             if not self.done:
                 self._start(t)
@@ -132,8 +149,15 @@ class TrialRunner:
                 if e.final and on0 <= e.t_start < on0 + self.plan.on_s:
                     r.estimate = e
                     return True
-            elif e.t_start >= r.t_start and abs(e.frequency_hz - r.frequency_hz) <= 0.02 * r.frequency_hz:
-                r.estimate = e
+            elif self.plan.mode is Mode.CONTINUOUS:
+                if e.t_start >= r.t_start and abs(e.frequency_hz - r.frequency_hz) <= 0.02 * r.frequency_hz:
+                    r.estimate = e
+                    return True
+            elif e.t_start >= r.t_start and abs(e.frequency_hz - r.frequency_hz) <= 1e-3 * r.frequency_hz:
+                if r.previous is not None and _agree(r.previous, e, self.plan.settle_tolerance):
+                    r.estimate = e
+                else:
+                    r.previous = e
                 return True
         return False
 
@@ -148,6 +172,15 @@ class TrialRunner:
             if t > end + plan.estimate_timeout_s:
                 out.append(r)
         return out
+
+
+def _agree(a: Estimate, b: Estimate, tolerance: float) -> bool:
+    """Two estimates of one point agree: the tip velocity (else the self-sensed one) within ``tolerance``."""
+    for key in ("tip_velocity_rms", "tip_velocity_rms_self"):
+        x, y = getattr(a, key), getattr(b, key)
+        if math.isfinite(x) and math.isfinite(y):
+            return abs(x - y) <= tolerance * max(abs(x), abs(y))
+    return False
 
 
 def choose(

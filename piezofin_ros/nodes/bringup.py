@@ -31,7 +31,8 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from ..cli.plots import plot_trials, trial_table
+from ..cli.main import UsageError, parse_frequencies
+from ..cli.plots import frf_table, plot_trials, trial_table
 from ..errors import PiezofinError
 from ..physics.fin import config_dir
 from ._common import StartupError, StopFlag
@@ -53,10 +54,26 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--fins", nargs="+", help="fin preset or YAML per namespace (default: the config's fin)")
     p.add_argument("--bag", help="output .mcap (default: bags/piezofin_<time>.mcap)")
     p.add_argument("--realtime-factor", type=float, default=40.0, help="simulated s per wall s (default 40)")
-    p.add_argument("--frequencies", type=float, nargs="+", help="trial frequencies, Hz (override the config)")
+    p.add_argument(
+        "--frequencies",
+        nargs="+",
+        help="trial frequencies, Hz: values and/or start:stop:step (stop included) (override the config)",
+    )
     p.add_argument("--voltages", type=float, nargs="+", help="trial voltages, Vpp (override the config)")
     p.add_argument(
-        "--mode", choices=("protocol", "continuous", "optimise"), help="controller mode (override)"
+        "--mode", choices=("protocol", "continuous", "frf", "optimise"), help="controller mode (override)"
+    )
+    p.add_argument(
+        "--medium",
+        choices=("water", "air"),
+        help="fin_sim's medium (override; air: no hydrodynamic load, for the in-air sweep of "
+        "`piezofin identify`)",
+    )
+    p.add_argument(
+        "--frequency-max",
+        type=float,
+        help="highest drive frequency, Hz, for the controller and fin_sim's limits (default 40; the in-air "
+        "resonances of the presets are 35-46 Hz)",
     )
     p.add_argument("--demand", type=float, help="optimise: thrust demand, N")
     p.add_argument("--duration", type=float, help="optimise: simulated seconds to run")
@@ -69,6 +86,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "trial plan, or optimise's --duration; optimise without --duration runs until stopped)",
     )
     args = p.parse_args(argv)
+    if args.frequencies:
+        try:
+            args.frequencies = [float(f) for f in parse_frequencies(args.frequencies)]
+        except UsageError as exc:
+            p.error(str(exc).replace("--freq", "--frequencies"))
+    if args.frequency_max is not None and not (
+        math.isfinite(args.frequency_max) and 0 < args.frequency_max <= 1000
+    ):
+        p.error("--frequency-max must be within (0, 1000] Hz")
     if args.fins and len(args.fins) != len(args.namespaces):
         p.error(f"--fins gives {len(args.fins)} fins for {len(args.namespaces)} namespaces")
     if not (math.isfinite(args.realtime_factor) and 0.01 <= args.realtime_factor <= 1000):
@@ -105,6 +131,8 @@ def _controller_options(args: argparse.Namespace) -> dict[str, Any]:
         out["voltages"] = [float(v) for v in args.voltages]
     if args.mode:
         out["mode"] = args.mode
+    if args.frequency_max is not None:
+        out["frequency_max_hz"] = float(args.frequency_max)
     if args.demand is not None:
         out["demand_n"] = float(args.demand)
     if args.duration is not None:
@@ -134,6 +162,10 @@ class Suite:
 
             sim_extra = {"realtime_factor": args.realtime_factor, "publish_clock": k == 0, "start_time_s": t0}
             sim_extra["autostart"] = False
+            if args.medium:
+                sim_extra["medium"] = args.medium
+            if args.frequency_max is not None:
+                sim_extra["limits.frequency_max_hz"] = float(args.frequency_max)
             sim = FinSim(context=context, namespace=ns, parameter_overrides=params("fin_sim", sim_extra))
             sim_time = {"use_sim_time": True}
             est = ThrustEstimator(
@@ -243,6 +275,9 @@ def _report_fin(ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace,
         )
         return
     print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))
+    if st.get("mode") == "frf":  # a sweep for `piezofin identify`: the response, not thrust per watt
+        print(frf_table(st["results"]))
+        return
     print(trial_table(st["results"], st["chosen"]))
     if args.plot:
         out = Path(args.plot)

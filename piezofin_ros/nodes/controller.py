@@ -60,7 +60,8 @@ class ControllerConfig:
 
     mode: str = setting(
         "protocol",
-        "protocol or continuous (trials of a grid), or optimise (thrust per watt)",
+        "protocol or continuous (trials of a grid), frf (a stepped sine that settles at each point, for "
+        "`piezofin identify`), or optimise (thrust per watt)",
         choices=(*(m.value for m in Mode), "optimise"),
     )
     frequencies: tuple[float, ...] = setting((5.5,), "trial frequencies, Hz", items=float)
@@ -69,6 +70,10 @@ class ControllerConfig:
         ProtocolTiming.off_s, "protocol: time without voltage before and after, s", 0.5, 600.0
     )
     on_s: float = setting(ProtocolTiming.on_s, "protocol: time of sine drive, s", 1.0, 600.0)
+    settle_timeout_s: float = setting(30.0, "continuous and frf: longest stay at one point, s", 1.0, 3600.0)
+    settle_tolerance: float = setting(
+        0.005, "frf: consecutive estimates agreeing this closely (relative) mean settled", 1e-5, 0.5
+    )
     voltage_pp_max: float = setting(800.0, "never command more than this, Vpp", 0.0, HARD_VOLTAGE_PP_MAX)
     frequency_min_hz: float = setting(1.0, "lowest frequency, Hz", 0.01, 1000.0)
     frequency_max_hz: float = setting(40.0, "highest frequency, Hz", 0.01, 1000.0)
@@ -147,7 +152,7 @@ class Controller(Node):
         return OptimiseStrategy(loop, c.duration_s, c.after), summary
 
     def _trials(self, c: ControllerConfig) -> tuple[Strategy, str]:
-        """A plan of trials (``mode:=protocol`` or ``continuous``), and what it says at start."""
+        """A plan of trials (``mode:=protocol``, ``continuous`` or ``frf``), and what it says at start."""
         bad = [f for f in c.frequencies if not (math.isfinite(f) and 0 < f <= c.frequency_max_hz)]
         bad += [v for v in c.voltages if not (math.isfinite(v) and 0 <= v <= c.voltage_pp_max)]
         if bad:
@@ -156,7 +161,15 @@ class Controller(Node):
                 f"[0, {c.voltage_pp_max:g}] Vpp"
             )
         try:
-            plan = TrialPlan.grid(c.frequencies, c.voltages, mode=Mode(c.mode), off_s=c.off_s, on_s=c.on_s)
+            plan = TrialPlan.grid(
+                c.frequencies,
+                c.voltages,
+                mode=Mode(c.mode),
+                off_s=c.off_s,
+                on_s=c.on_s,
+                settle_timeout_s=c.settle_timeout_s,
+                settle_tolerance=c.settle_tolerance,
+            )
         except PiezofinError as exc:
             raise StartupError(f"trial plan: {exc}") from None
         strategy = TrialStrategy(TrialRunner(plan), c.source, c.min_thrust_n, c.max_missing, c.after)

@@ -51,7 +51,7 @@ from std_msgs.msg import Float64MultiArray
 from ..bags.blocks import COMMAND_FIELDS, Block, BlockFormatError
 from ..config import setting
 from ..physics.effects import ModelError
-from ..physics.fin import Fin, FinConfigError, load_fin
+from ..physics.fin import MEDIA, Fin, FinConfigError, in_medium, load_fin
 from ..physics.model import load_model
 from ..physics.waveforms import ProtocolTiming
 from ..rig.simulated import (
@@ -89,6 +89,11 @@ class FinSimConfig:
     model: str = setting(
         "", "augmented model YAML from `piezofin diagnose --report` (its fin and effects; replaces fin)"
     )
+    medium: str = setting(
+        "water",
+        "water, or air: no hydrodynamic load (the paper's in-air identification tests)",
+        choices=MEDIA,
+    )
     seed: int = setting(0, "noise seed", 0, 2**31 - 1)
     block_s: float = setting(0.05, "simulated time per published block, s", 0.0005, 1.0)
     realtime_factor: float = setting(1.0, "simulated s per wall s", 0.01, 1000.0)
@@ -110,7 +115,7 @@ class FinSim(LifecycleNode):
     ) -> None:
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         c = declare(self, FinSimConfig)
-        self._fin_name, self._model_path, self._seed = c.fin, c.model, c.seed
+        self._fin_name, self._model_path, self._seed, self._medium = c.fin, c.model, c.seed, c.medium
         self._block_s, self._factor, self._publish_clock = c.block_s, c.realtime_factor, c.publish_clock
         self._start_time = c.start_time_s
         self._protocol, self._protocol_off, self._protocol_on = c.protocol, c.protocol_off_s, c.protocol_on_s
@@ -148,8 +153,10 @@ class FinSim(LifecycleNode):
             if self._model_path:
                 model = load_model(self._model_path)
                 self._fin = model.fin
+                if self._medium != "water":
+                    raise ModelError("medium:=air takes a fin (parameter fin), not an augmented model")
             else:
-                self._fin = load_fin(self._fin_name)
+                self._fin = in_medium(load_fin(self._fin_name), self._medium)
         except (FinConfigError, ModelError) as exc:
             key = "model" if self._model_path else "fin"
             self.get_logger().error(f"cannot configure (parameter {key}): {exc}")

@@ -264,6 +264,18 @@ def _check_number(key: str, value: Any, spec: FieldSpec, where: str) -> None:
         )
 
 
+#: Where a fin is tested: ``water`` (the fin as described) or ``air`` (the paper's in-air tests,
+#: which approximate in vacuo, footnote 2: no hydrodynamic load, ``rho_w = 0`` so ``mu = gamma = 0``).
+MEDIA = ("water", "air")
+
+
+def in_medium(fin: Fin, medium: str) -> Fin:
+    """The fin as tested in ``medium`` (see :data:`MEDIA`)."""
+    if medium not in MEDIA:
+        raise FinConfigError(f"medium must be one of {', '.join(MEDIA)}, got {medium!r}")
+    return fin.replace(rho_w=0.0) if medium == "air" else fin
+
+
 # ----- presets and files ------------------------------------------------------------------
 class SafeLoader(yaml.SafeLoader):
     """``yaml.SafeLoader`` (no code execution) that also reads ``1e-3`` as a float (YAML 1.2).

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -44,6 +45,31 @@ def test_continuous_mode_moves_on_when_the_estimate_comes() -> None:
     assert runner.command(0.0) == (5.0, 800.0, 1.0)
     assert runner.add_estimate(estimate(3.0, 5.0, 1e-3, 1e-3, final=0.0))
     assert runner.command(8.0) == (9.0, 800.0, 1.0)  # no stop between points
+
+
+def test_frf_mode_stays_until_the_point_has_settled() -> None:
+    """A stepped sine for identification: the point ends when two running estimates agree (0.5 %),
+    not at the first one; an estimate of another frequency (a window spanning the step) is not used;
+    a point that never settles ends at the timeout with its last estimate."""
+    plan = TrialPlan.grid([5.0, 9.0, 12.0], [100.0], mode=Mode.FRF, settle_timeout_s=40.0)
+    runner = TrialRunner(plan)
+    assert runner.command(0.0) == (5.0, 100.0, 1.0)
+    for k, u in enumerate((0.050, 0.060, 0.0640, 0.0642)):  # a transient dying out
+        assert runner.add_estimate(replace(estimate(3.0 + 5 * k, 5.0, 1e-3, 1e-3, 0.0), tip_velocity_rms=u))
+        settled = k == 3
+        assert (runner.results[0].estimate is not None) == settled
+        assert runner.command(8.0 + 5 * k) == ((9.0, 100.0, 1.0) if settled else (5.0, 100.0, 1.0))
+    assert runner.results[0].estimate.tip_velocity_rms == 0.0642
+    t1 = runner.results[1].t_start
+    assert not runner.add_estimate(estimate(t1 + 1.0, 7.0, 1e-3, 1e-3, 0.0))  # spans the step: 7 Hz
+    for k in range(6):  # never agrees within 0.5 %
+        runner.add_estimate(
+            replace(estimate(t1 + 3 + 5 * k, 9.0, 1e-3, 1e-3, 0.0), tip_velocity_rms=0.1 + 0.01 * k)
+        )
+    assert runner.command(t1 + 39.0) == (9.0, 100.0, 1.0)
+    assert runner.command(t1 + 40.0) == (12.0, 100.0, 1.0)  # timeout: the last estimate is the point
+    assert runner.results[1].estimate.tip_velocity_rms == pytest.approx(0.15)
+    assert [r.index for r in runner.missing(t1 + 200.0)] == [2]  # a timed-out frf point is not missing
 
 
 def test_choose_most_thrust_per_watt_above_the_demand() -> None:

@@ -1,0 +1,307 @@
+"""``piezofin campaign paper``: the paper's whole campaign through the live suite, in one command.
+
+For each fin (default: the three of Table 1), through ``bringup`` (``fin_sim``, ``thrust_estimator``,
+``controller`` and ``recorder``: the live suite with the simulated rig; one process per fin and
+stage, the fins in parallel, each process in its own ROS domain since each has its own ``/clock``):
+
+1. an in-air stepped sine (``fin_sim`` ``medium:=air``, ``controller`` ``mode:=frf``) and
+2. an underwater one, then the identification of each fin from its two bags (-> Table 2, ``c_m``,
+   ``c_d``, Fig. 5);
+3. the thrust protocol (10 s off, 10 s on, 10 s off) at 1-11 Hz, widened to the fin's band (up to
+   1.25 times its underwater resonance), and 400/600/800 Vpp, with the estimator and controller
+   using the *identified* fin, plus 5.5 Hz for M8528-P1 (-> Figs. 6-11);
+4. the report: every number the paper publishes beside the suite's (:data:`PAPER`), the figures,
+   the bags and the identified fin files.
+
+The rig simulates the preset (the truth); with ``--fin-model FILE`` (an augmented model from
+``piezofin diagnose --report``) it simulates that twin instead for the fin it describes: under water
+the model, in air its bare fin (the library's effects are the fin in water and its drive).
+
+The analysis (:func:`analyse`) needs no ROS: it reads the bags and the controllers' status files, so
+a campaign recorded elsewhere (a real rig, same topics) can be analysed too.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..errors import CliError
+from ..identification.frf import read_sweep
+from ..identification.identify import Identification, identify
+from ..physics.fin import Fin, config_dir, load_fin, read_yaml_file
+from ..physics.model import load_model
+from .campaign_report import analyse, filename, namespace
+
+
+class CampaignError(CliError):
+    """A stage of the campaign failed (its log says why)."""
+
+
+@dataclass
+class CampaignConfig:
+    fins: tuple[str, ...] = ("M8528-P1", "M8514-P1", "M8507-P1")
+    models: dict[str, str] = field(default_factory=dict)  # fin name -> augmented model file
+    out: Path = Path("out/campaign")
+    frequencies: tuple[float, ...] | None = None  # None: each fin's band (protocol_frequencies)
+    voltages: tuple[float, ...] = (400.0, 600.0, 800.0)
+    trace: tuple[float, float] = (5.5, 800.0)  # Fig. 6
+    air_vpp: float = 50.0
+    water_vpp: float = 100.0
+    sweep_points: int = 21
+    realtime_factor: float = 200.0
+
+    def protocol_frequencies(self, name: str) -> list[float]:
+        """The protocol's frequencies for a fin: ``frequencies`` if given, else the paper's 1-11 Hz
+        widened to the fin's band (1 Hz steps up to 1.25 times its linear underwater resonance:
+        M8514-P1 and M8507-P1 resonate above 11 Hz), plus 5.5 Hz for M8528-P1 (Fig. 6)."""
+        if self.frequencies is not None:
+            freqs = list(self.frequencies)
+        else:
+            top = max(11, math.ceil(1.25 * self.truth(name).f_water_linear))
+            freqs = [float(f) for f in range(1, top + 1)]
+        if name == "M8528-P1" and self.trace[0] not in freqs:
+            freqs = sorted([*freqs, self.trace[0]])
+        return freqs
+
+    def truth(self, name: str) -> Fin:
+        return load_model(self.models[name]).fin if name in self.models else load_fin(name)
+
+
+def sweep_frequencies(f0: float, n: int, low: float, high: float) -> list[float]:
+    """``n`` points from ``low f0`` to ``high f0``, denser near ``f0`` (the resonance)."""
+    u = np.linspace(-1.0, 1.0, n)
+    span = np.where(u < 0, 1.0 - low, high - 1.0)
+    return sorted(
+        {round(float(f0 * (1.0 + s * np.sign(x) * abs(x) ** 1.6)), 3) for x, s in zip(u, span, strict=True)}
+    )
+
+
+def _base_config() -> dict[str, Any]:
+    path = config_dir() / "bringup.yaml"
+    doc = read_yaml_file(path)
+    if not isinstance(doc, dict) or "/**/thrust_estimator" not in doc:
+        raise CampaignError(f"{path}: not the package's bring-up parameter file")
+    return doc
+
+
+def _stage_config(cfg: CampaignConfig, stage: str, fin_files: dict[str, str]) -> dict[str, Any]:
+    """The ROS 2 parameter file of one stage: the package's bring-up file plus one section per fin."""
+    doc = _base_config()
+    doc["/**/thrust_estimator"]["ros__parameters"]["estimator"]["window_s"] = (
+        2.0 if stage != "protocol" else 5.0
+    )
+    for name in cfg.fins:
+        ns = namespace(name)
+        truth = cfg.truth(name)
+        sim: dict[str, Any] = {"fin": name}
+        if name in cfg.models:
+            if stage == "air":
+                sim["fin"] = fin_files[f"{name}:truth"]
+            else:
+                sim["model"] = str(Path(cfg.models[name]).resolve())
+        ctl: dict[str, Any] = {"fin": fin_files.get(name, name)}
+        if stage == "air":
+            ctl.update(
+                mode="frf",
+                voltages=[cfg.air_vpp],
+                settle_timeout_s=30.0,
+                frequencies=sweep_frequencies(truth.f_sc, cfg.sweep_points, 0.7, 1.3),
+            )
+        elif stage == "water":
+            ctl.update(
+                mode="frf",
+                voltages=[cfg.water_vpp],
+                settle_timeout_s=60.0,
+                frequencies=sweep_frequencies(truth.f_water_linear, cfg.sweep_points, 0.45, 1.6),
+            )
+        else:
+            freqs = cfg.protocol_frequencies(name)
+            ctl.update(mode="protocol", frequencies=freqs, voltages=list(cfg.voltages), after="stop")
+        doc[f"/{ns}/fin_sim"] = {"ros__parameters": sim}
+        doc[f"/{ns}/thrust_estimator"] = {"ros__parameters": {"fin": fin_files.get(name, name)}}
+        doc[f"/{ns}/controller"] = {"ros__parameters": ctl}
+    return doc
+
+
+def _domains(n: int) -> list[int]:
+    """``n`` ROS domain ids for the stage's processes, none the caller's own: each process has its
+    own ``/clock``, which must not reach the others."""
+    own = os.environ.get("ROS_DOMAIN_ID", "0")
+    free = [d for d in range(1, 101) if str(d) != own]
+    rng = np.random.default_rng()
+    return [int(d) for d in rng.choice(free, size=n, replace=False)]
+
+
+def run_bringups(jobs: dict[str, list[str]], logs: dict[str, Path], say: Callable[[str], None]) -> None:
+    """``bringup`` once per fin, all at once, each in its own process and ROS domain; their progress
+    lines go to ``say`` (prefixed with the fin) and everything they print to their ``logs``.
+    Raises :class:`CampaignError` naming the log of any that fails."""
+    code = "import sys; from piezofin_ros.nodes.bringup import main; sys.exit(main(sys.argv[1:]))"
+    procs: dict[str, subprocess.Popen[str]] = {}
+    handles = {}
+    threads = []
+    lock = threading.Lock()
+    for (name, args), domain in zip(jobs.items(), _domains(len(jobs)), strict=True):
+        # the ROS wheels' bootstrapper re-executes a child python with its library path unless told it
+        # has done so: an inherited flag from a parent that imported rclpy would skip that
+        env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+        env["ROS_DOMAIN_ID"] = str(domain)
+        env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # a simulation needs no network
+        handles[name] = fh = open(logs[name], "w")  # noqa: SIM115 (closed below)
+        procs[name] = proc = subprocess.Popen(
+            [sys.executable, "-c", code, *args],
+            stdin=subprocess.DEVNULL,
+            stdout=fh,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+
+        def pump(name: str = name, proc: subprocess.Popen[str] = proc, fh: Any = fh) -> None:
+            assert proc.stderr is not None
+            for line in proc.stderr:
+                with lock:
+                    fh.write(line)
+                    if line.startswith("  ") and " s: " in line:
+                        say(f"   {name}: {line.strip()}")
+                    elif line.startswith(("error", "bringup: stopping")) or "[ERROR]" in line:
+                        say(f"   {name}: {line.rstrip()}")
+
+        threads.append(threading.Thread(target=pump, daemon=True))
+        threads[-1].start()
+    failed = []
+    try:
+        for name, proc in procs.items():
+            if proc.wait() != 0:
+                failed.append(name)
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.terminate()
+                proc.wait()
+        for t in threads:
+            t.join(timeout=5)
+        for fh in handles.values():
+            fh.close()
+    if failed:
+        raise CampaignError("bringup failed for " + ", ".join(f"{n} (see {logs[n]})" for n in failed))
+
+
+def run_stage(
+    cfg: CampaignConfig, stage: str, fin_files: dict[str, str], say: Callable[[str], None]
+) -> dict[str, Path]:
+    """One stage of the live suite, one ``bringup`` per fin in parallel; returns each fin's status JSON."""
+    out = cfg.out
+    params = out / "logs" / f"{stage}.params.yaml"
+    params.write_text(yaml.safe_dump(_stage_config(cfg, stage, fin_files), sort_keys=False))
+    jobs, logs, statuses = {}, {}, {}
+    for name in cfg.fins:
+        bag = out / "bags" / f"{stage}_{filename(name)}.mcap"
+        if bag.exists():
+            bag.unlink()  # a campaign's own output directory: the previous run's bag is replaced
+        statuses[name] = out / "logs" / f"{stage}_{filename(name)}.status.json"
+        logs[name] = out / "logs" / f"{stage}_{filename(name)}.log"
+        jobs[name] = [
+            "--config",
+            str(params),
+            "--namespaces",
+            namespace(name),
+            "--bag",
+            str(bag),
+            "--realtime-factor",
+            f"{cfg.realtime_factor:g}",
+            "--json",
+            str(statuses[name]),
+            "--frequency-max",
+            "100",
+        ] + (["--medium", "air"] if stage == "air" else [])
+    run_bringups(jobs, logs, say)
+    return statuses
+
+
+def identify_all(
+    cfg: CampaignConfig, fin_files: dict[str, str], say: Callable[[str], None]
+) -> dict[str, Identification]:
+    """Each fin from its two sweep bags in ``cfg.out/bags``; writes ``fins/<fin>.yaml`` and notes its path."""
+    idents: dict[str, Identification] = {}
+    bags = cfg.out / "bags"
+    for name in cfg.fins:
+        ns = namespace(name)
+        ident = identify(
+            read_sweep(bags / f"air_{filename(name)}.mcap", ns),
+            read_sweep(bags / f"water_{filename(name)}.mcap", ns),
+            load_fin(name) if name not in cfg.models else cfg.truth(name),
+            name,
+        )
+        path = cfg.out / "fins" / f"{filename(name)}.yaml"
+        path.write_text(ident.fin_yaml())
+        fin_files[name] = str(path.resolve())
+        idents[name] = ident
+        say(
+            f"   {name}: f_sc {ident.fin.f_sc:.2f} Hz, zeta {ident.fin.zeta * 100:.2f} %, "
+            f"theta {ident.fin.theta * 1e3:.2f}e-3, C_eq {ident.fin.C_eq * 1e9:.2f} nF, "
+            f"c_m {ident.fin.c_m:.3f}, c_d {ident.fin.c_d:.2f}"
+        )
+    return idents
+
+
+def _statuses(cfg: CampaignConfig) -> dict[str, dict[str, Any]]:
+    out = {}
+    for name in cfg.fins:
+        path = cfg.out / "logs" / f"protocol_{filename(name)}.status.json"
+        try:
+            out[name] = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise CampaignError(f"{path}: cannot read the protocol's status ({exc})") from None
+    return out
+
+
+def run_campaign(
+    cfg: CampaignConfig, say: Callable[[str], None] = print, analyse_only: bool = False
+) -> dict[str, Any]:
+    """The whole campaign (module docstring); returns the report's numbers (also in ``report.json``).
+
+    ``analyse_only``: no live stage; identify and report from the bags and status files already in
+    ``cfg.out`` (a campaign recorded before, or on a real rig with the same topics and file names).
+    """
+    t0 = time.monotonic()
+    for sub in ("bags", "fins", "logs"):
+        (cfg.out / sub).mkdir(parents=True, exist_ok=True)
+    fin_files: dict[str, str] = {}
+    for name in cfg.models:  # the twin's bare fin, for the in-air sweep
+        path = cfg.out / "fins" / f"{filename(name)}.truth.yaml"
+        path.write_text(yaml.safe_dump(cfg.truth(name).inputs(), sort_keys=False))
+        fin_files[f"{name}:truth"] = fin_files[name] = str(path.resolve())  # until it is identified
+    n = len(cfg.fins)
+    if not analyse_only:
+        say(f"[1/4] in-air stepped sines, {n} fin(s) x {cfg.sweep_points} points at {cfg.air_vpp:g} Vpp")
+        run_stage(cfg, "air", fin_files, say)
+        say(
+            f"[2/4] underwater stepped sines, {n} fin(s) x {cfg.sweep_points} points at "
+            f"{cfg.water_vpp:g} Vpp ({time.monotonic() - t0:.0f} s)"
+        )
+        run_stage(cfg, "water", fin_files, say)
+    say(f"[3/4] identification of {n} fin(s) ({time.monotonic() - t0:.0f} s)")
+    idents = identify_all(cfg, fin_files, say)
+    if not analyse_only:
+        trials = "/".join(str(len(cfg.protocol_frequencies(nm)) * len(cfg.voltages)) for nm in cfg.fins)
+        say(f"[4/4] thrust protocol, {trials} trials of 30 s ({time.monotonic() - t0:.0f} s)")
+        run_stage(cfg, "protocol", fin_files, say)
+    report = analyse(cfg, idents, _statuses(cfg))
+    report["wall_s"] = time.monotonic() - t0
+    (cfg.out / "report.json").write_text(json.dumps(report, indent=1, default=float))  # with the time
+    say(f"done in {report['wall_s']:.0f} s: {cfg.out / 'report.md'}")
+    return report

@@ -1,0 +1,245 @@
+"""`piezofin campaign paper` and `piezofin identify`, as a user runs them (real processes, issue 16).
+
+A reduced campaign (one fin, few points) runs the live suite three times (in-air and underwater
+stepped sines through `fin_sim` and the controller's `frf` mode, then the thrust protocol), identifies
+the fin from its own bags and writes the report; the full one is `benchmarks/bench_campaign.py`.
+The bags are read back by an independent reader (rosbags), the identified fin file by the suite's
+loader, and `piezofin identify` is run on the campaign's bags as a user would.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from rosbags.highlevel import AnyReader
+
+from piezofin_ros.physics.fin import load_fin
+from piezofin_ros.physics.model import Model
+
+BIN = Path(sys.executable).parent
+TOLERANCE = {"f_sc": 0.005, "zeta": 0.05, "theta": 0.02, "C_eq": 0.02, "c_m": 0.03, "c_d": 0.10}
+REDUCED = [
+    "--fins",
+    "M8528-P1",
+    "--frequencies",
+    "4",
+    "9",
+    "--voltages",
+    "400",
+    "800",
+    "--sweep-points",
+    "11",
+]
+
+
+def run(*args: str, cwd: Path | None = None, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    exe = shutil.which("piezofin", path=str(BIN)) or shutil.which("piezofin")
+    assert exe, "console script piezofin is not installed"
+    return subprocess.run(
+        [exe, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+        cwd=cwd,
+        env={**os.environ, "MPLBACKEND": "Agg", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"},
+    )
+
+
+def one_line_error(proc: subprocess.CompletedProcess[str], *words: str) -> None:
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("piezofin: error:"), proc.stderr
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("campaign")
+    proc = run("campaign", "paper", "-o", str(out), *REDUCED)
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+    assert "Traceback" not in proc.stdout + proc.stderr
+    for stage in (
+        "[1/4] in-air",
+        "[2/4] underwater",
+        "[3/4] identification",
+        "[4/4] thrust protocol",
+        "done in",
+    ):
+        assert stage in proc.stdout, proc.stdout
+    assert " s: trial " in proc.stdout  # progress of each live stage
+    return out
+
+
+@pytest.mark.slow
+def test_the_campaign_identifies_the_fin_through_the_live_suite(campaign: Path) -> None:
+    truth = load_fin("M8528-P1")
+    fin = load_fin(campaign / "fins" / "M8528-P1.yaml")  # the file it writes is a fin the suite loads
+    for name, tol in TOLERANCE.items():
+        got, want = getattr(fin, name), getattr(truth, name)
+        assert abs(got - want) <= tol * want, f"{name}: {got} vs {want}"
+    report = json.loads((campaign / "report.json").read_text())
+    ident = report["fins"]["M8528-P1"]["identified"]
+    for name in TOLERANCE:  # the truth within 4 of the stated sigmas
+        assert abs(ident[name]["value"] - getattr(truth, name)) <= 4 * ident[name]["sigma"], name
+
+
+@pytest.mark.slow
+def test_the_report_puts_the_papers_numbers_beside_the_suites(campaign: Path) -> None:
+    text = (campaign / "report.md").read_text()
+    facts = {f["fact"]: f for f in json.loads((campaign / "report.json").read_text())["facts"]}
+    for key in ("f_sc", "zeta", "theta", "C_eq", "c_m"):
+        row = facts[
+            f"M8528-P1 {key}"
+            + {
+                "f_sc": " [Hz]",
+                "zeta": " [%]",
+                "theta": " [1e-3 C/(m sqrt(kg))]",
+                "C_eq": " [nF]",
+                "c_m": " [-]",
+            }[key]
+        ]
+        assert row["verdict"] == "agrees", row
+        assert f"| {row['fact']} |" in text
+    assert facts["M8528-P1 max T/P at 800 Vpp [mN/W]"]["paper"] == "~60.7"
+    assert "M8528-P1 operation at 800 Vpp [Hz] (peak tip velocity)" in facts
+    assert facts["M8528-P1 c_tau (Eq. 23 at psi 2.08)"]["verdict"] == "agrees"
+    for png in ("fig5_M8528-P1.png", "fig6.png", "fig7_M8528-P1.png", "fig10.png", "fig11.png"):
+        data = (campaign / png).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, png
+        assert f"]({png})" in text
+
+
+@pytest.mark.slow
+def test_every_bag_reads_back_with_an_independent_reader(campaign: Path) -> None:
+    for stage, topics in (
+        ("air", ("drive", "tip_velocity", "cmd")),
+        ("water", ("drive", "tip_velocity", "cmd")),
+        ("protocol", ("drive", "tip_velocity", "loadcell", "estimate", "cmd")),
+    ):
+        path = campaign / "bags" / f"{stage}_M8528-P1.mcap"
+        with AnyReader([path]) as reader:
+            counts = {c.topic: c.msgcount for c in reader.connections}
+            assert sum(1 for _ in reader.messages()) == sum(counts.values())
+        for t in topics:
+            assert counts.get(f"/m8528_p1/{t}", 0) > 0, (stage, t, counts)
+
+
+@pytest.mark.slow
+def test_identify_from_the_two_recorded_sweeps(campaign: Path, tmp_path: Path) -> None:
+    """What a lab does with two recorded sweeps: one command, a fin file and Fig. 5, no code."""
+    bags = campaign / "bags"
+    args = ["--air", str(bags / "air_M8528-P1.mcap"), "--water", str(bags / "water_M8528-P1.mcap")]
+    args += ["--namespace", "m8528_p1", "--geometry", "M8528-P1"]
+    proc = run("identify", *args, "-o", str(tmp_path / "fin.yaml"), "--plot", str(tmp_path / "fig5.png"))
+    assert proc.returncode == 0, proc.stderr
+    assert "f_sc" in proc.stdout and "c_d" in proc.stdout and "+-" in proc.stdout
+    fin = load_fin(tmp_path / "fin.yaml")
+    assert fin.c_m == pytest.approx(load_fin("M8528-P1").c_m, rel=0.03)
+    assert (tmp_path / "fig5.png").read_bytes()[:4] == b"\x89PNG"
+    # JSON, in air only, with a geometry file holding Table 1 and nothing else
+    table1 = {k: getattr(fin, k) for k in ("L", "L_active", "b", "b_active", "h", "m_s")}
+    (tmp_path / "geometry.yaml").write_text(yaml.safe_dump({"name": "new-fin", **table1}))
+    proc = run("identify", *args[:2], *args[4:6], "--geometry", str(tmp_path / "geometry.yaml"), "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["fin"]["name"] == "new-fin" and "c_m" not in out["identified"]
+    assert out["identified"]["f_sc"]["value"] == pytest.approx(38.1, rel=0.005)
+    # mistakes end in one line, never a traceback, and nothing is overwritten
+    one_line_error(
+        run("identify", "--air", str(tmp_path / "none.mcap"), "--geometry", "M8528-P1"), "none.mcap"
+    )
+    one_line_error(run("identify", *args, "-o", str(tmp_path / "fin.yaml")), "exists")
+    one_line_error(run("identify", *args[:2], "--geometry", "no-such-fin"), "no-such-fin")
+    (tmp_path / "bad.yaml").write_text("name: x\nL: 0.09\n")
+    one_line_error(run("identify", *args[:2], "--geometry", str(tmp_path / "bad.yaml")), "L_active", "m_s")
+    one_line_error(
+        run("identify", *args[:2], "--namespace", "/nofin", "--geometry", "M8528-P1"), "/nofin/drive"
+    )
+
+
+@pytest.mark.slow
+def test_a_recorded_campaign_is_analysed_again_without_ros(campaign: Path) -> None:
+    """`--analyse-only`: identification and report from the bags and status files already there."""
+    before = json.loads((campaign / "report.json").read_text())["facts"]
+    (campaign / "report.md").unlink()
+    proc = run("campaign", "paper", "-o", str(campaign), "--fins", "M8528-P1", "--analyse-only", timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "[1/4]" not in proc.stdout and "[4/4]" not in proc.stdout and "done in" in proc.stdout
+    assert (campaign / "report.md").exists()
+    assert json.loads((campaign / "report.json").read_text())["facts"] == before
+
+
+@pytest.mark.slow
+def test_the_protocol_bag_is_no_in_air_sweep(campaign: Path) -> None:
+    """Data that are not an in-air stepped sine are said to be so, not fitted silently."""
+    proc = run(
+        "identify", "--air", str(campaign / "bags" / "protocol_M8528-P1.mcap"), "--namespace", "m8528_p1",
+        "--geometry", "M8528-P1",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "note: the in-air model does not fit these points" in proc.stdout, proc.stdout
+
+
+@pytest.mark.slow
+def test_the_campaign_runs_on_a_diagnosed_twin(tmp_path: Path) -> None:
+    """`--fin-model`: the rig simulates an augmented model (here: a fin whose c_m is 20 % higher than
+    Eq. 21); the campaign identifies what that twin does under water."""
+    fin = load_fin("M8528-P1")
+    model = Model(fin.replace(c_m=1.2 * fin.c_m))
+    path = tmp_path / "twin.yaml"
+    path.write_text(yaml.safe_dump(model.to_mapping(), sort_keys=False))
+    out = tmp_path / "out"
+    proc = run("campaign", "paper", "-o", str(out), "--fin-model", str(path), *REDUCED)
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+    ident = load_fin(out / "fins" / "M8528-P1.yaml")
+    assert ident.c_m == pytest.approx(1.2 * fin.c_m, rel=0.03)
+
+
+def test_campaign_mistakes_end_in_one_line(tmp_path: Path) -> None:
+    one_line_error(run("campaign", "paper", "-o", str(tmp_path), "--fins", "no-such-fin"), "no-such-fin")
+    one_line_error(run("campaign", "paper", "-o", str(tmp_path), "--sweep-points", "2"), "--sweep-points")
+    one_line_error(run("campaign", "paper", "-o", str(tmp_path), "--voltages", "900"), "--voltages")
+    one_line_error(
+        run("campaign", "paper", "-o", str(tmp_path), "--fin-model", str(tmp_path / "x.yaml")), "x.yaml"
+    )
+    one_line_error(
+        run("campaign", "paper", "-o", str(tmp_path / "empty"), "--analyse-only"), "air_M8528-P1.mcap"
+    )
+    (tmp_path / "done" / "bags").mkdir(parents=True)
+    (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").write_bytes(b"kept")
+    one_line_error(run("campaign", "paper", "-o", str(tmp_path / "done")), "--force")
+    assert (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").read_bytes() == b"kept"
+
+
+def test_each_fin_is_swept_and_driven_over_its_own_band() -> None:
+    """The plan without running it: sweeps around each fin's resonances, the protocol over 1-11 Hz
+    widened to the fin's band, each node of each fin configured in its own namespace."""
+    from piezofin_ros.cli.campaign import CampaignConfig, _stage_config, sweep_frequencies
+
+    cfg = CampaignConfig()
+    bands = {name: cfg.protocol_frequencies(name) for name in cfg.fins}
+    assert bands["M8528-P1"] == sorted([*map(float, range(1, 14)), 5.5])  # 1.25 x 9.90 Hz -> 13 Hz
+    assert bands["M8514-P1"] == [float(f) for f in range(1, 21)]  # 1.25 x 15.76 Hz -> 20 Hz
+    assert bands["M8507-P1"] == [float(f) for f in range(1, 17)]  # 1.25 x 12.11 Hz -> 16 Hz
+    air = sweep_frequencies(38.1, 21, 0.7, 1.3)
+    assert len(air) == 21 and air[0] == pytest.approx(0.7 * 38.1) and air[-1] == pytest.approx(1.3 * 38.1)
+    assert 38.1 in air and min(abs(f - 38.1) for f in air if f != 38.1) < 0.01 * 38.1  # dense near it
+    doc = _stage_config(cfg, "air", {})
+    for name in cfg.fins:
+        ns = "/" + name.lower().replace("-", "_")
+        ctl = doc[f"{ns}/controller"]["ros__parameters"]
+        assert ctl["mode"] == "frf" and ctl["voltages"] == [50.0]
+        assert min(ctl["frequencies"]) < load_fin(name).f_sc < max(ctl["frequencies"])
+    doc = _stage_config(cfg, "protocol", {"M8528-P1": "/x/M8528-P1.yaml"})
+    assert doc["/m8528_p1/thrust_estimator"]["ros__parameters"]["fin"] == "/x/M8528-P1.yaml"  # identified
+    assert doc["/m8528_p1/fin_sim"]["ros__parameters"]["fin"] == "M8528-P1"  # the rig: the truth
