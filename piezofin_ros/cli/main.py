@@ -319,7 +319,7 @@ def run_identify(args: argparse.Namespace) -> int:
         out = {
             "fin": ident.fin.inputs(),
             "identified": ident.values(),
-            "cannot_identify": ident.warnings,
+            "notes": ident.warnings,  # what the data cannot identify, or identify only coarsely
             "air_points": [p.record() for p in ident.air_points],
             "water_points": [p.record() for p in ident.water_points],
         }

@@ -153,6 +153,7 @@ def test_identify_from_the_two_recorded_sweeps(campaign: Path, tmp_path: Path) -
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert out["fin"]["name"] == "new-fin" and "c_m" not in out["identified"]
+    assert isinstance(out["notes"], list) and len(out["air_points"]) == 11
     assert out["identified"]["f_sc"]["value"] == pytest.approx(38.1, rel=0.005)
     # mistakes end in one line, never a traceback, and nothing is overwritten
     one_line_error(
