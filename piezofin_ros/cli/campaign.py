@@ -62,6 +62,7 @@ class CampaignConfig:
     water_vpp: float = 100.0
     sweep_points: int = 21
     realtime_factor: float = 200.0
+    _truths: dict[str, Fin] = field(default_factory=dict, repr=False)
 
     def protocol_frequencies(self, name: str) -> list[float]:
         """The protocol's frequencies for a fin: ``frequencies`` if given, else the paper's 1-11 Hz
@@ -77,7 +78,10 @@ class CampaignConfig:
         return freqs
 
     def truth(self, name: str) -> Fin:
-        return load_model(self.models[name]).fin if name in self.models else load_fin(name)
+        """The fin the rig simulates (the preset, or the twin's fin); each file is read once."""
+        if name not in self._truths:
+            self._truths[name] = load_model(self.models[name]).fin if name in self.models else load_fin(name)
+        return self._truths[name]
 
 
 def sweep_frequencies(f0: float, n: int, low: float, high: float) -> list[float]:
@@ -113,19 +117,19 @@ def _stage_config(cfg: CampaignConfig, stage: str, fin_files: dict[str, str]) ->
             else:
                 sim["model"] = str(Path(cfg.models[name]).resolve())
         ctl: dict[str, Any] = {"fin": fin_files.get(name, name)}
-        if stage == "air":
-            ctl.update(
-                mode="frf",
-                voltages=[cfg.air_vpp],
-                settle_timeout_s=30.0,
-                frequencies=sweep_frequencies(truth.f_sc, cfg.sweep_points, 0.7, 1.3),
+        if stage in ("air", "water"):
+            # in air around f_sc (0.7-1.3 x) at air_vpp; under water around the linear resonance
+            # (0.45-1.6 x: the drag widens it) at water_vpp, which settles more slowly
+            f0, low, high, vpp, timeout = (
+                (truth.f_sc, 0.7, 1.3, cfg.air_vpp, 30.0)
+                if stage == "air"
+                else (truth.f_water_linear, 0.45, 1.6, cfg.water_vpp, 60.0)
             )
-        elif stage == "water":
             ctl.update(
                 mode="frf",
-                voltages=[cfg.water_vpp],
-                settle_timeout_s=60.0,
-                frequencies=sweep_frequencies(truth.f_water_linear, cfg.sweep_points, 0.45, 1.6),
+                voltages=[vpp],
+                settle_timeout_s=timeout,
+                frequencies=sweep_frequencies(f0, cfg.sweep_points, low, high),
             )
         else:
             freqs = cfg.protocol_frequencies(name)
