@@ -56,7 +56,21 @@ IN_LIBRARY = (
     "amplifier_limit",
     "loadcell_offset",
     "loadcell_gain",
+    "field_coupling",
+    "amplifier_sag",
+    "added_mass_kc2",
+    "voltage_monitor_gain",
+    "vibrometer_gain",
+    "vibrometer_delay",
+    "current_monitor_gain",
+    "current_monitor_delay",
+    "resonance_drift",
+    "capacitance_drift",
+    "coupling_drift",
 )
+#: How long one trial of the protocol takes (pre baseline, burst, post baseline, pause), s: the
+#: generated trials run in protocol order (voltage by voltage, frequencies up), this far apart.
+TRIAL_SPACING_S = 30.0
 OUT_OF_LIBRARY = ("wake_modulation", "coupling_dispersion")
 
 
@@ -132,6 +146,17 @@ def draw_strength(name: str, rng: np.random.Generator) -> float:
         "amplifier_limit": u(0.45, 0.8),  # clip at this fraction of the highest current demand
         "loadcell_offset": sign * u(0.3, 2.0),  # mN
         "loadcell_gain": 1.0 + sign * u(0.15, 0.4),
+        "field_coupling": u(0.15, 0.4),
+        "amplifier_sag": u(0.45, 0.8),  # sag to this fraction of the highest current demand
+        "added_mass_kc2": u(0.2, 0.8),  # a KC^2 at the reference amplitude
+        "voltage_monitor_gain": 1.0 + sign * u(0.05, 0.2),
+        "vibrometer_gain": 1.0 + sign * u(0.05, 0.2),
+        "vibrometer_delay": u(0.5, 3.0),  # ms
+        "current_monitor_gain": 1.0 + sign * u(0.05, 0.2),
+        "current_monitor_delay": u(0.5, 3.0),  # ms
+        "resonance_drift": sign * u(15.0, 40.0),  # %/h
+        "capacitance_drift": sign * u(10.0, 40.0),
+        "coupling_drift": sign * u(15.0, 40.0),
         "wake_modulation": u(0.15, 0.35),
         "coupling_dispersion": sign * u(0.15, 0.3),
     }
@@ -173,8 +198,11 @@ def library_effect(name: str, strength: float, fin: Fin, a_ref: float, max_curre
         "amplifier_limit": 1e-3 / (s * max_current_a),  # clip at s of the highest current demand
         "loadcell_offset": s,
         "loadcell_gain": s,
+        "field_coupling": s,
+        "amplifier_sag": 1e-3 / (s * max_current_a),
+        "added_mass_kc2": s / kc_ref**2,
     }
-    return make(name, [values[name]])
+    return make(name, [values.get(name, s)])  # instruments and drifts: in the library's units
 
 
 def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
@@ -183,12 +211,13 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     rig = rig or RigConfig()
     rng = np.random.default_rng(case.seed)
     f, vpp = case.grid()
+    when = trial_times(vpp)
     e = case.effects
     a_ref = _reference_amplitude(fin, case.voltages_pp)
     max_current = float(np.max(fin.C_eq * 2 * math.pi * f * 0.5 * vpp))
     hidden = [library_effect(k, s, fin, a_ref, max_current) for k, s in e.items() if k in IN_LIBRARY]
     model = Model(fin, tuple(hidden))
-    law = model.law(f, vpp)
+    law = model.law(f, vpp, when)
     if "coupling_dispersion" in e:  # out of the library: the coupling follows the frequency
         law = replace(law, coupling=law.coupling * (f / np.median(f)) ** e["coupling_dispersion"])
     duration = 10.0
@@ -229,4 +258,14 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     )
     columns = {"frequency_hz": f, "voltage_pp": vpp, **{k: np.asarray(x) for k, x in cols.items()}}
     label = "+".join(f"{k}={x:.3g}" for k, x in e.items()) or "nominal"
-    return Generated(case, make_trials(columns, noise, f"synthetic {case.fin} {label} seed {case.seed}"))
+    return Generated(
+        case, make_trials(columns, noise, f"synthetic {case.fin} {label} seed {case.seed}", time_s=when)
+    )
+
+
+def trial_times(voltage_pp: FloatArray) -> FloatArray:
+    """When each trial of a grid starts (s): in protocol order, voltage by voltage, TRIAL_SPACING_S apart."""
+    order = np.argsort(np.round(np.asarray(voltage_pp, float)), kind="stable")
+    t = np.empty(len(order))
+    t[order] = np.arange(len(order)) * TRIAL_SPACING_S
+    return t
