@@ -7,7 +7,7 @@ Procedure (:func:`diagnose`: the named steps of :data:`PIPELINE`, each a functio
    *extrapolate* in amplitude, where nonlinear effects differ most); with one voltage, every third
    frequency is held out.
 2. **Fit.**  Each candidate (every effect of the library alone, then the best one paired with each other
-   effect and the best ``pairs_of`` (3) paired among themselves) is fitted
+   effect among the next ``partners`` (8), and the best ``pairs_of`` (3) paired among themselves) is fitted
    on the training trials by noise-weighted least squares (``scipy.optimize.least_squares``, bounded,
    two starts) over every measured channel: drive voltage, tip velocity and phase, current, power,
    load-cell thrust.  A weak prior (ten times each parameter's typical size) keeps unidentified
@@ -326,6 +326,7 @@ class Settings:
 
     library: tuple[str, ...] = tuple(LIBRARY)
     pairs_of: int = 3
+    partners: int = 8
     ambiguity: float = 6.0
     close_fraction: float = 0.95
     max_reduced_chi2: float = 3.0
@@ -423,9 +424,13 @@ def fit_singles(w: Work) -> None:
 
 
 def fit_pairs(w: Work) -> None:
-    """Step 2b: the best single with every other effect (forward selection), the best few together."""
+    """Step 2b: the best single with each of the next ``partners`` singles (forward selection), the
+    best ``pairs_of`` together.  An effect that alone removes less of the gap than the ``partners``
+    best is not tried as a second cause (a pair with a member that moves nothing is not named anyway)."""
     singles = w.singles
-    combos = {tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1:]}
+    combos = {
+        tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1 : 1 + w.settings.partners]
+    }
     combos |= {
         tuple(sorted((a.effects[0], b.effects[0])))
         for a, b in itertools.combinations(singles[: w.settings.pairs_of], 2)
@@ -503,7 +508,12 @@ def family_of_the_least_bad(w: Work) -> None:
     families = {effect_class(e).family for e in best.effects}
     gone = shrink(w.nominal.chi2_test, best.chi2_test)
     if len(families) != 1 or not gone >= FAMILY_SHRINK:
-        return
+        # a pair across families is no family; the best single may still be one
+        best = w.singles[0]
+        families = {effect_class(best.effects[0]).family}
+        gone = shrink(w.nominal.chi2_test, best.chi2_test)
+        if not gone >= FAMILY_SHRINK:
+            return
     (w.family,) = families
     titles = " + ".join(effect_class(e).title for e in best.effects)
     w.notes.append(
@@ -565,6 +575,7 @@ def diagnose(
     *,
     library: Sequence[str] | None = None,
     pairs_of: int = 3,
+    partners: int = 8,
     ambiguity: float = 6.0,
     close_fraction: float = 0.95,
     max_reduced_chi2: float = 3.0,
@@ -573,7 +584,13 @@ def diagnose(
 ) -> Diagnosis:
     """Where, which and how far: the steps of :data:`PIPELINE`; see the module docstring."""
     settings = Settings(
-        tuple(library or LIBRARY), pairs_of, ambiguity, close_fraction, max_reduced_chi2, material_sigma
+        tuple(library or LIBRARY),
+        pairs_of,
+        partners,
+        ambiguity,
+        close_fraction,
+        max_reduced_chi2,
+        material_sigma,
     )
     w = Work(trials, fin, settings, progress or (lambda _msg: None))
     for _name, step in PIPELINE:

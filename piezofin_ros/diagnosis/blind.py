@@ -27,7 +27,9 @@ effect (``BLIND``)          law here                                            
 ``mains``                   a 50 Hz line of 30 uA on the current reading           (none: no gap)
 =========================  ====================================================  =====================
 
-Every dataset runs the paper's grid in protocol order (:func:`.synthetic.trial_times`), through the
+Every dataset runs the paper's grid, its trials in a random order (``shuffled``; in the protocol's
+order, voltage by voltage and frequencies up, a drift in time looks like a dependence on the drive
+and on the frequency: :func:`.synthetic.trial_times`), through the
 same time-domain integrator, rig noise and lock-in as :mod:`.synthetic`.  :data:`FAMILY` maps each
 effect to the library family the diagnosis should name (``None``: it should find no gap).
 """
@@ -77,6 +79,7 @@ class BlindCase:
     strength: float = 0.0
     seed: int = 0
     voltages_pp: tuple[float, ...] = (400.0, 600.0, 800.0)
+    shuffled: bool = True  # trials in a random order (else the protocol's: voltage by voltage)
 
     @property
     def family(self) -> str | None:
@@ -125,7 +128,7 @@ def simulate_blind(case: BlindCase) -> Trials:
     rng = np.random.default_rng(case.seed)
     freqs = np.asarray(default_frequencies(fin), float)
     f, vpp = (x.ravel() for x in np.meshgrid(freqs, np.asarray(case.voltages_pp, float)))
-    when = trial_times(vpp)
+    when = trial_times(vpp, rng if case.shuffled else None)
     law = Model(fin).law(f, vpp, when)
     e, s = case.effect, case.strength
     warming = 1.0 + s * (1.0 - np.exp(-when / WARMING_S))

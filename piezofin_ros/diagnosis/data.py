@@ -181,7 +181,7 @@ def make_trials(
             sigma[name] = np.sqrt(s**2 + model_floor**2)  # 1 % of a radian ~ 0.6 deg
         else:
             sigma[name] = _floor(cols[name], s, model_floor)
-    return Trials(**cols, sigma=sigma, source=source, **extra)
+    return Trials(**cols, sigma=sigma, source=source, **extra)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -595,7 +595,7 @@ def conventions(trials: Trials) -> tuple[Trials, list[str]]:
     Each is decided by the trials' weighted majority (``sum u cos(psi) / sum u |cos(psi)| < -0.5``,
     ``sum P / sum |P| < -0.5``), corrected, and said.
     """
-    notes = []
+    notes: list[str] = []
     u, ph, p = trials.tip_velocity_rms, trials.tip_phase_rad, trials.power_w
     ok_u = np.isfinite(u) & np.isfinite(ph)
     tip_flipped = False

@@ -294,9 +294,13 @@ def measure(
     return make_trials(columns, noise, source, time_s=when)
 
 
-def trial_times(voltage_pp: FloatArray) -> FloatArray:
-    """When each trial of a grid starts (s): in protocol order, voltage by voltage, TRIAL_SPACING_S apart."""
+def trial_times(voltage_pp: FloatArray, rng: np.random.Generator | None = None) -> FloatArray:
+    """When each trial of a grid starts (s), TRIAL_SPACING_S apart: in protocol order (voltage by voltage,
+    frequencies up), or in a random order with ``rng`` (as an experiment that must tell a drift in time
+    from a dependence on the drive runs its trials)."""
     order = np.argsort(np.round(np.asarray(voltage_pp, float)), kind="stable")
+    if rng is not None:
+        order = rng.permutation(order.size)
     t = np.empty(len(order))
     t[order] = np.arange(len(order)) * TRIAL_SPACING_S
     return t
