@@ -7,7 +7,7 @@ Procedure (:func:`diagnose`: the named steps of :data:`PIPELINE`, each a functio
    *extrapolate* in amplitude, where nonlinear effects differ most); with one voltage, every third
    frequency is held out.
 2. **Fit.**  Each candidate (every effect of the library alone, then the best one paired with each other
-   effect among the next ``partners`` (8), and the best ``pairs_of`` (3) paired among themselves) is fitted
+   effect, and the best ``pairs_of`` (3) paired among themselves) is fitted
    on the training trials by noise-weighted least squares (``scipy.optimize.least_squares``, bounded,
    two starts) over every measured channel: drive voltage, tip velocity and phase, current, power,
    load-cell thrust.  A weak prior (ten times each parameter's typical size) keeps unidentified
@@ -106,9 +106,14 @@ class Candidate:
 
 
 def fit(
-    fin: Fin, names: Sequence[str], train: Trials, start: dict[str, tuple[float, ...]] | None = None
+    fin: Fin,
+    names: Sequence[str],
+    train: Trials,
+    start: dict[str, tuple[float, ...]] | None = None,
+    only_start: bool = False,
 ) -> Model:
-    """Least-squares parameters of ``names`` on ``train`` (bounded, two starts, weak prior)."""
+    """Least-squares parameters of ``names`` on ``train`` (bounded, two starts and ``start``, weak
+    prior); with ``only_start``, from ``start`` alone."""
     space = ParamSpace(fin, tuple(names))
     params = space.params
     zlo, zhi = space.z_bounds
@@ -127,7 +132,9 @@ def fit(
     if start:
         x0 = np.concatenate([np.asarray(start.get(n, effect_class(n).neutral()), float) for n in names])
         starts.append(space.to_z(x0))
-    if len(params) == 1 and params[0].starts:
+    if starts and only_start:
+        pass
+    elif len(params) == 1 and params[0].starts:
         starts += list(space.to_z(params[0].starts)[:, None])
     else:
         starts += [np.full(len(params), 0.5), np.full(len(params), -0.5)]
@@ -369,10 +376,13 @@ class Work:
         self.nominal_model = Model(self.fin)
 
     def candidate(
-        self, combo: tuple[str, ...], start: dict[str, tuple[float, ...]] | None = None
+        self,
+        combo: tuple[str, ...],
+        start: dict[str, tuple[float, ...]] | None = None,
+        only_start: bool = False,
     ) -> Candidate:
         """Fit ``combo`` on the training trials and score it on the held-out ones."""
-        m = fit(self.fin, combo, self.train, start)
+        m = fit(self.fin, combo, self.train, start, only_start)
         c_tr, _ = chi2(m, self.train)
         c_te, n = chi2(m, self.held)
         k = sum(len(effect_class(e).params) for e in combo)
@@ -424,24 +434,24 @@ def fit_singles(w: Work) -> None:
 
 
 def fit_pairs(w: Work) -> None:
-    """Step 2b: the best single with each of the next ``partners`` singles (forward selection), the
-    best ``pairs_of`` together.  An effect that alone removes less of the gap than the ``partners``
-    best is not tried as a second cause (a pair with a member that moves nothing is not named anyway)."""
+    """Step 2b: the best single with every other effect (forward selection), the best ``pairs_of``
+    together.  Pairs among the ``partners`` best singles are fitted from three starts (the singles'
+    values and two defaults); the others from the singles' values alone, which is where a second
+    cause that alone explains little starts anyway (a third of the cost)."""
     singles = w.singles
-    combos = {
-        tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1 : 1 + w.settings.partners]
-    }
+    combos = {tuple(sorted((singles[0].effects[0], c.effects[0]))) for c in singles[1:]}
     combos |= {
         tuple(sorted((a.effects[0], b.effects[0])))
         for a, b in itertools.combinations(singles[: w.settings.pairs_of], 2)
     }
     by_name = {c.effects[0]: c for c in singles}
+    rank = {c.effects[0]: j for j, c in enumerate(singles)}
     w.candidates = list(singles)
     for j, (a, b) in enumerate(sorted(combos)):
         w.say(f"fitting {a} + {b} (pair {j + 1}/{len(combos)})")
-        w.candidates.append(
-            w.candidate((a, b), {a: by_name[a].model.values[0], b: by_name[b].model.values[0]})
-        )
+        start = {a: by_name[a].model.values[0], b: by_name[b].model.values[0]}
+        cheap = max(rank[a], rank[b]) > w.settings.partners
+        w.candidates.append(w.candidate((a, b), start, only_start=cheap))
     w.candidates.sort(key=lambda c: c.criterion)
 
 

@@ -9,7 +9,7 @@ model-form error left:
 =========================  ====================================================  =====================
 effect (``BLIND``)          law here                                              library's form
 =========================  ====================================================  =====================
-``coupling_field_power``    ``theta x (1 + k (Vpp/800)^1.6)``                     linear in Vpp
+``coupling_saturating``     ``theta x (1 + k tanh(Vpp/400) / tanh(2))``           a power of Vpp
 ``amplifier_rms_limit``     the amplifier scales its output so that the *true*     capacitive demand
                             RMS current (capacitive, loss and motional) stays      ``C_eq w V``
                             under a limit (an automatic gain control)
@@ -55,7 +55,7 @@ FloatArray = NDArray[Any]
 
 #: The family the diagnosis should name for each blind effect (None: no gap to find).
 FAMILY: dict[str, str | None] = {
-    "coupling_field_power": "coupling",
+    "coupling_saturating": "coupling",
     "amplifier_rms_limit": "amplifier",
     "added_mass_kc_mixed": "added mass",
     "vibrometer_lowpass": "vibrometer",
@@ -91,7 +91,7 @@ def draw(effect: str, rng: np.random.Generator) -> float:
     sign = 1.0 if rng.random() < 0.5 else -1.0
     u = rng.uniform
     table = {
-        "coupling_field_power": u(0.2, 0.5),
+        "coupling_saturating": u(0.2, 0.5),
         "amplifier_rms_limit": u(0.5, 0.8),  # the limit, as a fraction of the largest RMS current
         "added_mass_kc_mixed": u(0.15, 0.4),  # a KC at the reference amplitude
         "vibrometer_lowpass": u(20.0, 80.0),  # corner, Hz
@@ -132,8 +132,8 @@ def simulate_blind(case: BlindCase) -> Trials:
     law = Model(fin).law(f, vpp, when)
     e, s = case.effect, case.strength
     warming = 1.0 + s * (1.0 - np.exp(-when / WARMING_S))
-    if e == "coupling_field_power":
-        law = replace(law, coupling=1.0 + s * (vpp / 800.0) ** 1.6)
+    if e == "coupling_saturating":
+        law = replace(law, coupling=1.0 + s * np.tanh(vpp / 400.0) / math.tanh(2.0))
     elif e == "added_mass_kc_mixed":
         kc_ref = 2 * math.pi * fin.phi_tip * _reference_amplitude(fin, case.voltages_pp) / fin.b
         a = s / kc_ref

@@ -356,13 +356,21 @@ def find_lines(x: FloatArray, rate_hz: float, channel: str, most: int = 3) -> li
     t = np.arange(n) / rate_hz
     out = []
     for k in peaks:
-        # the sine's frequency between the bins, then its amplitude by least squares
+        # the sine's frequency between the bins, then its amplitude by least squares over the first
+        # and the last third: a line is steady; a fin ringing down after a burst is not interference
         a, b, c = amp[k - 1], amp[k], amp[k + 1]
         f = freqs[k] + 0.5 * (a - c) / (a - 2 * b + c) * (freqs[1] - freqs[0])
-        basis = np.column_stack([np.ones(n), np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)])
-        coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
-        out.append(Line(channel, float(f), float(np.hypot(coef[1], coef[2]))))
+        thirds = [slice(0, n // 3), slice(n - n // 3, n)]
+        amps = [_sine_amplitude(t[s], x[s], f) for s in thirds]
+        if max(amps) <= 2 * min(amps):
+            out.append(Line(channel, float(f), _sine_amplitude(t, x, f)))
     return out
+
+
+def _sine_amplitude(t: FloatArray, x: FloatArray, f: float) -> float:
+    basis = np.column_stack([np.ones(t.size), np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)])
+    coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
+    return float(np.hypot(coef[1], coef[2]))
 
 
 def _without_lines(x: FloatArray, t: FloatArray, lines: Sequence[Line]) -> FloatArray:

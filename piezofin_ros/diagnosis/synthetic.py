@@ -199,10 +199,11 @@ def library_effect(name: str, strength: float, fin: Fin, a_ref: float, max_curre
         "amplifier_limit": 1e-3 / (s * max_current_a),  # clip at s of the highest current demand
         "loadcell_offset": s,
         "loadcell_gain": s,
-        "field_coupling": s,
         "amplifier_sag": 1e-3 / (s * max_current_a),
         "added_mass_kc2": s / kc_ref**2,
     }
+    if name == "field_coupling":
+        return make(name, [s, 1.0])  # Rayleigh's law
     return make(name, [values.get(name, s)])  # instruments and drifts: in the library's units
 
 

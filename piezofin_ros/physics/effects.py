@@ -577,17 +577,22 @@ class LoadcellGain(Coefficient):
 @dataclass(frozen=True)
 class FieldCoupling(Coefficient):
     """The electromechanical coupling grows with the field (an MFC nonlinearity: the piezoelectric
-    coefficient rises with the drive amplitude), quoted at the drive's amplitude, not a stiffness change."""
+    coefficient rises with the drive amplitude, linearly in Rayleigh's law, ``p = 1``), quoted at the
+    drive's amplitude; not a stiffness change."""
 
     name = "field_coupling"
     title = "field-dependent piezoelectric coupling (theta grows with the drive)"
     family = "coupling"
-    params = (Param("k", "-", 0.0, -0.5, 2.0, 0.1, "theta x (1 + k Vpp/800)"),)
+    params = (
+        Param("k", "-", 0.0, -0.5, 2.0, 0.1, "theta x (1 + k (Vpp/800)^p)"),
+        Param("p", "-", 1.0, 0.3, 3.0, 0.3, "how the coupling grows with the field (1: Rayleigh's law)"),
+    )
     k: float = 0.0
+    p: float = 1.0
     target = "coupling"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
-        return np.maximum(1.0 + self.k * np.asarray(voltage_pp, float) / V_REF, 0.05)
+        return np.maximum(1.0 + self.k * (np.asarray(voltage_pp, float) / V_REF) ** self.p, 0.05)
 
 
 def sag_ratio(inv_i_max: float, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray:

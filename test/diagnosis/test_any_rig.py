@@ -85,7 +85,10 @@ def test_a_rosbag2_directory_reads_like_its_file(tmp_path: Path, clean: tuple) -
     cut = messages[len(messages) // 2].log_time_ns
     run = tmp_path / "run"
     run.mkdir()
-    parts = {"run_0.mcap": [m for m in messages if m.log_time_ns < cut], "run_1.mcap": [m for m in messages if m.log_time_ns >= cut]}
+    parts = {
+        "run_0.mcap": [m for m in messages if m.log_time_ns < cut],
+        "run_1.mcap": [m for m in messages if m.log_time_ns >= cut],
+    }
     for name, msgs in parts.items():
         with BagWriter(run / name) as bag:
             for m in msgs:
@@ -103,11 +106,18 @@ def test_a_rosbag2_directory_reads_like_its_file(tmp_path: Path, clean: tuple) -
         )
     )
     again = list(read_messages(run))
-    assert [(m.topic, m.log_time_ns, m.data) for m in again] == [(m.topic, m.log_time_ns, m.data) for m in messages]
+    assert [(m.topic, m.log_time_ns, m.data) for m in again] == [
+        (m.topic, m.log_time_ns, m.data) for m in messages
+    ]
     trials, _ = from_bags([run], FIN)
     assert np.allclose(trials.current_rms, clean[0].current_rms, rtol=1e-12)
     out = tmp_path / "d.json"
-    r = subprocess.run([EXE, "diagnose", str(run), "--fin", "M8528-P1", "--json", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [EXE, "diagnose", str(run), "--fin", "M8528-P1", "--json", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr
     assert json.loads(out.read_text())["trials"] == 2
     # mistakes, each one line naming the directory
@@ -115,14 +125,20 @@ def test_a_rosbag2_directory_reads_like_its_file(tmp_path: Path, clean: tuple) -
     empty.mkdir()
     sqlite = tmp_path / "sqlite"
     sqlite.mkdir()
-    (sqlite / "metadata.yaml").write_text("rosbag2_bagfile_information: {storage_identifier: sqlite3, relative_file_paths: [a.db3]}\n")
+    (sqlite / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information: {storage_identifier: sqlite3, relative_file_paths: [a.db3]}\n"
+    )
     missing = tmp_path / "missing"
     missing.mkdir()
-    (missing / "metadata.yaml").write_text("rosbag2_bagfile_information: {storage_identifier: mcap, relative_file_paths: [gone_0.mcap]}\n")
+    (missing / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information: {storage_identifier: mcap, relative_file_paths: [gone_0.mcap]}\n"
+    )
     for bad, why in ((empty, "no .mcap file"), (sqlite, "'sqlite3' storage"), (missing, "gone_0.mcap")):
         with pytest.raises(BagError, match=why):
             list(read_messages(bad))
-        r = subprocess.run([EXE, "diagnose", str(bad), "--fin", "M8528-P1"], capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            [EXE, "diagnose", str(bad), "--fin", "M8528-P1"], capture_output=True, text=True, timeout=120
+        )
         assert r.returncode != 0 and str(bad) in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
@@ -151,9 +167,14 @@ def test_mains_pickup_is_named_and_rejected_by_the_lock_in(tmp_path: Path, clean
     assert np.allclose(trials.current_rms, ref.current_rms, rtol=2e-3)
     scan = scan_bag(bag, "/fin")
     assert scan.noise.current == pytest.approx(ref_scan.noise.current, rel=0.1)  # not the line's 21 uA
+    assert not ref_scan.lines  # the fin ringing down after a burst is no interference
     (line,) = [ln for ln in scan.lines if ln.channel == "current"]
-    assert line.frequency_hz == pytest.approx(50.0, abs=0.05) and line.amplitude == pytest.approx(30e-6, rel=0.05)
-    assert any("50.00 Hz line of 30 uA" in n for n in trials.notes)
+    assert line.frequency_hz == pytest.approx(50.0, abs=0.05) and line.amplitude == pytest.approx(
+        30e-6, rel=0.05
+    )
+    assert any(
+        "current channel: a 50.00 Hz line of " in n and "lock-in rejects it" in n for n in trials.notes
+    )
     d, d0 = diagnose(trials, FIN), diagnose(ref, FIN)
     assert d.verdict == d0.verdict
     assert any("interference on the current channel" in n for n in d.notes)
@@ -168,7 +189,7 @@ def test_the_sample_rate_comes_from_the_block_times(tmp_path: Path, clean: tuple
         return Block(block.names, block.values[:, ::2])
 
     bag = rewrite(tmp_path / "500hz.mcap", half)
-    assert scan_bag(bag, "/fin").sample_rate_hz == pytest.approx(500.0, rel=1e-6)
+    assert scan_bag(bag, "/fin").sample_rate_hz == pytest.approx(500.0, rel=1e-4)
     trials, _ = from_bags([bag], FIN)
     ref = clean[0]
     assert np.allclose(trials.current_rms, ref.current_rms, rtol=5e-3)
@@ -198,7 +219,9 @@ def test_a_bag_without_commands_is_said_and_the_drive_is_not_judged_against_itse
         ("voltage_V", "the voltage channel's sign is reversed"),
     ],
 )
-def test_a_reversed_sensor_is_found_and_corrected(tmp_path: Path, clean: tuple, channel: str, said: str) -> None:
+def test_a_reversed_sensor_is_found_and_corrected(
+    tmp_path: Path, clean: tuple, channel: str, said: str
+) -> None:
     """Sign conventions (docs/reference.md): a fin only absorbs power.  A flipped sensor makes it
     give power back; the diagnosis says which sensor and corrects it, and finds what the correct
     recording gives."""
@@ -217,7 +240,7 @@ def test_a_reversed_sensor_is_found_and_corrected(tmp_path: Path, clean: tuple, 
 
 
 def test_the_current_rms_is_the_lock_in_s() -> None:
-    """Interference at no odd harmonic of the drive stays out of the RMS current (a sample RMS takes it in)."""
+    """Interference at no odd harmonic of the drive stays out of the RMS current (a sample RMS has it)."""
     fs, f = 1000.0, 7.0
     t = np.arange(int(fs * 3 / f * 7)) / fs  # whole periods
     t = t[t < math.floor(t[-1] * f) / f]
@@ -232,7 +255,7 @@ def test_the_current_rms_is_the_lock_in_s() -> None:
 
 def _burst(amplitudes: np.ndarray, f: float, fs: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
     """A drive whose amplitude per period is ``amplitudes`` (V), with 10 s off before and after."""
-    per = int(round(fs / f))
+    per = round(fs / f)
     env = np.concatenate([np.zeros(int(10 * fs)), np.repeat(amplitudes, per), np.zeros(int(10 * fs))])
     t = np.arange(env.size) / fs
     return t, env * np.sin(2 * math.pi * f * t)
@@ -245,7 +268,9 @@ def test_a_ramp_tail_and_a_wandering_amplitude_do_not_split_a_trial(seed: int) -
     period only, the segment split in two (34 trials found for 33)."""
     rng = np.random.default_rng(seed)
     f = 10.0
-    amps = 400 * np.concatenate([[0.5, 0.8, 0.975], 1 + 0.01 * np.sin(np.arange(150) / 7 + rng.uniform(0, 6))])
+    amps = 400 * np.concatenate(
+        [[0.5, 0.8, 0.975], 1 + 0.01 * np.sin(np.arange(150) / 7 + rng.uniform(0, 6))]
+    )
     t, v = _burst(amps, f)
     est = StreamEstimator(FIN, EstimatorConfig())
     out = est.add_drive(t, v, np.zeros_like(v)) + est.flush()

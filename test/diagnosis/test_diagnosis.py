@@ -114,7 +114,7 @@ def _fundamental_rms(t: np.ndarray, y: np.ndarray, f: float) -> float:
         ({"stiffness_nonlinearity": [-50.0]}, 9.0),
         ({"added_mass_kc": [0.5], "loadcell_gain": [1.5], "loadcell_offset": [1.0]}, 4.0),
         ({"amplifier_limit": [8.0]}, 9.0),
-        ({"amplifier_sag": [4.0], "field_coupling": [0.3], "added_mass_kc2": [2.0]}, 9.0),
+        ({"amplifier_sag": [4.0], "field_coupling": [0.3, 1.2], "added_mass_kc2": [2.0]}, 9.0),
         (
             {
                 "current_monitor_delay": [2.0],
@@ -156,10 +156,14 @@ def test_the_rig_streams_what_the_augmented_model_predicts(effects: dict, f: flo
     lc = float(np.mean(x)) * quiet.loadcell_stiffness
     assert lc == pytest.approx(float(p.thrust_loadcell_n), rel=0.025)
     if "vibrometer_delay" in effects:  # the lag reaches the phase the rig's reading carries
-        phase = np.angle(np.mean(u * np.exp(-2j * math.pi * f * t)) / np.mean(v * np.exp(-2j * math.pi * f * t)))
+        phase = np.angle(
+            np.mean(u * np.exp(-2j * math.pi * f * t)) / np.mean(v * np.exp(-2j * math.pi * f * t))
+        )
         assert phase == pytest.approx(float(p.tip_phase_rad), abs=0.01)
     if "amplifier_sag" in effects:  # scaled, not clipped: a clean sine below the command
-        assert 2 * _fundamental_rms(t, v, f) * math.sqrt(2) == pytest.approx(float(p.voltage_pp_drive), rel=0.01)
+        assert 2 * _fundamental_rms(t, v, f) * math.sqrt(2) == pytest.approx(
+            float(p.voltage_pp_drive), rel=0.01
+        )
         assert float(p.voltage_pp_drive) < 0.9 * 800.0
     if "amplifier_limit" in effects:
         assert np.max(np.abs(v)) < 0.99 * 400.0  # clipped, not scaled: the drive's peak is cut
