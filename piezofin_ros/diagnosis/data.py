@@ -145,6 +145,7 @@ class Trials:
         for i in range(len(self)):
             row = {n: float(self.channel(n)[i]) for n in names}
             row.update({f"{n}_sigma": float(self.sigma[n][i]) for n in CHANNELS})
+            row["time_s"] = float(np.asarray(self.time_s)[i])
             out.append(row)
         return out
 
@@ -538,7 +539,8 @@ def from_bags(
 def from_csv(path: str | os.PathLike[str], relative_sigma: float = 0.02, model_floor: float = 0.01) -> Trials:
     """Per-trial summaries (one row per trial; SI units; header names as in :data:`CSV_COLUMNS`).
 
-    Columns ``<channel>_sigma`` give uncertainties; otherwise ``relative_sigma`` of each value.
+    Columns ``<channel>_sigma`` give uncertainties; otherwise ``relative_sigma`` of each value.  An
+    optional ``time_s`` column (each trial's start, s) lets drifts in time be fitted.
     """
     try:
         with open(path, newline="") as fh:
@@ -565,7 +567,10 @@ def from_csv(path: str | os.PathLike[str], relative_sigma: float = 0.02, model_f
             raise DataError(f"{path}: no column for {need} (accepted names: {', '.join(CSV_COLUMNS[need])})")
     if not any(k in cols for k in CHANNELS):
         raise DataError(f"{path}: no measured column (accepted: {', '.join(CHANNELS)})")
-    return make_trials(cols, noise, str(path), model_floor)
+    extra: dict[str, Any] = {}
+    if "time_s" in header:  # when each trial started (s): drifts in time are fitted on it
+        extra["time_s"] = _floats(path, rows, header["time_s"])
+    return make_trials(cols, noise, str(path), model_floor, **extra)
 
 
 def _floats(path: str | os.PathLike[str], rows: list[dict[str, str]], column: str) -> FloatArray:

@@ -24,7 +24,7 @@ from piezofin_ros.bags import BagError, BagWriter, block_of, read_messages, type
 from piezofin_ros.bags.blocks import Block, to_layout
 from piezofin_ros.diagnosis.attribute import diagnose
 from piezofin_ros.diagnosis.blind import BlindCase, named_family, simulate_blind
-from piezofin_ros.diagnosis.data import from_bags, scan_bag
+from piezofin_ros.diagnosis.data import from_bags, from_csv, scan_bag
 from piezofin_ros.estimation.estimator import EstimatorConfig, StreamEstimator, analyse_window
 from piezofin_ros.physics.fin import load_fin
 
@@ -304,3 +304,20 @@ def test_blind_instruments(effect: str, strength: float, family: str | None) -> 
     assert named_family(d) == family, (d.verdict, d.named, d.notes)
     if family is None:
         assert d.verdict == "no gap"
+
+
+def test_trial_times_survive_a_csv_and_a_drift_is_fitted_on_them(tmp_path: Path) -> None:
+    """A capacitance warming over the run (blind form: exponential) in a CSV with ``time_s``: the
+    drift is named from the CSV as from the table; without the times it cannot be."""
+    trials = simulate_blind(BlindCase("M8528-P1", "warming_capacitance", 0.12, seed=2))
+    trials.to_csv(tmp_path / "t.csv")
+    again = from_csv(tmp_path / "t.csv")
+    assert np.array_equal(again.time_s, trials.time_s)
+    assert diagnose(again, FIN).named == ("capacitance_drift",)
+    timeless = tmp_path / "timeless.csv"
+    rows = (tmp_path / "t.csv").read_text().splitlines()
+    k = rows[0].split(",").index("time_s")
+    timeless.write_text(
+        "\n".join(",".join(c for j, c in enumerate(r.split(",")) if j != k) for r in rows) + "\n"
+    )
+    assert "capacitance_drift" not in diagnose(from_csv(timeless), FIN).named
