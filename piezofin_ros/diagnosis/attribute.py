@@ -133,7 +133,7 @@ def fit(
         x0 = np.concatenate([np.asarray(start.get(n, effect_class(n).neutral()), float) for n in names])
         starts.append(space.to_z(x0))
     if starts and only_start:
-        pass
+        pass  # the given start alone
     elif len(params) == 1 and params[0].starts:
         starts += list(space.to_z(params[0].starts)[:, None])
     else:
@@ -607,7 +607,7 @@ def diagnose(
         step(w)
     return Diagnosis(
         fin,
-        trials,
+        w.trials,  # as read: a reversed sensor corrected
         w.stages,
         w.resonances,
         w.test,
