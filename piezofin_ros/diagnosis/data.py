@@ -446,24 +446,7 @@ def scan_bag(path: str | os.PathLike[str], namespace: str, threshold_v: float = 
         near = np.abs(quiet_t[idx] - tt) < 1.5 * step
         return x[near & (tt >= lo) & (tt <= hi) & np.isfinite(x)]
 
-    # contiguous quiet stretches of the drive (no gap in the sample times)
-    gaps = np.concatenate([[False], np.abs(np.diff(t) - step) > 0.5 * step])
-    runs = [(a, b) for a, b in _runs(quiet_mask & np.isfinite(v)) if b - a >= 256]
-    splits = []
-    for a, b in runs:
-        cut = [a, *(np.flatnonzero(gaps[a + 1 : b]) + a + 1).tolist(), b]
-        splits += [(x, y) for x, y in itertools.pairwise(cut) if y - x >= 256]
-    lines: list[Line] = []
-    white = {}
-    for name, x in (("voltage", v), ("current", cat["i"])):
-        if splits:
-            longest = max(splits, key=lambda r: r[1] - r[0])
-            found = find_lines(x[longest[0] : longest[1]], rate, name)
-            lines += found
-            rest = np.concatenate([_without_lines(x[a:b], t[a:b], found) for a, b in splits])
-            white[name] = float(np.std(rest))
-        else:
-            white[name] = std(x[quiet_mask])
+    white, lines = _drive_noise(t, {"voltage": v, "current": cat["i"]}, quiet_mask, step)
 
     lc = quiet(cat["tl"], cat["d"])
     # the load cell drifts: its white noise from first differences, which a slow drift does not reach
@@ -475,6 +458,31 @@ def scan_bag(path: str | os.PathLike[str], namespace: str, threshold_v: float = 
         loadcell=lc_white,
     )
     return Scan(noise, commands, rate, lines)
+
+
+def _drive_noise(
+    t: FloatArray, channels: dict[str, FloatArray], quiet_mask: NDArray[np.bool_], step: float
+) -> tuple[dict[str, float], list[Line]]:
+    """Each drive channel's white noise where the drive is off, net of the interference lines found in
+    its longest contiguous quiet stretch (no gap in the sample times), and the lines."""
+    gaps = np.concatenate([[False], np.abs(np.diff(t) - step) > 0.5 * step])
+    splits = []
+    for a, b in _runs(quiet_mask & np.isfinite(channels["voltage"])):
+        cut = [a, *(np.flatnonzero(gaps[a + 1 : b]) + a + 1).tolist(), b]
+        splits += [(x, y) for x, y in itertools.pairwise(cut) if y - x >= 256]
+    lines: list[Line] = []
+    white = {}
+    for name, x in channels.items():
+        if not splits:
+            white[name] = std(x[quiet_mask])
+            continue
+        longest = max(splits, key=lambda r: r[1] - r[0])
+        found = find_lines(x[longest[0] : longest[1]], 1.0 / step, name)
+        lines += found
+        white[name] = float(
+            np.std(np.concatenate([_without_lines(x[a:b], t[a:b], found) for a, b in splits]))
+        )
+    return white, lines
 
 
 def std(x: FloatArray) -> float:
