@@ -11,6 +11,7 @@ import io
 import logging
 import mmap
 import os
+import re
 import struct
 import zlib
 from collections.abc import Callable, Iterable, Iterator
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import lz4.frame
+import yaml
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
@@ -86,12 +88,65 @@ def _warn(damage: Damage) -> None:
     _LOG.warning("warning: %s", damage)
 
 
+def bag_files(path: str | os.PathLike[str]) -> list[Path]:
+    """The MCAP files of a bag: the file itself, or those of a rosbag2 directory.
+
+    A rosbag2 directory lists its files, in recording order, under
+    ``rosbag2_bagfile_information.relative_file_paths`` of its ``metadata.yaml``; without a readable
+    metadata file, every ``*.mcap`` in it is read in name order (rosbag2 numbers its splits
+    ``<name>_0.mcap``, ``<name>_1.mcap``, ...).  Raises :class:`BagError` when the directory holds no
+    MCAP file or its metadata names another storage (sqlite3) or a missing file.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        return [path]
+    listed: list[Path] = []
+    meta = path / "metadata.yaml"
+    if meta.is_file():
+        try:
+            info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information") or {}
+        except (yaml.YAMLError, OSError, UnicodeDecodeError, AttributeError):
+            info = {}
+        if not isinstance(info, dict):
+            info = {}
+        storage = str(info.get("storage_identifier", "mcap"))
+        if storage != "mcap":
+            raise BagError(f"{path}: a rosbag2 directory in {storage!r} storage; only mcap is read")
+        names = info.get("relative_file_paths") or []
+        if isinstance(names, list):
+            listed = [path / str(n) for n in names]
+        missing = [p.name for p in listed if not p.is_file()]
+        if missing:
+            raise BagError(f"{path}: metadata.yaml lists {', '.join(missing)}, which the directory lacks")
+    files = listed or sorted(path.glob("*.mcap"), key=_split_order)
+    if not files:
+        raise BagError(f"{path}: a directory with no .mcap file (not a rosbag2 bag)")
+    return files
+
+
+def _split_order(p: Path) -> tuple[str, int]:
+    """``run_10.mcap`` after ``run_9.mcap`` (rosbag2's split numbering), else by name."""
+    m = re.fullmatch(r"(.*)_(\d+)", p.stem)
+    return (m.group(1), int(m.group(2))) if m else (p.stem, -1)
+
+
 def read_messages(
     path: str | os.PathLike[str],
     topics: Iterable[str] | None = None,
     on_damage: Callable[[Damage], None] | None = _warn,
 ) -> Iterator[BagMessage]:
-    """Serialised messages of a bag in file (recording) order, optionally only ``topics``.
+    """Serialised messages of a bag, optionally only ``topics``: an MCAP file, or a rosbag2
+    directory (its files in recording order, :func:`bag_files`), each as :func:`read_file` reads it."""
+    for file in bag_files(path):
+        yield from read_file(file, topics, on_damage)
+
+
+def read_file(
+    path: str | os.PathLike[str],
+    topics: Iterable[str] | None = None,
+    on_damage: Callable[[Damage], None] | None = _warn,
+) -> Iterator[BagMessage]:
+    """Serialised messages of one MCAP file in file (recording) order, optionally only ``topics``.
 
     The file is read record by record, so a damaged bag gives everything it still holds: a file
     whose writer was killed (no summary, a cut chunk) gives everything before the cut; a chunk
@@ -109,7 +164,7 @@ def read_messages(
     except FileNotFoundError:
         raise BagError(f"{path}: no such file") from None
     except IsADirectoryError:
-        raise BagError(f"{path}: is a directory; give the .mcap file inside it") from None
+        raise BagError(f"{path}: is a directory") from None
     except OSError as exc:
         raise BagError(f"{path}: cannot open ({exc.strerror or exc})") from None
     with f:

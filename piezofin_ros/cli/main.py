@@ -507,17 +507,15 @@ def run_diagnose(args: argparse.Namespace) -> int:
         raise UsageError("--relative-sigma: expected a number in (0, 1)")
     _refuse_existing(args)
     if args.paper:
-        from ..diagnosis.paper import paper_gap, paper_text
+        from ..diagnosis import paper
 
         if args.data:
             raise UsageError("--paper takes no data files")
-        result = paper_gap(fin, progress=say)
-        print(paper_text(fin, result))
+        result = paper.paper_gap(progress=say)
+        print(paper.paper_text(result))
         if args.json:
             with open(args.json, "w") as fh:
-                json.dump(
-                    result, fh, indent=1, default=lambda o: o.__dict__ if hasattr(o, "__dict__") else float(o)
-                )
+                json.dump(paper.summary_json(result), fh, indent=1)
         return 0
     if not args.data:
         raise UsageError("give one or more bags, or one CSV (or --paper)")

@@ -15,6 +15,7 @@ default 1 %) covers what the noise does not: the single-harmonic model, window e
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 import os
 from collections.abc import Iterable, Sequence
@@ -84,9 +85,18 @@ class Trials:
     thrust_loadcell_n: FloatArray
     sigma: dict[str, FloatArray]
     source: str = ""
+    #: when each trial started, s since the first (NaN if unknown): drifts in time are fitted on it
+    time_s: FloatArray | None = None
+    #: the nominal voltages are commands (a bag's ``cmd``, a CSV's ``voltage_pp``); without them they
+    #: are the measured drive, and the drive stage (command -> drive) cannot be judged
+    commanded: bool = True
+    #: what reading the data found (interference, sample rate, a reversed sensor, ...)
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n = len(self.frequency_hz)
+        if self.time_s is None:
+            object.__setattr__(self, "time_s", np.full(n, np.nan))
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, np.ndarray) and v.shape != (n,):
@@ -135,6 +145,7 @@ class Trials:
         for i in range(len(self)):
             row = {n: float(self.channel(n)[i]) for n in names}
             row.update({f"{n}_sigma": float(self.sigma[n][i]) for n in CHANNELS})
+            row["time_s"] = float(np.asarray(self.time_s)[i])
             out.append(row)
         return out
 
@@ -151,9 +162,14 @@ def _floor(values: FloatArray, sigma: FloatArray, rel: float, absolute: float = 
 
 
 def make_trials(
-    columns: dict[str, FloatArray], noise: dict[str, FloatArray], source: str, model_floor: float = 0.01
+    columns: dict[str, FloatArray],
+    noise: dict[str, FloatArray],
+    source: str,
+    model_floor: float = 0.01,
+    **extra: Any,
 ) -> Trials:
-    """A table from measured columns and their noise-only sigmas (a relative model floor is added)."""
+    """A table from measured columns and their noise-only sigmas (a relative model floor is added);
+    ``extra``: ``time_s``, ``commanded``, ``notes`` of :class:`Trials`."""
     n = len(columns["frequency_hz"])
     nan = np.full(n, np.nan)
     cols = {
@@ -166,7 +182,7 @@ def make_trials(
             sigma[name] = np.sqrt(s**2 + model_floor**2)  # 1 % of a radian ~ 0.6 deg
         else:
             sigma[name] = _floor(cols[name], s, model_floor)
-    return Trials(**cols, sigma=sigma, source=source)
+    return Trials(**cols, sigma=sigma, source=source, **extra)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -222,11 +238,13 @@ def from_estimates(
     source: str = "",
     baseline_s: float = 5.0,
     loadcell_stiffness: float = EstimatorConfig().loadcell_stiffness_n_per_m,
+    notes: Sequence[str] = (),
 ) -> Trials:
     """One row per *final* estimate (a whole trial), with sigmas from the noise levels.
 
     ``commands`` are ``(t, frequency_hz, voltage_pp)`` as commanded; the nominal voltage of a trial is
-    the last command before it (else the measured drive voltage).
+    the last command before it.  Without any command the nominal voltages are the measured drive
+    (``commanded`` False, and a note says so).  ``time_s`` is each trial's start (the estimate's).
     """
     rows = [e for e in estimates if e.final == 1.0 and math.isfinite(e.power_w)]
     if not rows:
@@ -241,6 +259,12 @@ def from_estimates(
         before = [c for c in cmd if c[0] <= e.t_start and c[2] > 0]
         if before:
             nominal[j] = before[-1][2]
+    said = list(notes)
+    if not cmd:
+        said.append(
+            "no command messages: the nominal voltages are the measured drive, so the drive stage "
+            "(command -> amplifier output) is not judged and the drive-voltage channel is not fitted"
+        )
     n = np.array([max((e.t_end - e.t_start) * sample_rate_hz, 1.0) for e in rows])
     u = np.array([e.tip_velocity_rms for e in rows])
     nb = baseline_s * sample_rate_hz * np.array([max(e.loadcell_baselines, 1.0) for e in rows])
@@ -255,7 +279,14 @@ def from_estimates(
         "power_w": np.array([e.power_w for e in rows]),
         "thrust_loadcell_n": np.array([e.thrust_loadcell_n for e in rows]),
     }
-    return make_trials(cols, sig, source)
+    return make_trials(
+        cols,
+        sig,
+        source,
+        time_s=np.array([e.t_start for e in rows]),
+        commanded=bool(cmd),
+        notes=tuple(said),
+    )
 
 
 def _merge(a: Trials, b: Trials) -> Trials:
@@ -265,15 +296,98 @@ def _merge(a: Trials, b: Trials) -> Trials:
         if isinstance(getattr(a, f.name), np.ndarray)
     }
     sigma = {k: np.concatenate([a.sigma[k], b.sigma[k]]) for k in a.sigma}
-    return Trials(**cols, sigma=sigma, source=f"{a.source}, {b.source}")
+    notes = a.notes + tuple(n for n in b.notes if n not in a.notes)
+    return Trials(
+        **cols,
+        sigma=sigma,
+        source=f"{a.source}, {b.source}",
+        commanded=a.commanded and b.commanded,
+        notes=notes,
+    )
 
 
-def scan_bag(
-    path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0
-) -> tuple[SignalNoise, list[tuple[float, float, float]]]:
+@dataclass(frozen=True)
+class Line:
+    """A narrow-band interference found with the drive off (mains pickup, a pump, ...)."""
+
+    channel: str  # "voltage" | "current" | "tip"
+    frequency_hz: float
+    amplitude: float  # SI (V, A, m/s), of the sine
+
+
+@dataclass(frozen=True)
+class Scan:
+    """What one pass over a fin's raw topics measures besides the trials."""
+
+    noise: SignalNoise
+    commands: list[tuple[float, float, float]]  # (t, f, Vpp) that switched the drive on
+    sample_rate_hz: float  # of the drive, from its sample times
+    lines: list[Line]
+
+
+#: A spectral peak is a line when it stands this far above the median of its spectrum (white noise
+#: reaches 3.3x the median once in 10^4 bins).
+LINE_FACTOR = 8.0
+UNITS = {"voltage": ("V", 1.0), "current": ("uA", 1e6), "tip": ("mm/s", 1e3)}
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``[start, stop)`` of the runs of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def find_lines(x: FloatArray, rate_hz: float, channel: str, most: int = 3) -> list[Line]:
+    """Lines in one contiguous record: Hann-windowed amplitude spectrum, peaks over ``LINE_FACTOR``
+    times its median, the strongest ``most``, each refined by a local least-squares sine fit."""
+    n = x.size
+    if n < 256:
+        return []
+    win = np.hanning(n)
+    amp = 2 * np.abs(np.fft.rfft((x - x.mean()) * win)) / win.sum()
+    amp[0] = 0.0
+    floor = float(np.median(amp[1:]))
+    freqs = np.fft.rfftfreq(n, 1 / rate_hz)
+    peaks = [
+        k
+        for k in range(2, amp.size - 1)
+        if amp[k] > LINE_FACTOR * floor and amp[k] >= amp[k - 1] and amp[k] >= amp[k + 1]
+    ]
+    peaks = sorted(peaks, key=lambda k: -amp[k])[:most]
+    t = np.arange(n) / rate_hz
+    out = []
+    for k in peaks:
+        # the sine's frequency between the bins, then its amplitude by least squares over the first
+        # and the last third: a line is steady; a fin ringing down after a burst is not interference
+        a, b, c = amp[k - 1], amp[k], amp[k + 1]
+        f = freqs[k] + 0.5 * (a - c) / (a - 2 * b + c) * (freqs[1] - freqs[0])
+        thirds = [slice(0, n // 3), slice(n - n // 3, n)]
+        amps = [_sine_amplitude(t[s], x[s], f) for s in thirds]
+        if max(amps) <= 2 * min(amps):
+            out.append(Line(channel, float(f), _sine_amplitude(t, x, f)))
+    return out
+
+
+def _sine_amplitude(t: FloatArray, x: FloatArray, f: float) -> float:
+    basis = np.column_stack([np.ones(t.size), np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)])
+    coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
+    return float(np.hypot(coef[1], coef[2]))
+
+
+def _without_lines(x: FloatArray, t: FloatArray, lines: Sequence[Line]) -> FloatArray:
+    """``x`` minus its mean and the lines' sines (fitted on this record)."""
+    cols = [np.ones_like(t)]
+    for ln in lines:
+        cols += [np.cos(2 * np.pi * ln.frequency_hz * t), np.sin(2 * np.pi * ln.frequency_hz * t)]
+    basis = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
+    return np.asarray(x - basis @ coef)
+
+
+def scan_bag(path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0) -> Scan:
     """One pass over a fin's raw topics: the noise of each signal where the drive is off (more than
-    2 s after and 0.5 s before any ``|v| >= threshold``), and the commands ``(t, f, Vpp)`` that
-    switched the drive on."""
+    2 s after and 0.5 s before any ``|v| >= threshold``), net of any interference line found there,
+    the commands ``(t, f, Vpp)`` that switched the drive on, and the drive's sample rate."""
     ns = topic_prefix(namespace)
     kinds = {"drive": "drive", "tip_velocity": "tip", "loadcell": "loadcell", "cmd": "cmd"}
     topics = {f"{ns}/{topic}": kind for topic, kind in kinds.items()}
@@ -306,6 +420,12 @@ def scan_bag(
     t, v = cat["t"], cat["v"]
     if t.size < 100:
         raise DataError(f"{path}: too few drive samples on {ns}/drive to measure the noise")
+    dt = np.diff(t)
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    if dt.size < 10:
+        raise DataError(f"{path}: the drive's sample times on {ns}/drive do not increase")
+    step = float(np.median(dt))
+    rate = 1.0 / step
     t_on = t[np.abs(v) >= threshold_v]
     quiet_mask = np.ones(t.size, bool)
     if t_on.size:
@@ -323,28 +443,81 @@ def scan_bag(
         if tt.size == 0:
             return np.empty(0)
         idx = np.clip(np.searchsorted(quiet_t, tt), 0, quiet_t.size - 1)
-        near = np.abs(quiet_t[idx] - tt) < 1.5e-3
+        near = np.abs(quiet_t[idx] - tt) < 1.5 * step
         return x[near & (tt >= lo) & (tt <= hi) & np.isfinite(x)]
 
-    def std(x: FloatArray) -> float:
-        return float(np.std(x)) if x.size > 10 else math.nan
+    white, lines = _drive_noise(t, {"voltage": v, "current": cat["i"]}, quiet_mask, step)
 
     lc = quiet(cat["tl"], cat["d"])
     # the load cell drifts: its white noise from first differences, which a slow drift does not reach
     lc_white = float(np.std(np.diff(lc)) / math.sqrt(2)) if lc.size > 10 else math.nan
     noise = SignalNoise(
-        voltage=std(v[quiet_mask]),
-        current=std(cat["i"][quiet_mask]),
+        voltage=white["voltage"],
+        current=white["current"],
         tip=std(quiet(cat["tt"], cat["u"])),
         loadcell=lc_white,
     )
-    return noise, commands
+    return Scan(noise, commands, rate, lines)
+
+
+def _drive_noise(
+    t: FloatArray, channels: dict[str, FloatArray], quiet_mask: NDArray[np.bool_], step: float
+) -> tuple[dict[str, float], list[Line]]:
+    """Each drive channel's white noise where the drive is off, net of the interference lines found in
+    its longest contiguous quiet stretch (no gap in the sample times), and the lines."""
+    gaps = np.concatenate([[False], np.abs(np.diff(t) - step) > 0.5 * step])
+    splits = []
+    for a, b in _runs(quiet_mask & np.isfinite(channels["voltage"])):
+        cut = [a, *(np.flatnonzero(gaps[a + 1 : b]) + a + 1).tolist(), b]
+        splits += [(x, y) for x, y in itertools.pairwise(cut) if y - x >= 256]
+    lines: list[Line] = []
+    white = {}
+    for name, x in channels.items():
+        if not splits:
+            white[name] = std(x[quiet_mask])
+            continue
+        longest = max(splits, key=lambda r: r[1] - r[0])
+        found = find_lines(x[longest[0] : longest[1]], 1.0 / step, name)
+        lines += found
+        white[name] = float(
+            np.std(np.concatenate([_without_lines(x[a:b], t[a:b], found) for a, b in splits]))
+        )
+    return white, lines
+
+
+def std(x: FloatArray) -> float:
+    return float(np.std(x)) if x.size > 10 else math.nan
+
+
+def interference_notes(lines: Sequence[Line], trials: Trials) -> list[str]:
+    """One note per line: what it is, and which trials' lock-in it reaches (an odd harmonic 1, 3 or 5
+    of the drive within a tenth of a hertz of it)."""
+    out = []
+    for ln in lines:
+        unit, scale = UNITS[ln.channel]
+        f = trials.frequency_hz
+        hit = np.zeros(len(trials), bool)
+        for k in (1, 3, 5):
+            hit |= np.abs(k * f - ln.frequency_hz) < 0.1
+        where = (
+            "every trial's lock-in rejects it (it is at no odd harmonic of a drive frequency)"
+            if not hit.any()
+            else "it reaches the lock-in of the trials at "
+            + ", ".join(sorted({f"{x:g} Hz" for x in f[hit]}))
+            + " (an odd harmonic of the drive falls on it)"
+        )
+        out.append(
+            f"interference on the {ln.channel} channel: a {ln.frequency_hz:.2f} Hz line of "
+            f"{ln.amplitude * scale:.3g} {unit} with the drive off (mains pickup?); {where}"
+        )
+    return out
 
 
 def from_bags(
     paths: Sequence[str | os.PathLike[str]], fin: Fin, namespace: str = "/fin", progress: Any = None
 ) -> tuple[Trials, list[str]]:
-    """Trials of one fin from one or more bags; returns the table and the lines the replay skipped."""
+    """Trials of one fin from one or more bags (MCAP files or rosbag2 directories); returns the
+    table and the lines the replay skipped.  Each bag's sample rate comes from its sample times."""
     tables: list[Trials] = []
     skipped: list[str] = []
     for j, path in enumerate(paths):
@@ -352,18 +525,30 @@ def from_bags(
             progress(f"reading {path} ({j + 1}/{len(paths)})")
         replay = replay_estimates(path, fin, namespace)
         skipped += [f"{path}: {s}" for s in replay.skipped_lines()]
-        noise, commands = scan_bag(path, namespace)
-        tables.append(from_estimates(replay.replayed, noise, commands=commands, source=str(path)))
+        scan = scan_bag(path, namespace)
+        table = from_estimates(
+            replay.replayed,
+            scan.noise,
+            sample_rate_hz=scan.sample_rate_hz,
+            commands=scan.commands,
+            source=str(path),
+        )
+        said = interference_notes(scan.lines, table)
+        if abs(scan.sample_rate_hz - 1000.0) > 1.0:
+            said.append(f"{path}: the drive is sampled at {scan.sample_rate_hz:.4g} Hz (its sample times)")
+        tables.append(replace(table, notes=table.notes + tuple(said)))
     out = tables[0]
     for t in tables[1:]:
         out = _merge(out, t)
-    return out, skipped
+    assert out.time_s is not None
+    return replace(out, time_s=out.time_s - np.nanmin(out.time_s)), skipped
 
 
 def from_csv(path: str | os.PathLike[str], relative_sigma: float = 0.02, model_floor: float = 0.01) -> Trials:
     """Per-trial summaries (one row per trial; SI units; header names as in :data:`CSV_COLUMNS`).
 
-    Columns ``<channel>_sigma`` give uncertainties; otherwise ``relative_sigma`` of each value.
+    Columns ``<channel>_sigma`` give uncertainties; otherwise ``relative_sigma`` of each value.  An
+    optional ``time_s`` column (each trial's start, s) lets drifts in time be fitted.
     """
     try:
         with open(path, newline="") as fh:
@@ -390,7 +575,10 @@ def from_csv(path: str | os.PathLike[str], relative_sigma: float = 0.02, model_f
             raise DataError(f"{path}: no column for {need} (accepted names: {', '.join(CSV_COLUMNS[need])})")
     if not any(k in cols for k in CHANNELS):
         raise DataError(f"{path}: no measured column (accepted: {', '.join(CHANNELS)})")
-    return make_trials(cols, noise, str(path), model_floor)
+    extra: dict[str, Any] = {}
+    if "time_s" in header:  # when each trial started (s): drifts in time are fitted on it
+        extra["time_s"] = _floats(path, rows, header["time_s"])
+    return make_trials(cols, noise, str(path), model_floor, **extra)
 
 
 def _floats(path: str | os.PathLike[str], rows: list[dict[str, str]], column: str) -> FloatArray:
@@ -414,3 +602,50 @@ __all__ = [
     "from_estimates",
     "make_trials",
 ]
+
+
+def conventions(trials: Trials) -> tuple[Trials, list[str]]:
+    """A reversed sensor, found from physics the sign conventions fix (docs/reference.md), corrected.
+
+    A fin only absorbs power: the mean power ``mean(v i)`` is positive, and so is the power into the
+    motion, ``(1/2) V (theta/phi(L)) |U_1| cos(psi)``, whatever the model.  So
+    * ``cos(psi) < 0`` across the trials (a tip phase off by about 180 deg) with a positive power:
+      the vibrometer's sign is reversed;
+    * a negative power with the phase right: the current monitor's sign is reversed;
+    * both: the voltage channel's sign is reversed (or both other sensors).
+    Each is decided by the trials' weighted majority (``sum u cos(psi) / sum u |cos(psi)| < -0.5``,
+    ``sum P / sum |P| < -0.5``), corrected, and said.
+    """
+    notes: list[str] = []
+    u, ph, p = trials.tip_velocity_rms, trials.tip_phase_rad, trials.power_w
+    ok_u = np.isfinite(u) & np.isfinite(ph)
+    tip_flipped = False
+    if np.any(ok_u):
+        c = np.cos(ph[ok_u]) * u[ok_u]
+        tip_flipped = float(np.sum(c) / max(np.sum(np.abs(c)), 1e-300)) < -0.5
+    ok_p = np.isfinite(p)
+    power_flipped = (
+        bool(np.any(ok_p)) and float(np.sum(p[ok_p]) / max(np.sum(np.abs(p[ok_p])), 1e-300)) < -0.5
+    )
+    if not (tip_flipped or power_flipped):
+        return trials, notes
+    cols: dict[str, Any] = {}
+    if tip_flipped:
+        cols["tip_phase_rad"] = np.angle(-np.exp(1j * ph))
+    if power_flipped:
+        cols["power_w"] = -p
+    if tip_flipped and power_flipped:
+        which = "the voltage channel's sign is reversed (or both the vibrometer's and the current monitor's)"
+    elif tip_flipped:
+        which = "the vibrometer's sign is reversed (it looks at the fin from the other side)"
+    else:
+        which = "the current monitor's sign is reversed"
+    fix = " and ".join(
+        x for x, on in (("tip phase + 180 deg", tip_flipped), ("power x -1", power_flipped)) if on
+    )
+    notes.append(
+        f"{which}: the fin would be giving power back "
+        f"({'tip phase off by about 180 deg' if tip_flipped else 'mean(v i) < 0'}); corrected ({fix}) "
+        "before the diagnosis. Sign conventions: docs/reference.md"
+    )
+    return replace(trials, **cols), notes

@@ -1,12 +1,23 @@
-"""The paper's own gap, from the little it reports (``piezofin diagnose --paper``).
+"""The paper's own gap, decided with every fact it gives (``piezofin diagnose --paper``).
 
-The paper gives no per-trial table, only two numbers for M8528-P1 at 800 Vpp (see the reading
-notes): a resonance near 5.5 Hz (its representative run; the linear model says 9.9 Hz) and a
-maximum of about 60.7 mN/W for Lighthill's thrust over the mean power (the model gives hundreds).
-Two numbers cannot rank fourteen effects, so this check asks a narrower question of each
-candidate and of each pair: *can it reproduce both numbers at all, and with what parameters?*
-It reports the candidates that can, says that the data cannot decide between them, and names
-the measurement that would.
+The paper publishes no per-trial table, only facts about its three fins (reading notes):
+
+* M8528-P1 operates near 5.5 Hz at 800 Vpp (its largest tip velocity; the linear model: 9.9 Hz);
+* the maximum thrust per watt (Lighthill's thrust on the measured motion over the "average
+  power") is about 60.7 mN/W for each fin (the model: hundreds to thousands);
+* the power near resonance at 800 Vpp goes 1 : 2 : 5 for psi 5.4 : 3.9 : 2.1;
+* the T/P band is broader for a larger psi;
+* ``c_m`` follows Eq. (21) (0.70, 0.95, 1.00): at a low drive, the in-water resonance is the one the
+  fin's Table 2 values and ``c_m(psi)`` give.
+
+A *hypothesis* is a definition of the "average power" (:data:`POWER_DEFINITIONS`: ``mean(v i)`` as
+the model assumes, ``Vrms x Irms`` as a meter's "power" of a reactive load reads, or a class-B
+amplifier's draw from its rails) and none, one or two effects of the library, with parameters shared
+by the three fins (they are one material, one rig, one amplifier).  Each is fitted to all the facts at
+once (:func:`fit_hypothesis`, weighted least squares, the facts' tolerances as sigmas); those whose
+``chi^2`` the tolerances explain (p >= 0.01) *survive*.  The report lists the survivors, says which
+fact eliminates the others (:func:`deciding_facts`), and where the survivors' predictions differ
+most: the measurement that would decide between them (:func:`deciding_measurement`).
 """
 
 from __future__ import annotations
@@ -14,185 +25,434 @@ from __future__ import annotations
 import itertools
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import optimize
+from numpy.typing import NDArray
+from scipy import optimize, stats
 
-from ..physics.effects import LIBRARY
-from ..physics.fin import Fin
-from ..physics.model import Model
+from ..physics.effects import LIBRARY, effect_class
+from ..physics.fin import Fin, load_fin
+from ..physics.model import Model, Prediction
 from .space import ParamSpace
+
+FloatArray = NDArray[Any]
+
+PAPER_FINS = ("M8528-P1", "M8514-P1", "M8507-P1")  # psi 2.1, 3.9, 5.4
+PAPER_OPERATION_HZ = 5.5
+PAPER_MAX_TPW = 0.0607
+PAPER_POWER_RATIO = {"M8507-P1": 1.0, "M8514-P1": 2.0, "M8528-P1": 5.0}
+#: Class-B rails of the amplifier for the "amplifier draw" definition: the 800 Vpp drive's peak.
+RAIL_V = 400.0
+
+
+def _power_real(p: Prediction, vpp: FloatArray) -> FloatArray:
+    return np.asarray(p.power_w, float)
+
+
+def _power_apparent(p: Prediction, vpp: FloatArray) -> FloatArray:
+    return np.asarray(p.voltage_pp_drive, float) / (2 * math.sqrt(2)) * np.asarray(p.current_rms, float)
+
+
+def _power_draw(p: Prediction, vpp: FloatArray) -> FloatArray:
+    # a class-B stage from +-RAIL_V delivering a sine of peak current I draws (2/pi) RAIL_V I
+    return (2 / math.pi) * RAIL_V * math.sqrt(2) * np.asarray(p.current_rms, float)
+
+
+#: What "average power" may have meant: name -> (power of a prediction, description).
+POWER_DEFINITIONS: dict[str, tuple[Callable[[Prediction, FloatArray], FloatArray], str]] = {
+    "mean(v i)": (_power_real, "the mean of v(t) i(t), as the paper states and the model assumes"),
+    "Vrms x Irms": (_power_apparent, "the apparent power a meter reads on a reactive load"),
+    "amplifier draw": (_power_draw, f"a class-B amplifier's draw from +-{RAIL_V:g} V rails"),
+}
 
 
 @dataclass(frozen=True)
 class Fact:
-    name: str  # "resonance_hz" or "max_thrust_per_watt"
-    voltage_pp: float
+    name: str
     value: float
     sigma: float
-    source: str
+    text: str  # what the paper says
 
 
-PAPER_FACTS = (
-    Fact(
-        "resonance_hz",
-        800.0,
-        5.5,
-        0.5,
-        "representative run at 5.5 Hz, 800 Vpp (Fig. 6); 'near' read as +-0.5 Hz",
+FACTS = (
+    Fact("resonance_M8528-P1", PAPER_OPERATION_HZ, 0.5, "M8528-P1 operates near 5.5 Hz at 800 Vpp"),
+    *(
+        Fact(f"max_tpw_{nm}", PAPER_MAX_TPW, 0.2 * PAPER_MAX_TPW, f"max T/P about 60.7 mN/W ({nm})")
+        for nm in PAPER_FINS
     ),
-    Fact(
-        "max_thrust_per_watt",
-        800.0,
-        0.0607,
-        0.006,
-        "max Lighthill thrust / mean power, 60.7 mN/W (Fig. 10b); +-10 %",
+    Fact("power_ratio_M8528-P1", 5.0, 1.5, "power near resonance, psi 2.1 : psi 5.4 about 5 : 1"),
+    Fact("power_ratio_M8514-P1", 2.0, 0.6, "power near resonance, psi 3.9 : psi 5.4 about 2 : 1"),
+    Fact("band_order", 0.0, 0.1, "the T/P band is broader for a larger psi"),
+    *(
+        Fact(f"c_m_{nm}", 1.0, 0.03, f"c_m of Eq. (21) for {nm}: its low-drive in-water resonance")
+        for nm in PAPER_FINS
     ),
 )
-GRID = np.linspace(1.0, 11.0, 101)  # the paper's sweep, 0.1 Hz
-# The paper's fin is clamped in quiescent water (U -> 0 in Eq. 19), and its thrust per watt is
-# Lighthill's thrust on the measured motion, not a load-cell reading: these effects cannot be
-# the cause of its gap, whatever they would fit.
+
+# Effects that cannot act in the paper's setup, or move none of its facts, with the reason.
 NOT_IN_THE_PAPERS_SETUP = {
     "swim_speed": "quiescent water, U -> 0",
     "loadcell_offset": "T/P uses Lighthill's thrust on the motion, not the load cell",
     "loadcell_gain": "T/P uses Lighthill's thrust on the motion, not the load cell",
+    "vibrometer_delay": "a lag of the vibrometer moves no fact (magnitudes only)",
+    "resonance_drift": "the facts carry no time",
+    "capacitance_drift": "the facts carry no time",
+    "coupling_drift": "the facts carry no time",
 }
 CANDIDATES = tuple(n for n in LIBRARY if n not in NOT_IN_THE_PAPERS_SETUP)
 
 
-def quantities(model: Model, voltage_pp: float) -> dict[str, float]:
-    p = model.predict(GRID, np.full(GRID.size, voltage_pp))
-    tpw = np.divide(p.thrust_n, p.power_w, out=np.zeros(GRID.size), where=p.power_w > 0)
-    return {
-        "resonance_hz": float(GRID[np.argmax(p.tip_velocity_rms)]),
-        "max_thrust_per_watt": float(np.max(tpw)),
-    }
+def half_max_band(f: FloatArray, y: FloatArray) -> tuple[float, float]:
+    """Lowest and highest frequency around the peak of ``y`` where ``y`` is at least half its
+    maximum; NaN when the peak is at an end of the samples (no peak inside them)."""
+    ok = np.isfinite(y)
+    f, y = f[ok], y[ok]
+    if f.size < 3:
+        return math.nan, math.nan
+    k = int(np.argmax(y))
+    if k in (0, f.size - 1):
+        return math.nan, math.nan
+    above = y >= 0.5 * y[k]
+    lo, hi = k, k
+    while lo > 0 and above[lo - 1]:
+        lo -= 1
+    while hi < f.size - 1 and above[hi + 1]:
+        hi += 1
+    return float(f[lo]), float(f[hi])
+
+
+def _peak(f: FloatArray, y: FloatArray) -> float:
+    """Frequency of the largest ``y``, refined by the parabola through its neighbours."""
+    k = int(np.nanargmax(y))
+    if 0 < k < f.size - 1:
+        y0, y1, y2 = y[k - 1 : k + 2]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            return float(f[k] + 0.5 * (y0 - y2) / den * (f[1] - f[0]))
+    return float(f[k])
+
+
+def _grid(fin: Fin) -> FloatArray:
+    """The paper's 1-11 Hz sweep, widened to the fin's band (its in-water resonance x 1.3)."""
+    return np.linspace(1.0, max(11.0, 1.3 * fin.f_water_linear), 41)
+
+
+@dataclass
+class Fins:
+    """The three fins and their grids (computed once)."""
+
+    fins: dict[str, Fin] = field(default_factory=lambda: {nm: load_fin(nm) for nm in PAPER_FINS})
+
+    def grid(self, name: str) -> FloatArray:
+        return _grid(self.fins[name])
+
+    def low_grid(self, name: str) -> FloatArray:
+        return np.linspace(0.6, 1.4, 41) * self.fins[name].f_water_linear
+
+    def low_peak(self, name: str) -> float:
+        """The nominal model's in-water resonance at 100 Vpp (what c_m of Eq. 21 gives)."""
+        if name not in self._low:
+            f = self.low_grid(name)
+            p = Model(self.fins[name]).predict(f, np.full(f.size, 100.0))
+            self._low[name] = _peak(f, np.asarray(p.tip_velocity_rms))
+        return self._low[name]
+
+    _low: dict[str, float] = field(default_factory=dict)
+
+
+def quantities(models: dict[str, Model], definition: str, fins: Fins) -> dict[str, float]:
+    """The facts' quantities for one hypothesis (a model per fin, one power definition)."""
+    power_of = POWER_DEFINITIONS[definition][0]
+    out: dict[str, float] = {}
+    bands: dict[str, float] = {}
+    p_res: dict[str, float] = {}
+    for nm, model in models.items():
+        f = fins.grid(nm)
+        v = np.full(f.size, 800.0)
+        p = model.predict(f, v)
+        power = power_of(p, v)
+        tpw = np.divide(p.thrust_n, power, out=np.zeros(f.size), where=power > 0)
+        f_res = _peak(f, np.asarray(p.tip_velocity_rms))
+        out[f"resonance_{nm}"] = f_res
+        out[f"max_tpw_{nm}"] = float(np.max(tpw))
+        p_res[nm] = float(np.interp(f_res, f, power))
+        lo, hi = half_max_band(f, tpw)
+        bands[nm] = (hi - lo) / _peak(f, tpw) if math.isfinite(lo) else math.nan
+        # c_m: the in-water resonance at a low drive (100 Vpp) against the nominal model's
+        fl = fins.low_grid(nm)
+        low = model.predict(fl, np.full(fl.size, 100.0))
+        out[f"c_m_{nm}"] = _peak(fl, np.asarray(low.tip_velocity_rms)) / fins.low_peak(nm)
+    for nm in ("M8528-P1", "M8514-P1"):
+        out[f"power_ratio_{nm}"] = p_res[nm] / p_res["M8507-P1"] if p_res["M8507-P1"] > 0 else math.inf
+    b = [bands[nm] for nm in PAPER_FINS]  # psi up
+    # how far the band order is from "broader for larger psi": the largest relative inversion
+    out["band_order"] = (
+        max(0.0, *(math.log(x / y) for x, y in itertools.pairwise(b)))
+        if all(math.isfinite(x) and x > 0 for x in b)
+        else 1.0  # no peak of T/P inside the band: no band to order
+    )
+    out["bands"] = bands  # type: ignore[assignment]
+    return out
+
+
+def _residuals(q: dict[str, float]) -> FloatArray:
+    r = []
+    for fact in FACTS:
+        x = q[fact.name]
+        if fact.name.startswith(("max_tpw", "power_ratio")):  # ratios: judged in log, symmetric
+            d = math.log(max(x, 1e-12) / fact.value) * fact.value
+        else:
+            d = x - fact.value
+        r.append(d / fact.sigma)
+    return np.asarray(r, float)
 
 
 @dataclass(frozen=True)
-class FactFit:
+class Hypothesis:
+    definition: str
     effects: tuple[str, ...]
     parameters: dict[str, dict[str, float]]
-    predicted: dict[str, float]
-    chi2: float
+    predicted: dict[str, Any]
+    residuals: tuple[float, ...]  # per fact, in sigmas
 
     @property
-    def reproduces(self) -> bool:
-        return self.chi2 <= 2.0 * 2  # both facts within ~2 sigma
+    def k(self) -> int:
+        return sum(len(effect_class(e).params) for e in self.effects)
+
+    @property
+    def chi2(self) -> float:
+        return float(np.sum(np.square(self.residuals)))
+
+    @property
+    def p_value(self) -> float:
+        return float(stats.chi2.sf(self.chi2, max(len(FACTS) - self.k, 1)))
+
+    @property
+    def survives(self) -> bool:
+        return self.p_value >= 0.01
+
+    @property
+    def label(self) -> str:
+        return f"[{self.definition}] " + (" + ".join(self.effects) if self.effects else "no effect")
 
 
-def fit_facts(fin: Fin, names: tuple[str, ...], facts: tuple[Fact, ...] = PAPER_FACTS) -> FactFit:
-    space = ParamSpace(fin, names)
-    zlo, zhi = space.z_bounds
+def fit_hypothesis(definition: str, names: tuple[str, ...], fins: Fins | None = None) -> Hypothesis:
+    """The effects' parameters (shared by the three fins) that best reproduce every fact."""
+    fins = fins or Fins()
+    spaces = {nm: ParamSpace(fin, names) for nm, fin in fins.fins.items()}
 
-    def res(z: np.ndarray) -> np.ndarray:
+    def evaluate(z: FloatArray) -> dict[str, float]:
+        return quantities({nm: sp.model(z) for nm, sp in spaces.items()}, definition, fins)
+
+    def res(z: FloatArray) -> FloatArray:
         try:
-            q = quantities(space.model(z), facts[0].voltage_pp)
-        except ValueError:
-            return np.full(len(facts), 1e3)
-        return np.array([(q[f.name] - f.value) / f.sigma for f in facts])
+            r = _residuals(evaluate(z))
+        except (ValueError, FloatingPointError, ZeroDivisionError):
+            return np.full(len(FACTS), 1e3)
+        return np.where(np.isfinite(r), r, 1e3)
 
-    best = None
-    for start in (0.5, 2.0, -0.5, 5.0):
-        z0 = np.clip(np.full(len(space.params), start), zlo, zhi)
-        sol = optimize.least_squares(res, z0, bounds=(zlo, zhi), diff_step=0.05, max_nfev=80)
-        if best is None or sol.cost < best.cost:
-            best = sol
-    assert best is not None
-    m = space.model(best.x)
-    return FactFit(names, m.parameters(), quantities(m, facts[0].voltage_pp), float(2 * best.cost))
+    if names:
+        first = next(iter(spaces.values()))
+        zlo, zhi = first.z_bounds
+        best = None
+        for start in (0.5, -0.5):
+            z0 = np.clip(np.full(len(first.params), start), zlo + 1e-9, zhi - 1e-9)
+            with np.errstate(all="ignore"):
+                sol = optimize.least_squares(res, z0, bounds=(zlo, zhi), diff_step=0.05, max_nfev=40)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        assert best is not None
+        z = best.x
+    else:
+        z = np.empty(0)
+    q = evaluate(z)
+    m = next(iter(spaces.values())).model(z)
+    return Hypothesis(definition, names, m.parameters(), q, tuple(float(x) for x in res(z)))
+
+
+def _fit_job(args: tuple[str, tuple[str, ...]]) -> Hypothesis:
+    return fit_hypothesis(*args, fins=_FINS)
+
+
+_FINS = Fins()
 
 
 def paper_gap(
-    fin: Fin, progress: Callable[[str], None] | None = None, workers: int | None = None
+    progress: Callable[[str], None] | None = None,
+    workers: int | None = None,
+    candidates: Sequence[str] = CANDIDATES,
+    definitions: Sequence[str] = tuple(POWER_DEFINITIONS),
+    pairs_of: int = 5,
 ) -> dict[str, Any]:
-    """Fit the paper's facts with every effect and every pair, on ``workers`` processes (default:
-    one per core; 1 runs in this process)."""
+    """Every hypothesis: each definition with no effect, each single effect, and the pairs of its
+    ``pairs_of`` best singles; fitted on ``workers`` processes (default: one per core)."""
     say = progress or (lambda _m: None)
-    nominal = quantities(Model(fin), 800.0)
-    combos = [(n,) for n in CANDIDATES] + list(itertools.combinations(CANDIDATES, 2))
     workers = workers or os.cpu_count() or 1
-    fits: list[FactFit] = []
-    if workers == 1:
-        for j, names in enumerate(combos):
-            say(f"paper facts: {' + '.join(names)} ({j + 1}/{len(combos)})")
-            fits.append(fit_facts(fin, names))
-    else:
+
+    def run(jobs: list[tuple[str, tuple[str, ...]]], stage: str) -> list[Hypothesis]:
+        out: list[Hypothesis] = []
+        if workers == 1:
+            for j, job in enumerate(jobs):
+                out.append(_fit_job(job))
+                say(f"paper facts, {stage}: {out[-1].label} ({j + 1}/{len(jobs)})")
+            return out
         with ProcessPoolExecutor(workers) as pool:
-            jobs = [pool.submit(fit_facts, fin, names) for names in combos]
-            for j, job in enumerate(as_completed(jobs)):
-                fits.append(job.result())
-                say(f"paper facts: {' + '.join(fits[-1].effects)} ({j + 1}/{len(combos)})")
-    singles = [r for r in fits if len(r.effects) == 1]
-    pairs = [r for r in fits if len(r.effects) == 2 and r.reproduces]
+            futures = [pool.submit(_fit_job, job) for job in jobs]
+            for j, fut in enumerate(as_completed(futures)):
+                out.append(fut.result())
+                say(f"paper facts, {stage}: {out[-1].label} ({j + 1}/{len(jobs)})")
+        return out
+
+    singles = run([(d, names) for d in definitions for names in [(), *((n,) for n in candidates)]], "singles")
+    pairs_jobs = []
+    for d in definitions:
+        ranked = sorted((h for h in singles if h.definition == d and h.effects), key=lambda h: h.chi2)
+        best = [h.effects[0] for h in ranked[:pairs_of]]
+        pairs_jobs += [(d, tuple(sorted(p))) for p in itertools.combinations(best, 2)]
+    pairs = run(pairs_jobs, "pairs")
+    every = sorted(singles + pairs, key=lambda h: (not h.survives, h.chi2, len(h.effects), h.label))
     return {
-        "facts": [f.__dict__ for f in PAPER_FACTS],
-        "nominal": nominal,
-        "singles": sorted(singles, key=lambda r: (r.chi2, r.effects)),
-        "pairs": sorted(pairs, key=lambda r: (r.chi2, r.effects)),
+        "facts": FACTS,
+        "hypotheses": every,
+        "candidates": tuple(candidates),
+        "definitions": tuple(definitions),
     }
 
 
-def paper_text(fin: Fin, r: dict[str, Any]) -> str:
-    nom = r["nominal"]
+def deciding_facts(hypotheses: Sequence[Hypothesis]) -> list[tuple[Fact, int]]:
+    """Per fact, how many hypotheses it alone rules out (its residual beyond 3 sigma)."""
+    return [(fact, sum(1 for h in hypotheses if abs(h.residuals[j]) > 3)) for j, fact in enumerate(FACTS)]
+
+
+def deciding_measurement(a: Hypothesis, b: Hypothesis, fins: Fins | None = None) -> str:
+    """Where two hypotheses' predictions of what a rig measures differ most (relative)."""
+    fins = fins or _FINS
+    if a.definition != b.definition:
+        return (
+            f"record v(t) and i(t) and compute both mean(v i) and Vrms x Irms (and the amplifier's supply "
+            f"current): '{a.definition}' against '{b.definition}' is a question of definition, not of the fin"
+        )
+    best = (0.0, "")
+    for nm, fin in fins.fins.items():
+        ma, mb = (
+            Model.of(fin, {k: list(v.values()) for k, v in a.parameters.items()}),
+            Model.of(fin, {k: list(v.values()) for k, v in b.parameters.items()}),
+        )
+        f = fins.grid(nm)
+        for vpp in (200.0, 400.0, 600.0, 800.0):
+            pa, pb = ma.predict(f, np.full(f.size, vpp)), mb.predict(f, np.full(f.size, vpp))
+            for ch, label in (
+                ("tip_velocity_rms", "tip velocity"),
+                ("power_w", "mean(v i)"),
+                ("current_rms", "RMS current"),
+            ):
+                ya, yb = np.asarray(getattr(pa, ch)), np.asarray(getattr(pb, ch))
+                d = np.abs(ya - yb) / np.maximum(np.maximum(np.abs(ya), np.abs(yb)), 1e-30)
+                j = int(np.argmax(d))
+                if d[j] > best[0]:
+                    best = (
+                        float(d[j]),
+                        f"the {label} of {nm} at {f[j]:.1f} Hz, {vpp:.0f} Vpp ({d[j]:.0%} apart)",
+                    )
+    return best[1] or "nothing the rig measures tells them apart"
+
+
+def paper_text(r: dict[str, Any]) -> str:
+    hyps: list[Hypothesis] = r["hypotheses"]
+    nominal = {h.definition: h for h in hyps if not h.effects}
+    survivors = [h for h in hyps if h.survives]
     lines = [
-        f"# The paper's own gap: {fin.name} at 800 Vpp",
+        "# The paper's own gap: every fact, all three fins at once",
         "",
-        "| quantity | paper | nominal model |",
-        "|---|---:|---:|",
-        f"| resonance (largest tip velocity) | 5.5 Hz | {nom['resonance_hz']:.1f} Hz |",
-        f"| max thrust / power | 60.7 mN/W | {nom['max_thrust_per_watt'] * 1e3:.0f} mN/W |",
+        "| fact (the paper) | value | " + " | ".join(f"nominal model, {d}" for d in nominal) + " |",
+        "|---|---:|" + "---:|" * len(nominal),
+    ]
+    for fact in FACTS:
+        cells = " | ".join(_fmt(fact.name, h.predicted[fact.name]) for h in nominal.values())
+        lines.append(
+            f"| {fact.text} | {_fmt(fact.name, fact.value)} +- {_fmt(fact.name, fact.sigma)} | {cells} |"
+        )
+    lines += [
         "",
-        "Not tried, as they cannot act in the paper's setup: "
-        + "; ".join(f"{n} ({why})" for n, why in NOT_IN_THE_PAPERS_SETUP.items())
+        "Not tried, as they cannot act in the paper's setup or move none of its facts: "
+        + "; ".join(f"{n} ({why})" for n, why in NOT_IN_THE_PAPERS_SETUP.items() if n in LIBRARY)
         + ".",
         "",
-        "## One effect alone",
+        f"Hypotheses: {len(POWER_DEFINITIONS)} definitions of the average power x (no effect, "
+        f"{len(r['candidates'])} single effects, pairs of the 5 best singles), parameters shared by the "
+        f"three fins, fitted to the {len(FACTS)} facts; a hypothesis survives when p >= 0.01.",
         "",
-        "| effect | parameters | resonance | max T/P | reproduces both |",
-        "|---|---|---:|---:|---|",
+        f"## Surviving every fact: {len(survivors)} of {len(hyps)}",
+        "",
     ]
-    for s in r["singles"]:
-        ps = "; ".join(", ".join(f"{k}={v:.3g}" for k, v in p.items()) for p in s.parameters.values())
+    if survivors:
+        lines += ["| hypothesis | parameters | chi2 | p |", "|---|---|---:|---:|"]
+        for h in survivors[:15]:
+            lines.append(f"| {h.label} | {_params(h)} | {h.chi2:.1f} | {h.p_value:.2g} |")
+    else:
         lines.append(
-            f"| {s.effects[0]} | {ps} | {s.predicted['resonance_hz']:.1f} Hz | "
-            f"{s.predicted['max_thrust_per_watt'] * 1e3:.0f} mN/W | {'yes' if s.reproduces else 'no'} |"
+            "None: no definition of the power with at most two effects of the library reproduces every fact."
         )
     lines += [
         "",
-        f"## Pairs that reproduce both numbers: {len(r['pairs'])} of {math.comb(len(CANDIDATES), 2)}",
+        "## The closest that do not survive",
         "",
+        "| hypothesis | parameters | chi2 | worst fact |",
+        "|---|---|---:|---|",
     ]
-    for p in r["pairs"][:25]:
-        ps = "; ".join(
-            f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in q.items()) for n, q in p.parameters.items()
+    for h in [h for h in hyps if not h.survives][:10]:
+        j = int(np.argmax(np.abs(h.residuals)))
+        lines.append(
+            f"| {h.label} | {_params(h)} | {h.chi2:.1f} | {FACTS[j].text}: "
+            f"{_fmt(FACTS[j].name, h.predicted[FACTS[j].name])} ({h.residuals[j]:+.1f} sigma) |"
         )
-        lines.append(f"- {' + '.join(p.effects)} ({ps})")
-    if len(r["pairs"]) > 25:
-        lines.append(f"- ... and {len(r['pairs']) - 25} more")
-    ok_single = [s.effects[0] for s in r["singles"] if s.reproduces]
-    lines += [
-        "",
-        "## What this little data decides, and what it cannot",
-        "",
-        (
-            f"- One effect alone reproduces both numbers: {', '.join(ok_single)}."
-            if ok_single
-            else "- No single effect reproduces both numbers: the resonance shift and the low thrust per watt need "  # noqa: E501
-            "(at least) two causes, one that softens or loads the fin and one that costs power without motion."  # noqa: E501
-        ),
-        "- Two numbers cannot tell the candidates apart: every pair listed fits them within about 2 sigma, with two "  # noqa: E501
-        "parameters for two numbers.  What separates them:",
-        "  - the resonance at 400 and 600 Vpp (an electroelastic or geometric softening moves it with the drive; a "  # noqa: E501
-        "linear stiffness or added-mass error does not);",
-        "  - the power against the motion (stage 'current'): a loss current shows up without motion, a dissipative "  # noqa: E501
-        "nonlinearity only with it;",
-        "  - the load-cell thrust against Lighthill's from the tip velocity (stage 'thrust').",
-        "- The paper's Figs. 7-9 hold those sweeps; digitised into a CSV, `piezofin diagnose sweep.csv` runs the full diagnosis.",  # noqa: E501
-    ]
+    lines += ["", "## Which facts decide", ""]
+    for fact, n in sorted(deciding_facts(hyps), key=lambda x: -x[1]):
+        lines.append(f"- {fact.text}: rules out {n} of {len(hyps)} hypotheses on its own (beyond 3 sigma)")
+    lines += ["", "## The measurement that would decide", ""]
+    stated = next((h for h in hyps if h.definition == "mean(v i)"), None)  # the best with the paper's
+    rivals = survivors[1:4] or [h for h in hyps if not h.survives][:1]
+    if stated is not None and survivors and stated not in rivals and stated is not survivors[0]:
+        rivals.append(stated)
+    for other in rivals if survivors else []:
+        lines.append(f"- {survivors[0].label} or {other.label}: {deciding_measurement(survivors[0], other)}")
+    figs = "the paper's Figs. 7-9, digitised into a CSV (`piezofin diagnose sweep.csv`)"
+    lines.append(f"- {figs} would test every hypothesis trial by trial, with the current's phase")
     return "\n".join(lines) + "\n"
+
+
+def _params(h: Hypothesis) -> str:
+    return (
+        "; ".join(f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in p.items()) for n, p in h.parameters.items())
+        or "-"
+    )
+
+
+def _fmt(name: str, x: float) -> str:
+    if name.startswith("resonance"):
+        return f"{x:.2f} Hz"
+    if name.startswith("max_tpw"):
+        return f"{x * 1e3:.1f} mN/W"
+    return f"{x:.2f}"
+
+
+def summary_json(r: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "facts": [f.__dict__ for f in FACTS],
+        "hypotheses": [
+            {
+                "definition": h.definition,
+                "effects": list(h.effects),
+                "parameters": h.parameters,
+                "chi2": h.chi2,
+                "p_value": h.p_value,
+                "survives": h.survives,
+                "residuals_sigma": dict(zip((f.name for f in FACTS), h.residuals, strict=True)),
+            }
+            for h in r["hypotheses"]
+        ],
+    }

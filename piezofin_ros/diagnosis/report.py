@@ -58,8 +58,12 @@ def text(d: Diagnosis) -> str:
     ]
     if d.verdict == "no gap":
         lines.append("**No gap**: every stage agrees with the model within the measurement noise.")
+        lines += [f"\nNote: {n}." for n in d.notes]
     elif d.verdict == "unexplained":
-        lines.append("**Unexplained**: no candidate in the library closes the gap. " + " ".join(d.notes))
+        family = f" Most probably an effect of the **{d.family}** family in another form." if d.family else ""
+        lines.append(
+            "**Unexplained**: no candidate in the library closes the gap." + family + " " + " ".join(d.notes)
+        )
     else:
         assert d.chosen is not None
         params = "; ".join(

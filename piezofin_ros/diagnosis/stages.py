@@ -137,8 +137,8 @@ def stage_gaps(trials: Trials, model: Model) -> list[StageGap]:
     measured = trials.measured_drive()
     s = trials.sigma
     out: list[StageGap] = []
-    pred = model.predict(f, trials.voltage_pp, drive_pp=measured)
-    if measured is not None:
+    pred = model.predict(f, trials.voltage_pp, drive_pp=measured, time_s=trials.time_s)
+    if measured is not None and trials.commanded:
         out.append(
             StageGap(
                 "drive",
@@ -150,9 +150,7 @@ def stage_gaps(trials: Trials, model: Model) -> list[StageGap]:
                 s["voltage_pp_drive"],
             )
         )
-        v_in = measured
-    else:
-        v_in = pred.voltage_pp_drive
+    v_in = measured if measured is not None else pred.voltage_pp_drive
     u, ph = trials.tip_velocity_rms, trials.tip_phase_rad
     out.append(
         StageGap("tip", "RMS tip velocity", "mm/s", 1e3, u, pred.tip_velocity_rms, s["tip_velocity_rms"])

@@ -23,6 +23,7 @@ with the pre/post baselines).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -35,7 +36,7 @@ from ..physics.effects import DF_ABS_DAMPING, Effect, make
 from ..physics.fin import Fin, load_fin, preset_names
 from ..physics.model import Model
 from ..physics.steady import harmonic_balance
-from ..physics.timedomain import simulate_law
+from ..physics.timedomain import LawRun, simulate_law
 from ..rig.simulated import RigConfig
 from .data import SignalNoise, Trials, loadcell_sigma, make_trials, window_sigmas
 
@@ -56,7 +57,21 @@ IN_LIBRARY = (
     "amplifier_limit",
     "loadcell_offset",
     "loadcell_gain",
+    "field_coupling",
+    "amplifier_sag",
+    "added_mass_kc2",
+    "voltage_monitor_gain",
+    "vibrometer_gain",
+    "vibrometer_delay",
+    "current_monitor_gain",
+    "current_monitor_delay",
+    "resonance_drift",
+    "capacitance_drift",
+    "coupling_drift",
 )
+#: How long one trial of the protocol takes (pre baseline, burst, post baseline, pause), s: the
+#: generated trials run in protocol order (voltage by voltage, frequencies up), this far apart.
+TRIAL_SPACING_S = 30.0
 OUT_OF_LIBRARY = ("wake_modulation", "coupling_dispersion")
 
 
@@ -132,6 +147,17 @@ def draw_strength(name: str, rng: np.random.Generator) -> float:
         "amplifier_limit": u(0.45, 0.8),  # clip at this fraction of the highest current demand
         "loadcell_offset": sign * u(0.3, 2.0),  # mN
         "loadcell_gain": 1.0 + sign * u(0.15, 0.4),
+        "field_coupling": u(0.15, 0.4),
+        "amplifier_sag": u(0.45, 0.8),  # sag to this fraction of the highest current demand
+        "added_mass_kc2": u(0.2, 0.8),  # a KC^2 at the reference amplitude
+        "voltage_monitor_gain": 1.0 + sign * u(0.05, 0.2),
+        "vibrometer_gain": 1.0 + sign * u(0.05, 0.2),
+        "vibrometer_delay": u(0.5, 3.0),  # ms
+        "current_monitor_gain": 1.0 + sign * u(0.05, 0.2),
+        "current_monitor_delay": u(0.5, 3.0),  # ms
+        "resonance_drift": sign * u(15.0, 40.0),  # %/h
+        "capacitance_drift": sign * u(10.0, 40.0),
+        "coupling_drift": sign * u(15.0, 40.0),
         "wake_modulation": u(0.15, 0.35),
         "coupling_dispersion": sign * u(0.15, 0.3),
     }
@@ -173,8 +199,12 @@ def library_effect(name: str, strength: float, fin: Fin, a_ref: float, max_curre
         "amplifier_limit": 1e-3 / (s * max_current_a),  # clip at s of the highest current demand
         "loadcell_offset": s,
         "loadcell_gain": s,
+        "amplifier_sag": 1e-3 / (s * max_current_a),
+        "added_mass_kc2": s / kc_ref**2,
     }
-    return make(name, [values[name]])
+    if name == "field_coupling":
+        return make(name, [s, 1.0])  # Rayleigh's law
+    return make(name, [values.get(name, s)])  # instruments and drifts: in the library's units
 
 
 def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
@@ -183,42 +213,76 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
     rig = rig or RigConfig()
     rng = np.random.default_rng(case.seed)
     f, vpp = case.grid()
+    when = trial_times(vpp)
     e = case.effects
     a_ref = _reference_amplitude(fin, case.voltages_pp)
     max_current = float(np.max(fin.C_eq * 2 * math.pi * f * 0.5 * vpp))
     hidden = [library_effect(k, s, fin, a_ref, max_current) for k, s in e.items() if k in IN_LIBRARY]
     model = Model(fin, tuple(hidden))
-    law = model.law(f, vpp)
+    law = model.law(f, vpp, when)
     if "coupling_dispersion" in e:  # out of the library: the coupling follows the frequency
         law = replace(law, coupling=law.coupling * (f / np.median(f)) ** e["coupling_dispersion"])
-    duration = 10.0
-    run = simulate_law(fin, law, f, vpp, duration=duration, rate_hz=1000.0)
-    gain = np.broadcast_to(np.asarray(law.thrust_gain, float), f.shape)
-    bias = np.broadcast_to(np.asarray(law.thrust_bias_n, float), f.shape)
+    run = simulate_law(fin, law, f, vpp, duration=DURATION_S, rate_hz=RATE_HZ)
+    factor = None
+    if "wake_modulation" in e:  # out of the library: the wake modulates the thrust
+        factor = 1 + e["wake_modulation"] * np.sin(2 * math.pi * f / 4.0)
+    label = "+".join(f"{k}={x:.3g}" for k, x in e.items()) or "nominal"
+    trials = measure(
+        fin, run, f, vpp, when, rng, f"synthetic {case.fin} {label} seed {case.seed}", rig, factor
+    )
+    return Generated(case, trials)
+
+
+DURATION_S = 10.0  # each trial: the drive on from rest for this long
+RATE_HZ = 1000.0  # samples per second
+
+#: What the instruments make of a trial's true signals: ``(j, t, v, i, u) -> (v, i, u)`` for trial ``j``.
+Readings = Callable[
+    [int, FloatArray, FloatArray, FloatArray, FloatArray], tuple[FloatArray, FloatArray, FloatArray]
+]
+
+
+def measure(
+    fin: Fin,
+    run: LawRun,
+    f: FloatArray,
+    vpp: FloatArray,
+    when: FloatArray,
+    rng: np.random.Generator,
+    source: str,
+    rig: RigConfig | None = None,
+    thrust_factor: FloatArray | None = None,
+    readings: Readings | None = None,
+) -> Trials:
+    """The trials of a time-domain run as the suite measures them: each channel through ``readings``
+    (default: as the run reads it) with the rig's noise, the estimator's lock-in over the whole
+    periods after ``settle_s``, the load cell's mean thrust (times ``thrust_factor``) with its noise."""
+    rig = rig or RigConfig()
     cfg = EstimatorConfig()
     levels = SignalNoise(
         rig.voltage_noise_v, rig.current_noise_a, rig.vibrometer_noise_m_s, rig.displacement_noise_m
     )
-    rate = 1000.0
-    n_base = 2 * cfg.baseline_s * rate  # pre and post baselines
+    n_base = 2 * cfg.baseline_s * RATE_HZ  # pre and post baselines
     names = ("voltage_pp_drive", "tip_velocity_rms", "tip_phase_rad", "current_rms", "power_w")
     cols: dict[str, list[float]] = {k: [] for k in (*names, "thrust_loadcell_n")}
     windows = []
     t = run.t
     for j in range(f.size):
-        periods = math.floor((duration - cfg.settle_s) * f[j])
-        t0 = duration - periods / f[j]
-        sel = (t >= t0 - 1e-9) & (t < duration - 1e-9)
+        periods = math.floor((DURATION_S - cfg.settle_s) * f[j])
+        t0 = DURATION_S - periods / f[j]
+        sel = (t >= t0 - 1e-9) & (t < DURATION_S - 1e-9)
         nsel = int(np.count_nonzero(sel))
         windows.append(nsel)
-        vn = run.voltage[j, sel] + rig.voltage_noise_v * rng.standard_normal(nsel)
-        i_n = run.current[j, sel] + rig.current_noise_a * rng.standard_normal(nsel)
-        u_n = run.tip_velocity[j, sel] + rig.vibrometer_noise_m_s * rng.standard_normal(nsel)
+        v, i, u = run.voltage[j], run.current[j], run.tip_velocity[j]
+        if readings is not None:
+            v, i, u = readings(j, t, v, i, u)
+        vn = v[sel] + rig.voltage_noise_v * rng.standard_normal(nsel)
+        i_n = i[sel] + rig.current_noise_a * rng.standard_normal(nsel)
+        u_n = u[sel] + rig.vibrometer_noise_m_s * rng.standard_normal(nsel)
         r = analyse_window(fin, t[sel], vn, i_n, float(f[j]), tip_velocity=u_n)
-        thrust = float(np.mean(run.thrust[j, sel]))
-        if "wake_modulation" in e:  # out of the library: the wake modulates the thrust
-            thrust *= 1 + e["wake_modulation"] * math.sin(2 * math.pi * f[j] / 4.0)
-        thrust = thrust * float(gain[j]) + float(bias[j])
+        thrust = float(np.mean(run.loadcell_thrust[j, sel]))
+        if thrust_factor is not None:
+            thrust *= float(thrust_factor[j])
         sig_t = float(loadcell_sigma(levels, rig.loadcell_stiffness, nsel, n_base))
         cols["voltage_pp_drive"].append(r["voltage_pp"])
         for name in names[1:]:
@@ -228,5 +292,16 @@ def simulate_case(case: Case, rig: RigConfig | None = None) -> Generated:
         levels, windows, n_base, cols["voltage_pp_drive"], cols["tip_velocity_rms"], rig.loadcell_stiffness
     )
     columns = {"frequency_hz": f, "voltage_pp": vpp, **{k: np.asarray(x) for k, x in cols.items()}}
-    label = "+".join(f"{k}={x:.3g}" for k, x in e.items()) or "nominal"
-    return Generated(case, make_trials(columns, noise, f"synthetic {case.fin} {label} seed {case.seed}"))
+    return make_trials(columns, noise, source, time_s=when)
+
+
+def trial_times(voltage_pp: FloatArray, rng: np.random.Generator | None = None) -> FloatArray:
+    """When each trial of a grid starts (s), TRIAL_SPACING_S apart: in protocol order (voltage by voltage,
+    frequencies up), or in a random order with ``rng`` (as an experiment that must tell a drift in time
+    from a dependence on the drive runs its trials)."""
+    order = np.argsort(np.round(np.asarray(voltage_pp, float)), kind="stable")
+    if rng is not None:
+        order = rng.permutation(order.size)
+    t = np.empty(len(order))
+    t[order] = np.arange(len(order)) * TRIAL_SPACING_S
+    return t

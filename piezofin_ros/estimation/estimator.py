@@ -19,6 +19,9 @@ velocity:
 * RMS tip velocity ``u = sqrt(sum |U_k|^2 / 2)``;
 * Lighthill's mean thrust, Eqs. (19)-(20): ``T = (1/2) m_v [u^2 - U^2 (phi'(L)/phi(L))^2 w_rms^2]``,
   ``w_rms^2 = sum |U_k|^2 / (2 (k w)^2)``, with ``m_v = (pi/4) rho_w b^2 c_m(psi)`` (Eq. 21);
+* RMS current ``sqrt(sum |I_k|^2 / 2)`` from the same lock-in, like the tip velocity: white noise,
+  mains pickup or any interference that is not at an odd harmonic of the drive does not enter it
+  (a plain sample RMS takes 50 Hz pickup of 30 uA for a current gap);
 * mean electrical power ``P = mean(v i)`` over a period, by Parseval from the same harmonics:
   ``P = sum_k Re(V_k conj(I_k)) / 2``.  A plain ``mean(v i)`` over samples leaks the reactive
   power ``C_eq v dv/dt`` (often 10x the real power) whenever the window misses a period
@@ -39,7 +42,9 @@ Windows
 -------
 A drive period runs between two upward zero crossings of the voltage (with hysteresis against
 noise).  Consecutive periods of the same length and amplitude (within ``tolerance``) form a
-*segment*; a burst of the paper's protocol is one segment, and so is steady continuous driving.
+*segment* (a period that differs from the first one but not from the median of the last five
+continues it, so a ramp's tail or a slow drift does not split a trial); a burst of the paper's
+protocol is one segment, and so is steady continuous driving.
 The first ``settle_s`` of a segment are skipped (the transient).  While a segment lasts, an
 estimate is emitted every ``window_s`` of settled periods (``final = 0``); when it ends (the drive
 stops or changes) one estimate over all its settled periods follows (``final = 1``), once the post
@@ -210,7 +215,7 @@ def analyse_window(
     out = {
         "frequency_hz": frequency_hz,
         "voltage_pp": 2.0 * float(abs(V[0])),
-        "current_rms": float(np.sqrt(np.mean(i**2))),
+        "current_rms": float(np.sqrt(np.sum(np.abs(I_) ** 2) / 2.0)),  # the lock-in's harmonics
         "power_w": power,
         "tip_velocity_rms": math.nan,
         "thrust_n": math.nan,
@@ -246,6 +251,10 @@ def _baseline_at(baselines: list[tuple[float, float]], t: float) -> float:
         return float(np.mean([x for _, x in baselines]))
     (t0, x0), (t1, x1) = baselines[0], baselines[-1]
     return x0 + (x1 - x0) * (t - t0) / (t1 - t0)
+
+
+#: A new period is compared with the median of this many previous periods of its segment.
+REFERENCE_PERIODS = 5
 
 
 class _Channel:
@@ -436,15 +445,20 @@ class StreamEstimator:
         seg = self._segment
         if seg is None:
             return
-        if seg.periods:
-            r0, r1, rv = seg.periods[0]
-            period, ref = t1 - t0, r1 - r0
-            if abs(period - ref) > cfg.tolerance * ref or abs(vpp - rv) > cfg.tolerance * rv + 2.0:
-                # The drive changed.  A segment still in its transient (a ramp) hands its
-                # pre baseline on; the next settled segment is the same trial.
-                transient = seg.periods[-1][1] - seg.periods[0][0] < cfg.settle_s
-                self._end_segment(t0, by_off=False)
-                seg = self._segment = _Segment(seg.pre if transient else None)
+        # The drive changed if a period differs from the segment's first period and from the
+        # median of its last few: a segment whose first period was the tail of a ramp, or whose
+        # amplitude wanders slowly (an amplifier's sag, warming), is not split in two; a step or
+        # a ramp of the drive still splits it.
+        if (
+            seg.periods
+            and self._changed(seg.periods[:1], t1 - t0, vpp)
+            and self._changed(seg.periods[-REFERENCE_PERIODS:], t1 - t0, vpp)
+        ):
+            # A segment still in its transient (a ramp) hands its pre baseline on; the next
+            # settled segment is the same trial.
+            transient = seg.periods[-1][1] - seg.periods[0][0] < cfg.settle_s
+            self._end_segment(t0, by_off=False)
+            seg = self._segment = _Segment(seg.pre if transient else None)
         seg.periods.append((t0, t1, vpp))
         settled = [p for p in seg.periods[seg.next_window :] if p[0] >= seg.periods[0][0] + cfg.settle_s]
         if settled and self._last_final is not None:
@@ -455,6 +469,13 @@ class StreamEstimator:
                 _Pending(settled[0][0], settled[-1][1], len(settled), final=False, pre=seg.pre)
             )
             seg.next_window = len(seg.periods)
+
+    def _changed(self, reference: list[tuple[float, float, float]], period: float, vpp: float) -> bool:
+        """A period differs from the median of ``reference`` periods by more than ``tolerance``."""
+        tol = self.config.tolerance
+        ref = float(np.median([b - a for a, b, _ in reference]))
+        rv = float(np.median([x for _, _, x in reference]))
+        return abs(period - ref) > tol * ref or abs(vpp - rv) > tol * rv + 2.0
 
     def _end_segment(self, t_off: float, *, by_off: bool) -> None:
         cfg = self.config

@@ -76,6 +76,7 @@ class OperatingPoint:
     frequency_hz: FloatArray
     voltage_pp: FloatArray
     tip_amplitude: FloatArray  # X = phi(L) A, m (0 for the time-domain law: it has no amplitude)
+    time_s: FloatArray | float = 0.0  # when the trial ran, s since the first (drifts)
 
     @property
     def omega(self) -> FloatArray:
@@ -101,15 +102,24 @@ class TimeLaw:
     damping: FloatArray | float = 1.0  # D, x 2 zeta wn
     c_abs: FloatArray | float = 0.0  # damping x (1 + c_abs |eta|)
     mass: FloatArray | float = 1.0  # M, added mass x (mu and m_v)
-    mass_kc: FloatArray | float = 0.0  # added mass x (1 + mass_kc KC(t))
+    mass_kc: FloatArray | float = 0.0  # added mass x (1 + mass_kc KC(t) + mass_kc2 KC(t)^2)
+    mass_kc2: FloatArray | float = 0.0
     drag: FloatArray | float = 1.0  # G, x gamma
     drag_n: FloatArray | float = 0.0  # drag x KC(t)^-n
     coupling: FloatArray | float = 1.0  # Q, x theta
+    voltage_scale: FloatArray | float = 1.0  # the amplifier's output / its command (a sag)
     voltage_clip: FloatArray | float = math.inf  # V, the drive clips at +-this
+    capacitance: FloatArray | float = 1.0  # x C_eq
     loss_conductance: FloatArray | float = 0.0  # S
     thrust_gain: FloatArray | float = 1.0
     thrust_bias_n: FloatArray | float = 0.0
     swim_speed: FloatArray | float = 0.0  # m/s
+    # the instruments: reading / true value of each channel, and its lag (s)
+    voltage_gain: FloatArray | float = 1.0
+    tip_gain: FloatArray | float = 1.0
+    tip_delay_s: FloatArray | float = 0.0
+    current_gain: FloatArray | float = 1.0
+    current_delay_s: FloatArray | float = 0.0
 
 
 E = TypeVar("E", bound="Effect")
@@ -120,6 +130,8 @@ class Effect:
 
     name: ClassVar[str] = ""
     title: ClassVar[str] = ""
+    #: what it belongs to, for a report that can name the family when no form of it fits well
+    family: ClassVar[str] = ""
     params: ClassVar[tuple[Param, ...]] = ()
     amplitude_dependent: ClassVar[bool] = False
 
@@ -154,7 +166,14 @@ class Effect:
         """The describing function: the balance's coefficients with this effect, at ``op``."""
         raise NotImplementedError
 
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
         """The time-domain law: the canonical equations' coefficients with this effect."""
         raise NotImplementedError
 
@@ -183,10 +202,12 @@ class Effects(tuple[Effect, ...]):
             k = e.describe(k, op)
         return k
 
-    def law(self, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray, time_s: FloatArray | float = 0.0
+    ) -> TimeLaw:
         law = TimeLaw()
         for e in self:
-            law = e.law(law, fin, frequency_hz, voltage_pp)
+            law = e.law(law, fin, frequency_hz, voltage_pp, time_s)
         return law
 
 
@@ -238,7 +259,14 @@ class Coefficient(Effect):
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return self._apply(k, op.fin, op.omega, op.voltage_pp)  # type: ignore[no-any-return]
 
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
         omega = 2 * math.pi * np.asarray(frequency_hz, float)
         return self._apply(law, fin, omega, voltage_pp)  # type: ignore[no-any-return]
 
@@ -251,6 +279,7 @@ class Coefficient(Effect):
 class ResonanceOffset(Coefficient):
     name = "resonance_offset"
     title = "stiffness off (in-water resonance shifted, linear)"
+    family = "stiffness"
     params = (Param("scale", "-", 1.0, 0.3, 2.0, 0.1, "natural frequency x scale"),)
     scale: float = 1.0
     target = "stiffness"
@@ -266,6 +295,7 @@ class Duffing(Effect):
 
     name = "stiffness_nonlinearity"
     title = "geometric stiffness nonlinearity (Duffing, amplitude-dependent)"
+    family = "stiffness"
     params = (Param("beta", "-", 0.0, -5000.0, 5000.0, 20.0, "wn^2 x (1 + beta (X/L)^2)"),)
     amplitude_dependent = True
     beta: float = 0.0
@@ -274,7 +304,14 @@ class Duffing(Effect):
         x = op.tip_amplitude / op.fin.L
         return replace(k, stiffness=k.stiffness * np.maximum(1.0 + self.beta * x * x, 0.01))
 
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
         # beta (phi A / L)^2 = (3/4) c3 A^2
         return replace(law, c3=law.c3 + self.beta * (fin.phi_tip / fin.L) ** 2 / DF_CUBIC)
 
@@ -284,6 +321,7 @@ class Duffing(Effect):
 class Electroelastic(Coefficient):
     name = "electroelastic_softening"
     title = "electroelastic softening (stiffness falls with the field)"
+    family = "stiffness"
     params = (Param("softening", "-", 0.0, -0.5, 0.9, 0.1, "wn x (1 - s Vpp/800)"),)
     softening: float = 0.0
     target = "stiffness"
@@ -299,6 +337,7 @@ class NonlinearDamping(Effect):
 
     name = "nonlinear_damping"
     title = "internal dissipative nonlinearity (damping grows with amplitude)"
+    family = "damping"
     params = (Param("q", "-", 0.0, -1.0, 2000.0, 10.0, "zeta x (1 + q X/L)"),)
     amplitude_dependent = True
     q: float = 0.0
@@ -306,7 +345,14 @@ class NonlinearDamping(Effect):
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return replace(k, damping=k.damping * np.maximum(1.0 + self.q * op.tip_amplitude / op.fin.L, 0.01))
 
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
         # q phi A / L = c_abs (4 / 3 pi) A (on top of the damping the other effects set)
         return replace(law, c_abs=law.c_abs + self.q * fin.phi_tip / fin.L / DF_ABS_DAMPING)
 
@@ -316,6 +362,7 @@ class NonlinearDamping(Effect):
 class AddedMassOffset(Coefficient):
     name = "added_mass_offset"
     title = "inertia coefficient c_m off the curve of Eq. (21)"
+    family = "added mass"
     params = (Param("scale", "-", 1.0, 0.1, 4.0, 0.2, "c_m x scale"),)
     scale: float = 1.0
     target = "mass"
@@ -332,6 +379,7 @@ class AddedMassKC(Effect):
 
     name = "added_mass_kc"
     title = "amplitude-dependent added mass (Keulegan-Carpenter)"
+    family = "added mass"
     params = (Param("a", "-", 0.0, -0.8, 5.0, 0.2, "c_m x (1 + a KC)"),)
     amplitude_dependent = True
     a: float = 0.0
@@ -339,7 +387,14 @@ class AddedMassKC(Effect):
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return replace(k, mass=k.mass * np.maximum(1.0 + self.a * op.kc, 0.05))
 
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
         return replace(law, mass_kc=law.mass_kc + self.a)
 
 
@@ -348,6 +403,7 @@ class AddedMassKC(Effect):
 class DragOffset(Coefficient):
     name = "drag_offset"
     title = "drag coefficient c_d off the assumed value"
+    family = "drag"
     params = (Param("scale", "-", 1.0, 0.0, 20.0, 0.5, "c_d x scale"),)
     scale: float = 1.0
     target = "drag"
@@ -361,6 +417,7 @@ class DragOffset(Coefficient):
 class DragKC(Effect):
     name = "drag_kc"
     title = "amplitude-dependent drag coefficient (c_d ~ KC^-n, Graham)"
+    family = "drag"
     params = (Param("n", "-", 0.0, -2.0, 2.0, 0.2, "c_d x KC^-n"),)
     amplitude_dependent = True
     n: float = 0.0
@@ -368,7 +425,14 @@ class DragKC(Effect):
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return replace(k, drag=k.drag * np.maximum(op.kc, 1e-3) ** (-self.n))
 
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
         return replace(law, drag_n=law.drag_n + self.n)
 
 
@@ -377,6 +441,7 @@ class DragKC(Effect):
 class DielectricLoss(Coefficient):
     name = "dielectric_loss"
     title = "dielectric loss of the piezoceramic (tan delta)"
+    family = "electrical loss"
     params = (Param("tan_delta", "-", 0.0, 0.0, 0.5, 0.02, "P += tan(delta) C_eq w V^2 / 2"),)
     tan_delta: float = 0.0
     target = "loss_conductance"
@@ -391,6 +456,7 @@ class DielectricLoss(Coefficient):
 class Leakage(Coefficient):
     name = "leakage"
     title = "resistive leakage of the drive (frequency-independent loss)"
+    family = "electrical loss"
     params = (Param("conductance", "uS", 0.0, 0.0, 50.0, 1.0, "P += G V^2 / 2"),)
     conductance: float = 0.0
     target = "loss_conductance"
@@ -405,6 +471,7 @@ class Leakage(Coefficient):
 class SwimSpeed(Coefficient):
     name = "swim_speed"
     title = "flow past the fin (U != 0 in Eq. 19)"
+    family = "flow"
     params = (Param("U", "m/s", 0.0, 0.0, 5.0, 0.05, "free-stream speed"),)
     U: float = 0.0
     target = "swim_speed"
@@ -431,6 +498,7 @@ class AmplifierLimit(Effect):
 
     name = "amplifier_limit"
     title = "amplifier current limit (the drive clips at high f x V)"
+    family = "amplifier"
     params = (
         Param(
             "inv_i_max",
@@ -461,7 +529,14 @@ class AmplifierLimit(Effect):
             current_harmonics_a2=k.current_harmonics_a2 + harmonics,
         )
 
-    def law(self, law: TimeLaw, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray) -> TimeLaw:
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
         clip = amplifier_clip(self.inv_i_max, fin, 2 * math.pi * np.asarray(frequency_hz, float))
         return replace(law, voltage_clip=np.minimum(law.voltage_clip, clip))
 
@@ -471,6 +546,7 @@ class AmplifierLimit(Effect):
 class LoadcellOffset(Coefficient):
     name = "loadcell_offset"
     title = "thrust transducer drift not cancelled by the baselines (offset)"
+    family = "load cell"
     params = (Param("bias", "mN", 0.0, -50.0, 50.0, 0.2, "added to the load-cell thrust"),)
     bias: float = 0.0
     target = "thrust_bias_n"
@@ -485,9 +561,225 @@ class LoadcellOffset(Coefficient):
 class LoadcellGain(Coefficient):
     name = "loadcell_gain"
     title = "thrust transducer calibration (gain)"
+    family = "load cell"
     params = (Param("gain", "-", 1.0, 0.1, 5.0, 0.2, "load-cell thrust x gain"),)
     gain: float = 1.0
     target = "thrust_gain"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
         return self.gain
+
+
+# --- missing physics ----------------------------------------------------------------------------
+
+
+@register
+@dataclass(frozen=True)
+class FieldCoupling(Coefficient):
+    """The electromechanical coupling grows with the field (an MFC nonlinearity: the piezoelectric
+    coefficient rises with the drive amplitude, linearly in Rayleigh's law, ``p = 1``), quoted at the
+    drive's amplitude; not a stiffness change."""
+
+    name = "field_coupling"
+    title = "field-dependent piezoelectric coupling (theta grows with the drive)"
+    family = "coupling"
+    params = (
+        Param("k", "-", 0.0, -0.5, 2.0, 0.1, "theta x (1 + k (Vpp/800)^p)"),
+        Param("p", "-", 1.0, 0.3, 3.0, 0.3, "how the coupling grows with the field (1: Rayleigh's law)"),
+    )
+    k: float = 0.0
+    p: float = 1.0
+    target = "coupling"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return np.maximum(1.0 + self.k * (np.asarray(voltage_pp, float) / V_REF) ** self.p, 0.05)
+
+
+def sag_ratio(inv_i_max: float, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray:
+    """Output over command of an amplifier that scales its whole output down so that the capacitive
+    current stays under ``1 / inv_i_max`` mA (1 where it does not need to)."""
+    demand = fin.C_eq * omega * 0.5 * np.asarray(voltage_pp, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(demand * inv_i_max > 1e-3, 1e-3 / (inv_i_max * demand), 1.0)
+    return np.asarray(r, float)
+
+
+@register
+@dataclass(frozen=True)
+class AmplifierSag(Coefficient):
+    """An amplifier that keeps its sine clean but lowers its whole output to stay under a current
+    limit (an automatic gain control), where a clipping amplifier flattens the peaks."""
+
+    name = "amplifier_sag"
+    title = "amplifier sags its output under a current limit (no clipping)"
+    family = "amplifier"
+    params = (
+        Param(
+            "inv_i_max", "1/mA", 0.0, 0.0, 50.0, 1.0, "1 / current the amplifier holds", (0.5, 2.0, 8.0, 30.0)
+        ),
+    )
+    inv_i_max: float = 0.0
+    target = "voltage_scale"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return sag_ratio(self.inv_i_max, fin, omega, voltage_pp)
+
+
+@register
+@dataclass(frozen=True)
+class AddedMassKC2(Effect):
+    """Added mass ``x (1 + a KC(t)^2)``: growing faster than linearly with the amplitude."""
+
+    name = "added_mass_kc2"
+    title = "added mass growing with the square of the Keulegan-Carpenter number"
+    family = "added mass"
+    params = (Param("a", "-", 0.0, -0.8, 20.0, 0.2, "c_m x (1 + a KC^2)"),)
+    amplitude_dependent = True
+    a: float = 0.0
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        return replace(k, mass=k.mass * np.maximum(1.0 + self.a * op.kc**2, 0.05))
+
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
+        return replace(law, mass_kc2=law.mass_kc2 + self.a)
+
+
+# --- the instruments ------------------------------------------------------------------------------
+# Each multiplies or delays what one channel reads, not what the fin does.  Sign conventions (the
+# suite's and a rig driver's, docs/reference.md): the tip velocity is positive in the direction
+# the tip moves under a positive voltage well below resonance (so it leads the voltage by 90 deg
+# there), and the current is positive into the terminal the voltage is measured at (so mean(v i)
+# is the power the fin draws, > 0).  A reversed sensor is found from the data itself
+# (diagnosis.data.conventions), not fitted.
+
+
+class _Instrument(Coefficient):
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return float(self.values[0]) * (1e-3 if self.how == "add" else 1.0)
+
+
+@register
+@dataclass(frozen=True)
+class VoltageMonitorGain(_Instrument):
+    name = "voltage_monitor_gain"
+    title = "voltage monitor calibration (gain: the drive is not what it reads)"
+    family = "voltage monitor"
+    params = (Param("gain", "-", 1.0, 0.3, 3.0, 0.05, "drive reading x gain"),)
+    gain: float = 1.0
+    target = "voltage_gain"
+
+
+@register
+@dataclass(frozen=True)
+class VibrometerGain(_Instrument):
+    name = "vibrometer_gain"
+    title = "vibrometer calibration (gain)"
+    family = "vibrometer"
+    params = (Param("gain", "-", 1.0, 0.2, 5.0, 0.05, "tip-velocity reading x gain"),)
+    gain: float = 1.0
+    target = "tip_gain"
+
+
+@register
+@dataclass(frozen=True)
+class VibrometerDelay(_Instrument):
+    name = "vibrometer_delay"
+    title = "vibrometer lag (a phase growing with frequency)"
+    family = "vibrometer"
+    params = (Param("delay", "ms", 0.0, -20.0, 20.0, 0.5, "tip-velocity reading delayed by this"),)
+    delay: float = 0.0
+    target = "tip_delay_s"
+    how = "add"
+
+
+@register
+@dataclass(frozen=True)
+class CurrentMonitorGain(_Instrument):
+    name = "current_monitor_gain"
+    title = "current monitor calibration (gain)"
+    family = "current monitor"
+    params = (Param("gain", "-", 1.0, 0.2, 5.0, 0.05, "current reading x gain"),)
+    gain: float = 1.0
+    target = "current_gain"
+
+
+@register
+@dataclass(frozen=True)
+class CurrentMonitorDelay(_Instrument):
+    """A lagging current monitor: ``mean(v i)`` picks up ``(1/2) V^2 w^2 C_eq tau``, a loss growing as f^2."""
+
+    name = "current_monitor_delay"
+    title = "current monitor lag (a power loss growing as f^2)"
+    family = "current monitor"
+    params = (Param("delay", "ms", 0.0, -20.0, 20.0, 0.2, "current reading delayed by this"),)
+    delay: float = 0.0
+    target = "current_delay_s"
+    how = "add"
+
+
+# --- drifts in time -------------------------------------------------------------------------------
+# Quoted per hour of the run (the trial's start since the first trial's); a trial is short
+# against them, so each sees its own value, constant.
+
+
+class _Drift(Effect):
+    target: ClassVar[str] = ""
+    square: ClassVar[bool] = False  # the drifting quantity enters squared (a frequency)
+
+    def _factor(self, time_s: FloatArray | float) -> FloatArray:
+        x = np.maximum(1.0 + float(self.values[0]) * 1e-2 * np.asarray(time_s, float) / 3600.0, 0.05)
+        return np.asarray(x**2 if self.square else x)
+
+    def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
+        return replace(k, **{self.target: getattr(k, self.target) * self._factor(op.time_s)})
+
+    def law(
+        self,
+        law: TimeLaw,
+        fin: Fin,
+        frequency_hz: FloatArray,
+        voltage_pp: FloatArray,
+        time_s: FloatArray | float = 0.0,
+    ) -> TimeLaw:
+        return replace(law, **{self.target: getattr(law, self.target) * self._factor(time_s)})
+
+
+@register
+@dataclass(frozen=True)
+class ResonanceDrift(_Drift):
+    name = "resonance_drift"
+    title = "resonance drifting over the run (warming, water uptake)"
+    family = "drift in time"
+    params = (Param("rate", "%/h", 0.0, -200.0, 200.0, 5.0, "natural frequency x (1 + rate t)"),)
+    rate: float = 0.0
+    target = "stiffness"
+    square = True
+
+
+@register
+@dataclass(frozen=True)
+class CapacitanceDrift(_Drift):
+    name = "capacitance_drift"
+    title = "capacitance drifting over the run (the MFC warming)"
+    family = "drift in time"
+    params = (Param("rate", "%/h", 0.0, -200.0, 200.0, 5.0, "C_eq x (1 + rate t)"),)
+    rate: float = 0.0
+    target = "capacitance"
+
+
+@register
+@dataclass(frozen=True)
+class CouplingDrift(_Drift):
+    name = "coupling_drift"
+    title = "coupling drifting over the run (the MFC warming, depoling)"
+    family = "drift in time"
+    params = (Param("rate", "%/h", 0.0, -200.0, 200.0, 5.0, "theta x (1 + rate t)"),)
+    rate: float = 0.0
+    target = "coupling"

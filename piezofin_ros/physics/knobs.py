@@ -6,8 +6,9 @@ the steady state (harmonic balance) and the streaming rig (:class:`~piezofin_ros
 both read them, so a model fitted by ``piezofin diagnose`` drives the simulator the same way::
 
     (1 + mass mu) eta'' + (damping 2 zeta wn + drag gamma |eta'|) eta' + stiffness wn^2 eta
-        = coupling theta (voltage v)
-    i = C_eq d(voltage v)/dt + loss_conductance (voltage v) + coupling theta eta'
+        = coupling theta (voltage voltage_scale v)
+    i = capacitance C_eq d(voltage v)/dt + loss_conductance (voltage v) + coupling theta eta'
+    readings: voltage_gain v, tip_gain u(t - tip_delay_s), current_gain i(t - current_delay_s)
     load cell = thrust_gain (1/2) mass m_v (w_t^2 - U^2 w_x^2) + thrust_bias_n,  U = swim_speed
 """
 
@@ -36,3 +37,11 @@ class Knobs:
     thrust_bias_n: FloatArray | float = 0.0  # N, load cell offset
     swim_speed: FloatArray | float = 0.0  # m/s, U of Eq. (19)
     current_harmonics_a2: FloatArray | float = 0.0  # A^2, mean square of the current's higher harmonics
+    capacitance: FloatArray | float = 1.0  # x C_eq
+    voltage_scale: FloatArray | float = 1.0  # the amplifier scales its whole output (a sag, not a clip)
+    # the instruments: reading / true value of each channel, and its lag (s)
+    voltage_gain: FloatArray | float = 1.0
+    tip_gain: FloatArray | float = 1.0
+    tip_delay_s: FloatArray | float = 0.0
+    current_gain: FloatArray | float = 1.0
+    current_delay_s: FloatArray | float = 0.0

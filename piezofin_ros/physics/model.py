@@ -114,11 +114,16 @@ class Model:
         return ", ".join(out)
 
     def predict(
-        self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, drive_pp: ArrayLike | None = None
+        self,
+        frequency_hz: ArrayLike,
+        voltage_pp: ArrayLike,
+        drive_pp: ArrayLike | None = None,
+        time_s: ArrayLike | None = None,
     ) -> Prediction:
         """Steady state at nominal (commanded) voltages ``voltage_pp``.  With ``drive_pp`` (the measured
-        fundamental of the drive, Vpp) the fin is driven by that instead of by the model's drive."""
-        return predict(self.fin, self.effects, frequency_hz, voltage_pp, drive_pp=drive_pp)
+        fundamental of the drive, Vpp, as its monitor reads it) the fin is driven by that instead of
+        by the model's drive; ``time_s`` (s since the first trial) is when each trial ran (drifts)."""
+        return predict(self.fin, self.effects, frequency_hz, voltage_pp, drive_pp=drive_pp, time_s=time_s)
 
     def knobs_at(self, frequency_hz: float, voltage_pp: float) -> Knobs:
         """The knobs (floats) at this operating point's steady state: the linearisation that the
@@ -127,10 +132,12 @@ class Model:
         k, _ = steady_knobs(self.fin, self.effects, f, v)
         return Knobs(**{n: float(np.asarray(getattr(k, n))[0]) for n in Knobs.__dataclass_fields__})
 
-    def law(self, frequency_hz: ArrayLike, voltage_pp: ArrayLike) -> TimeLaw:
+    def law(self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, time_s: ArrayLike = 0.0) -> TimeLaw:
         """The time-domain law of every effect, at these (broadcast) operating points."""
-        f, v = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
-        return Effects(self.effects).law(self.fin, f, v)
+        f, v, t = np.broadcast_arrays(
+            np.asarray(frequency_hz, float), np.asarray(voltage_pp, float), np.asarray(time_s, float)
+        )
+        return Effects(self.effects).law(self.fin, f, v, t)
 
     # --- persistence (safe YAML; loaded by fin_sim, the controller and sweep) ---------------
     def to_mapping(self) -> dict[str, Any]:
@@ -213,7 +220,8 @@ def steady_knobs(
     f: FloatArray,
     vpp: FloatArray,
     measured: FloatArray | None = None,
-    iterations: int = 40,
+    iterations: int = 16,
+    time_s: FloatArray | float = 0.0,
 ) -> tuple[Knobs, FloatArray]:
     """The knobs (arrays shaped like ``f``) at the steady state, and its modal amplitude ``A``.
 
@@ -227,40 +235,64 @@ def steady_knobs(
     effects = Effects(effects)
     amp_dep = effects.amplitude_dependent
 
-    def knobs(ff: FloatArray, vv: FloatArray, x: FloatArray) -> Knobs:
-        return effects.describe(OperatingPoint(fin, ff, vv, x))
+    t_all = np.broadcast_to(np.asarray(time_s, float), f.shape)
 
-    def solve(ff: FloatArray, vv: FloatArray, mm: FloatArray | None, amp: FloatArray) -> FloatArray:
+    def knobs(ff: FloatArray, vv: FloatArray, tt: FloatArray, x: FloatArray) -> Knobs:
+        return effects.describe(OperatingPoint(fin, ff, vv, x, tt))
+
+    def solve(
+        ff: FloatArray, vv: FloatArray, tt: FloatArray, mm: FloatArray | None, amp: FloatArray
+    ) -> FloatArray:
         """The linear steady amplitude with the knobs frozen at amplitude ``amp``."""
-        k = knobs(ff, vv, phi * amp)
-        return solve_amplitude(*coefficients(fin, 2 * math.pi * ff, k), _force(fin, k, vv, mm))
+        k = knobs(ff, vv, tt, phi * amp)
+        return solve_amplitude(*coefficients(fin, 2 * math.pi * ff, k), _force(fin, k, vv, mm), guess=amp)
 
-    amp = solve(f, vpp, measured, np.zeros_like(f))
+    amp = solve(f, vpp, t_all, measured, np.zeros_like(f))
     if amp_dep:
-        for _ in range(iterations):
-            new = solve(f, vpp, measured, amp)
-            ok = (new > 0) & (amp > 0)
-            # under-relaxed in log A: softening branches overshoot otherwise
-            nxt = np.where(
-                ok, np.exp(0.5 * np.log(np.where(ok, new, 1)) + 0.5 * np.log(np.where(ok, amp, 1))), new
-            )
-            done = np.all(np.abs(nxt - amp) <= 1e-9 * np.maximum(amp, 1e-30))
-            amp = nxt
-            if done:
-                break
-        bad = ~(np.abs(solve(f, vpp, measured, amp) - amp) <= 1e-6 * amp)
+        amp = _fixed_point(lambda x: solve(f, vpp, t_all, measured, x), amp, iterations)
+        bad = ~(np.abs(solve(f, vpp, t_all, measured, amp) - amp) <= 1e-6 * amp)
         if np.any(bad):
             amp = np.array(amp, dtype=float)
-            fb, vb = f[bad], vpp[bad]
+            fb, vb, tb = f[bad], vpp[bad], t_all[bad]
             mb = None if measured is None else np.broadcast_to(measured, f.shape)[bad]
             amp[bad] = _lowest_root(
-                lambda x, j: solve(fb[j], vb[j], None if mb is None else mb[j], x), amp[bad]
+                lambda x, j: solve(fb[j], vb[j], tb[j], None if mb is None else mb[j], x), amp[bad]
             )
-    k = knobs(f, vpp, phi * amp)
+    k = knobs(f, vpp, t_all, phi * amp)
     kk = Knobs(
         **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
     )
     return kk, amp
+
+
+def _fixed_point(g: Callable[[FloatArray], FloatArray], amp: FloatArray, iterations: int) -> FloatArray:
+    """``A = g(A)`` per point, in ``x = log A``: secant steps on ``h(x) = log g(e^x) - x``, safeguarded
+    by the under-relaxed step ``x + h/2`` where the secant is undefined or jumps by more than the
+    relaxed step would (softening branches overshoot otherwise).  Stops at 1e-9 relative."""
+    new = g(amp)
+    ok = (new > 0) & (amp > 0)
+    x = np.log(np.where(ok, amp, 1.0))
+    h = np.where(ok, np.log(np.where(ok, new, 1.0)) - x, 0.0)
+    x_prev = h_prev = None
+    for _ in range(iterations):
+        step = 0.5 * h
+        if x_prev is not None and h_prev is not None:
+            dh = h - h_prev
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sec = -h * (x - x_prev) / dh
+            good = np.isfinite(sec) & (np.abs(dh) > 0) & (np.abs(sec) <= 4 * np.abs(step) + 1e-12)
+            step = np.where(good, sec, step)
+        x_prev, h_prev = x, h
+        x = x + np.where(ok, step, 0.0)
+        amp_new = np.where(ok, np.exp(x), new)
+        new = g(amp_new)
+        ok = (new > 0) & (amp_new > 0)
+        h = np.where(ok, np.log(np.where(ok, new, 1.0)) - np.log(np.where(ok, amp_new, 1.0)), 0.0)
+        done = np.all(np.abs(amp_new - amp) <= 1e-9 * np.maximum(amp, 1e-30))
+        amp = amp_new
+        if done:
+            break
+    return amp
 
 
 def _lowest_root(
@@ -281,7 +313,7 @@ def _lowest_root(
     first = np.argmax(down, axis=1)
     idx = np.arange(n)
     lo, hi = np.log(grid[idx, first]), np.log(grid[idx, first + 1])
-    for _ in range(40):  # the bracket is a factor 1.2 wide: 40 halvings reach round-off
+    for _ in range(32):  # the bracket is a factor 1.26 wide: 32 halvings reach 1e-10
         mid = 0.5 * (lo + hi)
         with np.errstate(divide="ignore", invalid="ignore"):
             above = np.log(g(np.exp(mid), idx)) > mid
@@ -290,7 +322,9 @@ def _lowest_root(
 
 
 def _drive(k: Knobs, vpp: FloatArray, measured: FloatArray | None) -> FloatArray:
-    return vpp * k.voltage if measured is None else measured
+    """The drive the fin receives (Vpp): the model's amplifier output, or the monitor's reading over
+    its gain."""
+    return vpp * k.voltage * k.voltage_scale if measured is None else measured / k.voltage_gain
 
 
 def _force(fin: Fin, k: Knobs, vpp: FloatArray, measured: FloatArray | None) -> FloatArray:
@@ -305,18 +339,22 @@ def predict(
     voltage_pp: ArrayLike,
     *,
     drive_pp: ArrayLike | None = None,
-    iterations: int = 40,
+    iterations: int = 16,
+    time_s: ArrayLike | None = None,
 ) -> Prediction:
-    """Steady state of ``fin`` with ``effects`` (instances with parameter values), vectorised.
+    """Steady state of ``fin`` with ``effects`` (instances with parameter values), vectorised, as the
+    instruments read it.
 
-    ``voltage_pp`` is the nominal drive; ``drive_pp``, if given, the measured one that moves the fin.
+    ``voltage_pp`` is the nominal drive; ``drive_pp``, if given, the measured one (as the voltage
+    monitor reads it) that moves the fin; ``time_s``, when each point ran (NaN: 0).
     """
     effects = Effects(effects)
     f, vpp = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
     measured = None if drive_pp is None else np.broadcast_to(np.asarray(drive_pp, float), f.shape)
+    when = 0.0 if time_s is None else np.nan_to_num(np.broadcast_to(np.asarray(time_s, float), f.shape))
     w = 2 * math.pi * f
     phi = fin.phi_tip
-    kk, amp = steady_knobs(fin, effects, f, vpp, measured, iterations)
+    kk, amp = steady_knobs(fin, effects, f, vpp, measured, iterations, when)
     a, c0, kd = coefficients(fin, w, kk)
     force = _force(fin, kk, vpp, measured)
     d = c0 + kd * amp
@@ -327,17 +365,21 @@ def predict(
         h1 = np.where(den > 0, force * d / den, 0.0)
     vel = 1j * w * (h0 - 1j * h1)  # modal velocity phasor
     tip = phi * vel
-    current = (kk.loss_conductance + 1j * w * fin.C_eq) * v_amp + fin.theta * kk.coupling * vel
-    power = 0.5 * v_amp * np.real(current)
+    cap = fin.C_eq * kk.capacitance
+    current = (kk.loss_conductance + 1j * w * cap) * v_amp + fin.theta * kk.coupling * vel
     u_ms = 0.5 * np.abs(tip) ** 2
     x_ms = 0.5 * (fin.phi_tip_slope * amp) ** 2
     thrust = 0.5 * fin.m_v * kk.mass * (u_ms - kk.swim_speed**2 * x_ms)
+    # what the instruments read: gains, and lags as phases (a reading at t is the signal at t - tau)
+    tip_read = kk.tip_gain * tip * np.exp(-1j * w * kk.tip_delay_s)
+    i_read = kk.current_gain * current * np.exp(-1j * w * kk.current_delay_s)
+    v_read = kk.voltage_gain * v_amp
     return Prediction(
-        voltage_pp_drive=vpp * kk.voltage,
-        tip_velocity_rms=np.sqrt(u_ms),
-        tip_phase_rad=np.angle(tip),
-        current_rms=np.sqrt(0.5 * np.abs(current) ** 2 + kk.current_harmonics_a2),
-        power_w=power,
+        voltage_pp_drive=vpp * kk.voltage * kk.voltage_scale * kk.voltage_gain,
+        tip_velocity_rms=np.abs(tip_read) / math.sqrt(2),
+        tip_phase_rad=np.angle(tip_read),
+        current_rms=kk.current_gain * np.sqrt(0.5 * np.abs(current) ** 2 + kk.current_harmonics_a2),
+        power_w=0.5 * v_read * np.real(i_read),
         thrust_n=thrust,
         thrust_loadcell_n=kk.thrust_gain * thrust + kk.thrust_bias_n,
     )

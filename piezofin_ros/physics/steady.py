@@ -207,11 +207,20 @@ def coefficients(
 
 
 def solve_amplitude(
-    a: FloatArray, c0: FloatArray, k: FloatArray, force: FloatArray, max_iter: int = 60
+    a: FloatArray,
+    c0: FloatArray,
+    k: FloatArray,
+    force: FloatArray,
+    max_iter: int = 60,
+    guess: FloatArray | None = None,
 ) -> FloatArray:
-    """Unique positive root ``A`` of ``A^2 (a^2 + (c0 + k A)^2) = force^2`` (Newton, from above).
+    """Unique positive root ``A`` of ``A^2 (a^2 + (c0 + k A)^2) = force^2`` (Newton).
 
-    All arguments broadcast; ``c0, k >= 0``.  Points with ``force == 0`` give ``A = 0``.
+    All arguments broadcast; ``c0, k >= 0``.  Points with ``force == 0`` give ``A = 0``.  Newton
+    starts from an upper bound of the root, or from ``guess`` (> 0) where it is below that bound: the
+    quartic is convex and increasing for ``A > 0``, so from below the root the first step lands above
+    it, and from above it converges monotonically.  A guess near the root (the previous amplitude of
+    a fixed-point iteration) saves most of the iterations.
     """
     a, c0, k, force = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (a, c0, k, force)))
     force = np.abs(force)
@@ -222,6 +231,9 @@ def solve_amplitude(
     amp = np.minimum(bound_lin, bound_drag)
     if not np.all(np.isfinite(amp)):
         raise PhysicsError("undamped operating point: zeta = c_d = 0 at resonance has no steady state")
+    if guess is not None:
+        g0 = np.broadcast_to(np.asarray(guess, dtype=float), amp.shape)
+        amp = np.where(np.isfinite(g0) & (g0 > 0), np.minimum(g0, amp), amp)
     live = force > 0
     amp = np.where(live, amp, 0.0)
     aa = a * a

@@ -260,6 +260,7 @@ def _rk4_law(
     v_clip: FloatArray,  # (n,) the drive clips at +-this (inf: never)
     mass0: FloatArray,  # (n,) 1 + mu M
     mass_kc: FloatArray,  # (n,) mu M M_kc: the added mass per unit KC
+    mass_kc2: FloatArray,  # (n,) mu M M_kc2: the added mass per unit KC^2
     wn2: FloatArray,  # (n,) wn^2 S
     k3: FloatArray,  # (n,) wn^2 S c3
     c_lin: FloatArray,  # (n,) 2 zeta wn D
@@ -314,7 +315,7 @@ def _rk4_law(
                     yy = ys[stage]
                     v = min(max(v_amp[j] * np.sin(w * tt), -v_clip[j]), v_clip[j])
                     kc = kc_per_eta * np.sqrt(xx * xx + (yy / w) ** 2)
-                    mass = mass0[j] + mass_kc[j] * kc
+                    mass = mass0[j] + (mass_kc[j] + mass_kc2[j] * kc) * kc
                     drag = gam[j]
                     if drag_n[j] != 0.0:
                         drag = drag * max(kc, 1e-3) ** (-drag_n[j])
@@ -336,11 +337,11 @@ class LawRun:
     """Sampled trials of :func:`simulate_law`: one row per operating point (SI units)."""
 
     t: FloatArray  # (n_out,)
-    voltage: FloatArray  # (n, n_out), the drive the fin receives (clipped)
+    voltage: FloatArray  # (n, n_out), the drive the fin receives (clipped), as its monitor reads it
     eta: FloatArray
     eta_dot: FloatArray
-    current: FloatArray
-    tip_velocity: FloatArray
+    current: FloatArray  # as the current monitor reads it
+    tip_velocity: FloatArray  # as the vibrometer reads it
     thrust: FloatArray  # instantaneous Lighthill thrust with the law's added mass, N
     loadcell_thrust: FloatArray  # through the transducer law (gain, bias), N
 
@@ -379,10 +380,11 @@ def simulate_law(
     v = np.empty((n, n_out))
     _rk4_law(
         f,
-        0.5 * vpp,
+        0.5 * vpp * col(law.voltage_scale),
         col(law.voltage_clip),
         1.0 + added,
         added * col(law.mass_kc),
+        added * col(law.mass_kc2),
         wn2,
         wn2 * col(law.c3),
         c_lin,
@@ -400,11 +402,27 @@ def simulate_law(
     )
     t = np.arange(n_out) / rate_hz
     vdot = np.asarray(np.gradient(v, t, axis=1))
-    current = fin.C_eq * vdot + col(law.loss_conductance)[:, None] * v + theta[:, None] * deta
+    cap = fin.C_eq * col(law.capacitance)[:, None]
+    current = cap * vdot + col(law.loss_conductance)[:, None] * v + theta[:, None] * deta
     tip = fin.phi_tip * deta
     kc = kc_per_eta * np.sqrt(eta**2 + (deta / (2 * math.pi * f[:, None])) ** 2)
-    mv_t = fin.m_v * col(law.mass)[:, None] * (1 + col(law.mass_kc)[:, None] * kc)
+    mv_t = (
+        fin.m_v
+        * col(law.mass)[:, None]
+        * (1 + (col(law.mass_kc)[:, None] + col(law.mass_kc2)[:, None] * kc) * kc)
+    )
     U = col(law.swim_speed)[:, None]
     thrust = 0.5 * mv_t * (tip**2 - U**2 * (fin.phi_tip_slope * eta) ** 2)
     loadcell = col(law.thrust_gain)[:, None] * thrust + col(law.thrust_bias_n)[:, None]
-    return LawRun(t, v, eta, deta, current, tip, thrust, loadcell)
+    # the instruments: each channel's gain and delay (a reading at t is the signal at t - delay)
+    v_read = col(law.voltage_gain)[:, None] * v
+    tip_read = col(law.tip_gain)[:, None] * _delayed(t, tip, col(law.tip_delay_s))
+    i_read = col(law.current_gain)[:, None] * _delayed(t, current, col(law.current_delay_s))
+    return LawRun(t, v_read, eta, deta, i_read, tip_read, thrust, loadcell)
+
+
+def _delayed(t: FloatArray, x: FloatArray, delay: FloatArray) -> FloatArray:
+    """Each row of ``x`` read ``delay`` (s) late, by linear interpolation (0 before the start)."""
+    if not np.any(delay):
+        return x
+    return np.stack([np.interp(t - d, t, row, left=0.0) for row, d in zip(x, delay, strict=True)])

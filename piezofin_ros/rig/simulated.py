@@ -49,6 +49,8 @@ FloatArray = NDArray[Any]
 HARD_VOLTAGE_PP_MAX = 1000.0
 
 #: Every stop (off, the watchdog, a lowered cap, lifecycle deactivate/shutdown) ramps the amplitude
+#: The lagging instruments of an augmented model read this far back at most (s).
+LAG_HISTORY_S = 0.05
 #: down at least this fast, whatever ``slew_vpp_per_s`` is set to: from the hard cap to zero in
 #: 0.25 s.  A slower configured slew only slows the way *up* and commanded changes, never a stop.
 STOP_SLEW_VPP_PER_S = 4000.0
@@ -345,6 +347,7 @@ class SimulatedRig:
         self.fin = fin
         self.model = model
         self._knobs = Knobs()
+        self._history: dict[str, tuple[FloatArray, FloatArray]] = {}  # recent samples, for the lags
         self._knobs_at: tuple[float, float] | None = None
         self.protocol = protocol
         self.trial: _Trial | None = None
@@ -459,6 +462,16 @@ class SimulatedRig:
             self._knobs_at = point
         return self._knobs
 
+    def _lagged(self, name: str, t: FloatArray, x: FloatArray, delay_s: float) -> FloatArray:
+        """``x`` read ``delay_s`` late: interpolated in this block and the end of the previous one."""
+        t_prev, x_prev = self._history.get(name, (np.empty(0), np.empty(0)))
+        tt, xx = np.concatenate([t_prev, t]), np.concatenate([x_prev, x])
+        keep = tt > t[-1] - LAG_HISTORY_S
+        self._history[name] = (tt[keep], xx[keep])
+        if delay_s == 0.0:
+            return x
+        return np.interp(t - delay_s, tt, xx, left=0.0)
+
     def step(self, n: int) -> RigBlock:
         """Advance by ``n`` samples and return them."""
         cfg, fin = self.config, self.fin
@@ -477,6 +490,9 @@ class SimulatedRig:
         k0 = self._k
         nodes = self._t0 + (k0 + np.arange(2 * substeps * n + 1) / (2 * substeps)) * dt
         v_nodes, dv_nodes, amp_nodes = self.drive.render(nodes)
+        if float(kn.voltage_scale) != 1.0:  # the amplifier sags: its whole output scaled
+            v_nodes = v_nodes * float(kn.voltage_scale)
+            dv_nodes = dv_nodes * float(kn.voltage_scale)
         if float(kn.voltage) < 1.0:  # the amplifier clips: same fundamental as the model's drive
             r = clip_ratio(float(kn.voltage))
             inside = np.abs(v_nodes) < r * amp_nodes
@@ -490,7 +506,8 @@ class SimulatedRig:
         dv = dv_nodes[2 * substeps :: 2 * substeps]
         eta_s, deta_s = eta[0, 1:], deta[0, 1:]
         tip = fin.phi_tip * deta_s
-        current = fin.C_eq * dv + float(kn.loss_conductance) * v + fin.theta * float(kn.coupling) * deta_s
+        cap = fin.C_eq * float(kn.capacitance)
+        current = cap * dv + float(kn.loss_conductance) * v + fin.theta * float(kn.coupling) * deta_s
         U = float(kn.swim_speed) or cfg.swim_speed_m_s
         thrust = 0.5 * fin.m_v * float(kn.mass) * (tip**2 - U**2 * (fin.phi_tip_slope * eta_s) ** 2)
         reading = float(kn.thrust_gain) * thrust
@@ -501,11 +518,14 @@ class SimulatedRig:
         force_filtered, self._lc_zi = signal.lfilter(self._lc_b, self._lc_a, reading, zi=self._lc_zi)
         x = force_filtered / cfg.loadcell_stiffness + cfg.loadcell_drift_m_per_s * (t - self._t0)
         rng = self._rng
+        # the instruments (gains and lags of an augmented model's measurement chain)
+        tip_read = float(kn.tip_gain) * self._lagged("tip", t, tip, float(kn.tip_delay_s))
+        i_read = float(kn.current_gain) * self._lagged("current", t, current, float(kn.current_delay_s))
         return RigBlock(
             t=t,
-            voltage=v + cfg.voltage_noise_v * rng.standard_normal(n),
-            current=current + cfg.current_noise_a * rng.standard_normal(n),
-            tip_velocity=tip + cfg.vibrometer_noise_m_s * rng.standard_normal(n),
+            voltage=float(kn.voltage_gain) * v + cfg.voltage_noise_v * rng.standard_normal(n),
+            current=i_read + cfg.current_noise_a * rng.standard_normal(n),
+            tip_velocity=tip_read + cfg.vibrometer_noise_m_s * rng.standard_normal(n),
             displacement=x + cfg.displacement_noise_m * rng.standard_normal(n),
             thrust_true=thrust,
             events=tuple(events),

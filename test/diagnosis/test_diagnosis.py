@@ -15,7 +15,7 @@ from numpy.testing import assert_allclose
 
 from piezofin_ros.diagnosis.attribute import diagnose, fit, largest_move, summary_json
 from piezofin_ros.diagnosis.data import DataError, from_csv
-from piezofin_ros.diagnosis.paper import fit_facts, quantities
+from piezofin_ros.diagnosis.paper import FACTS, Fins, fit_hypothesis
 from piezofin_ros.diagnosis.stages import stage_gaps
 from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, simulate_case, swim_speed_m_s
 from piezofin_ros.physics.effects import LIBRARY, Duffing, ModelError
@@ -114,6 +114,17 @@ def _fundamental_rms(t: np.ndarray, y: np.ndarray, f: float) -> float:
         ({"stiffness_nonlinearity": [-50.0]}, 9.0),
         ({"added_mass_kc": [0.5], "loadcell_gain": [1.5], "loadcell_offset": [1.0]}, 4.0),
         ({"amplifier_limit": [8.0]}, 9.0),
+        ({"amplifier_sag": [4.0], "field_coupling": [0.3, 1.2], "added_mass_kc2": [2.0]}, 9.0),
+        (
+            {
+                "current_monitor_delay": [2.0],
+                "current_monitor_gain": [1.1],
+                "vibrometer_gain": [0.9],
+                "vibrometer_delay": [1.5],
+                "voltage_monitor_gain": [1.05],
+            },
+            7.0,
+        ),
     ],
 )
 def test_the_rig_streams_what_the_augmented_model_predicts(effects: dict, f: float) -> None:
@@ -144,6 +155,16 @@ def test_the_rig_streams_what_the_augmented_model_predicts(effects: dict, f: flo
     assert float(np.mean(v * i)) == pytest.approx(float(p.power_w), rel=0.025)
     lc = float(np.mean(x)) * quiet.loadcell_stiffness
     assert lc == pytest.approx(float(p.thrust_loadcell_n), rel=0.025)
+    if "vibrometer_delay" in effects:  # the lag reaches the phase the rig's reading carries
+        phase = np.angle(
+            np.mean(u * np.exp(-2j * math.pi * f * t)) / np.mean(v * np.exp(-2j * math.pi * f * t))
+        )
+        assert phase == pytest.approx(float(p.tip_phase_rad), abs=0.01)
+    if "amplifier_sag" in effects:  # scaled, not clipped: a clean sine below the command
+        assert 2 * _fundamental_rms(t, v, f) * math.sqrt(2) == pytest.approx(
+            float(p.voltage_pp_drive), rel=0.01
+        )
+        assert float(p.voltage_pp_drive) < 0.9 * 800.0
     if "amplifier_limit" in effects:
         assert np.max(np.abs(v)) < 0.99 * 400.0  # clipped, not scaled: the drive's peak is cut
         assert 2 * _fundamental_rms(t, v, f) * math.sqrt(2) == pytest.approx(
@@ -341,28 +362,45 @@ def test_bad_csv_names_the_file(tmp_path: Path, content: str) -> None:
     assert run.returncode == 2 and "bad.csv" in run.stderr and "Traceback" not in run.stderr
 
 
-def test_the_papers_two_numbers() -> None:
-    """What the paper reports for M8528-P1 at 800 Vpp: resonance near 5.5 Hz, at most 60.7 mN/W."""
-    nominal = quantities(Model(FIN), 800.0)
-    assert nominal["resonance_hz"] == pytest.approx(9.9)
-    assert nominal["max_thrust_per_watt"] > 100 * 0.0607  # the linear model: far too efficient
-    pair = fit_facts(FIN, ("electroelastic_softening", "leakage"))
-    assert pair.reproduces and pair.chi2 < 0.1
-    assert pair.predicted["resonance_hz"] == pytest.approx(5.5, abs=0.1)
-    assert pair.predicted["max_thrust_per_watt"] == pytest.approx(0.0607, rel=0.02)
-    # Each alone moves one number only.
-    for single in ("electroelastic_softening", "leakage"):
-        assert not fit_facts(FIN, (single,)).reproduces
+def test_the_papers_facts_decide_between_hypotheses() -> None:
+    """Every fact of the paper, all three fins at once: the linear model with the paper's own power
+    definition misses by two orders of magnitude; the pair that reproduced the two M8528-P1 numbers
+    (softening + leakage) fails the other fins' facts; a class-B amplifier's draw as the "average
+    power", with softening and a higher drag, survives every fact."""
+    fins = Fins()
+    nominal = fit_hypothesis("mean(v i)", (), fins)
+    assert nominal.predicted["resonance_M8528-P1"] == pytest.approx(9.9, abs=0.05)
+    assert nominal.predicted["max_tpw_M8528-P1"] > 100 * 0.0607
+    assert not nominal.survives
+    old = fit_hypothesis("mean(v i)", ("electroelastic_softening", "leakage"), fins)
+    assert not old.survives
+    worst = FACTS[int(np.argmax(np.abs(old.residuals)))].name
+    assert not worst.startswith("resonance")  # it still fits the resonance; another fact rules it out
+    best = fit_hypothesis("amplifier draw", ("drag_offset", "electroelastic_softening"), fins)
+    assert best.survives, best.residuals
+    assert best.predicted["resonance_M8528-P1"] == pytest.approx(5.5, abs=0.6)
+    for name in ("M8528-P1", "M8514-P1", "M8507-P1"):
+        assert best.predicted[f"max_tpw_{name}"] == pytest.approx(0.0607, rel=0.45)
+    assert np.max(np.abs(best.residuals)) < 3.0
 
 
-def test_paper_cli() -> None:
+def test_paper_cli(tmp_path: Path) -> None:
     exe = Path(sys.executable).parent / "piezofin"
-    run = subprocess.run([exe, "diagnose", "--paper"], capture_output=True, text=True, timeout=600)
+    out = tmp_path / "paper.json"
+    run = subprocess.run(
+        [exe, "diagnose", "--paper", "--json", str(out)], capture_output=True, text=True, timeout=900
+    )
     assert run.returncode == 0, run.stderr
-    assert "No single effect reproduces both numbers" in run.stdout
-    assert "electroelastic_softening + leakage" in run.stdout
+    assert "## Surviving every fact: " in run.stdout
+    assert "| [amplifier draw] drag_offset + electroelastic_softening |" in run.stdout
     assert "swim_speed (quiescent water" in run.stdout  # not tried, with the reason
-    assert "(66/66)" in run.stderr  # progress
+    assert "## Which facts decide" in run.stdout and "## The measurement that would decide" in run.stdout
+    assert "(30/30)" in run.stderr  # progress
+    data = json.loads(out.read_text())
+    assert len(data["facts"]) == 10
+    survivors = [h for h in data["hypotheses"] if h["survives"]]
+    assert survivors and all(h["p_value"] >= 0.01 for h in survivors)
+    assert all(h["definition"] != "mean(v i)" for h in survivors)
 
 
 @pytest.mark.parametrize(

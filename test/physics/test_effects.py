@@ -55,13 +55,30 @@ STRENGTHS = {
     "amplifier_limit": 0.6,
     "loadcell_offset": 1.0,
     "loadcell_gain": 1.25,
+    "field_coupling": 0.3,
+    "amplifier_sag": 0.6,
+    "added_mass_kc2": 0.5,
+    "voltage_monitor_gain": 1.1,
+    "vibrometer_gain": 1.1,
+    "vibrometer_delay": 2.0,
+    "current_monitor_gain": 1.1,
+    "current_monitor_delay": 2.0,
+    "resonance_drift": 25.0,
+    "capacitance_drift": 25.0,
+    "coupling_drift": 25.0,
 }
+#: when the trials run (s since the first): drifts are judged half an hour into a run
+WHEN = 1800.0
 #: (effect, frequency) outside the single-term balance's domain, with the reason
 OUTSIDE_DOMAIN = {
-    ("stiffness_nonlinearity", 3.0): "superharmonic resonance of the cubic spring (3 f near f_res)"
+    ("stiffness_nonlinearity", 3.0): "superharmonic resonance of the cubic spring (3 f near f_res)",
+    # an added mass ~ KC^2 turns the drag's third harmonic (3 f = 9 Hz, near f_res = 9.85 Hz) into a
+    # modulation of the mass at 2 f: the balance misses the small power there by 3.4 % (nominal 0.8 %)
+    ("added_mass_kc2", 3.0): "drag superharmonic (3 f near f_res) modulating a KC^2 added mass",
 }
 #: the harmonics (rms over the fundamental) of the tip velocity that put a point outside the domain
-HARMONICS_OUTSIDE = 0.10
+#: (the nominal model has 5 % there)
+HARMONICS_OUTSIDE = {"stiffness_nonlinearity": 0.10, "added_mass_kc2": 0.07}
 
 
 def _effect(name: str) -> Effect:
@@ -86,15 +103,16 @@ def _law_fundamentals(law: TimeLaw, f: float, vpp: float, amp: float) -> dict[st
         return float(2 * np.mean(x * basis))
 
     g = float(law.drag) * np.maximum(kc, 1e-3) ** (-float(law.drag_n))
+    mass_kc = float(law.mass_kc) * kc + float(law.mass_kc2) * kc**2
     v = 0.5 * vpp
     clipped = np.clip(v * s, -float(law.voltage_clip), float(law.voltage_clip))
     dv = np.gradient(clipped, th, edge_order=2) * w  # dv/dt of the clipped drive
-    i_cap = FIN.C_eq * dv
+    i_cap = FIN.C_eq * float(law.capacitance) * dv
     i_fund = fund(i_cap, c) * c + fund(i_cap, s) * s
     return {
         "stiffness": fund(float(law.stiffness) * (eta + float(law.c3) * eta**3), s) / amp,
         "damping": fund(float(law.damping) * (1 + float(law.c_abs) * np.abs(eta)) * eta_dot, c) / (amp * w),
-        "mass": float(np.mean(float(law.mass) * (1 + float(law.mass_kc) * kc))),
+        "mass": float(np.mean(float(law.mass) * (1 + mass_kc))),
         "drag": fund(g * np.abs(eta_dot) * eta_dot, c) / fund(np.abs(eta_dot) * eta_dot, c),
         "coupling": float(law.coupling),
         "voltage": fund(clipped, s) / v,
@@ -103,6 +121,19 @@ def _law_fundamentals(law: TimeLaw, f: float, vpp: float, amp: float) -> dict[st
         "thrust_bias_n": float(law.thrust_bias_n),
         "swim_speed": float(law.swim_speed),
         "current_harmonics_a2": float(np.mean((i_cap - i_fund) ** 2)),
+        # terms that are factors of the law as they are of the balance
+        **{
+            q: float(getattr(law, q))
+            for q in (
+                "capacitance",
+                "voltage_scale",
+                "voltage_gain",
+                "tip_gain",
+                "tip_delay_s",
+                "current_gain",
+                "current_delay_s",
+            )
+        },
     }
 
 
@@ -118,14 +149,15 @@ def test_the_describing_function_is_the_fundamental_of_the_time_domain_law(name:
     moved = set()
     for f, vpp, x in OPERATING_POINTS:
         ff, vv = np.array([f]), np.array([vpp])
-        law = Effects((effect,)).law(FIN, ff, vv)
+        law = Effects((effect,)).law(FIN, ff, vv, WHEN)
         law = TimeLaw(
             **{q.name: np.asarray(getattr(law, q.name), float).reshape(-1)[0] for q in fields(TimeLaw)}
         )
         expected = _law_fundamentals(law, f, vpp, x / FIN.phi_tip)
-        knobs = Effects((effect,)).describe(OperatingPoint(FIN, ff, vv, np.array([x])))
+        knobs = Effects((effect,)).describe(OperatingPoint(FIN, ff, vv, np.array([x]), WHEN))
         scale = {"loss_conductance": FIN.C_eq * 2 * math.pi * f, "thrust_bias_n": 1e-3, "swim_speed": 0.1}
         scale["current_harmonics_a2"] = (FIN.C_eq * 2 * math.pi * f * 0.5 * vpp) ** 2
+        scale["tip_delay_s"] = scale["current_delay_s"] = 1e-3
         for q in fields(Knobs):
             got = float(np.asarray(getattr(knobs, q.name)).reshape(-1)[0])
             want = expected[q.name]
@@ -140,7 +172,7 @@ def test_the_describing_function_is_the_fundamental_of_the_time_domain_law(name:
 
 
 def _time_domain(model: Model) -> dict[str, np.ndarray]:
-    run = simulate_law(FIN, model.law(FREQS, VPP), FREQS, VPP, duration=12.0, rate_hz=2000.0)
+    run = simulate_law(FIN, model.law(FREQS, VPP, WHEN), FREQS, VPP, duration=12.0, rate_hz=2000.0)
     out: dict[str, list[float]] = {"tip": [], "current": [], "power": [], "thrust": [], "harmonics": []}
     for j, f in enumerate(FREQS):
         periods = math.floor(6.0 * f)
@@ -159,7 +191,7 @@ def _time_domain(model: Model) -> dict[str, np.ndarray]:
 
 
 def _balance(model: Model) -> dict[str, np.ndarray]:
-    p = model.predict(FREQS, VPP)
+    p = model.predict(FREQS, VPP, time_s=WHEN)
     return {
         "tip": p.tip_velocity_rms,
         "current": p.current_rms,
@@ -193,7 +225,8 @@ def test_the_steady_states_of_the_law_and_of_the_describing_function_agree(name:
     model = Model(FIN) + _effect(name)
     td, hb = _time_domain(model), _balance(model)
     inside = np.array([(name, float(f)) not in OUTSIDE_DOMAIN for f in FREQS])
-    assert np.all(td["harmonics"][~inside] > HARMONICS_OUTSIDE), (name, td["harmonics"])  # the reason holds
+    if not np.all(inside):  # the reason holds
+        assert np.all(td["harmonics"][~inside] > HARMONICS_OUTSIDE[name]), (name, td["harmonics"])
     for channel in CHANNELS:
         err = np.abs(hb[channel] - td[channel]) / np.maximum(np.abs(td[channel]), np.abs(td0[channel]))
         assert np.all(err[inside] <= own[channel] + 0.01), (name, channel, err, own[channel])
