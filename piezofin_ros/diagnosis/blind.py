@@ -14,6 +14,7 @@ effect (``BLIND``)          law here                                            
                             RMS current (capacitive, loss and motional) stays      ``C_eq w V``
                             under a limit (an automatic gain control)
 ``added_mass_kc_mixed``     ``c_m x (1 + a KC + 2 a KC^2)``                        ``KC`` or ``KC^2``
+                                                                                  (the pair is exact)
 ``vibrometer_lowpass``      a first-order low-pass on the tip-velocity reading     gain; pure delay
                             (corner 20-80 Hz: a lag and a gain falling with f)
 ``current_lowpass``         a first-order low-pass on the current reading (an RC  pure delay
@@ -45,6 +46,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from ..errors import DiagnosisError
+from ..physics.effects import effect_class
 from ..physics.fin import load_fin, preset_names
 from ..physics.model import Model
 from ..physics.timedomain import simulate_law
@@ -178,8 +180,6 @@ def simulate_blind(case: BlindCase) -> Trials:
 def named_family(d: Any) -> str | None:
     """The family a diagnosis points at: its chosen effects' (one family), the family of the least-bad
     candidate it states, a reversed sensor it found, or None (no gap, or no family)."""
-    from ..physics.effects import effect_class
-
     for note in d.notes:
         if "vibrometer's sign is reversed" in note:
             return "vibrometer reversed"

@@ -638,8 +638,13 @@ def conventions(trials: Trials) -> tuple[Trials, list[str]]:
         which = "the voltage channel's sign is reversed (or both the vibrometer's and the current monitor's)"
     elif tip_flipped:
         which = "the vibrometer's sign is reversed (it looks at the fin from the other side)"
-    else:
+    elif np.any(ok_u):
         which = "the current monitor's sign is reversed"
+    else:  # no vibrometer (a fish): the phase cannot tell the current from the voltage
+        which = (
+            "the current monitor's sign is reversed (or the voltage channel's: without a vibrometer "
+            "they look alike)"
+        )
     fix = " and ".join(
         x for x, on in (("tip phase + 180 deg", tip_flipped), ("power x -1", power_flipped)) if on
     )

@@ -7,13 +7,16 @@ vanishes, a typical size) and two descriptions of the same physics, side by side
   written in the canonical form of :class:`TimeLaw`::
 
       m(t) eta'' + c_lin D (1 + c_abs |eta|) eta' + g(t) |eta'| eta' + wn^2 S (eta + c3 eta^3)
-          = theta Q clip(v, v_clip)
-      m(t) = 1 + mu M (1 + M_kc KC(t)),   g(t) = gamma G KC(t)^-n,   KC(t) = 2 pi phi(L) |eta(t)| / b
-      i = C_eq dv_c/dt + G_loss v_c + theta Q eta'
-      load cell = gain (1/2) m_v M (1 + M_kc KC) (w_t^2 - U^2 w_x^2) + bias
+          = theta Q v_c,   v_c = clip(s v, v_clip)   (s: an amplifier's sag)
+      m(t) = 1 + mu M (1 + M_kc KC(t) + M_kc2 KC(t)^2),   g(t) = gamma G KC(t)^-n,
+      KC(t) = 2 pi phi(L) |eta(t)| / b
+      i = C C_eq dv_c/dt + G_loss v_c + theta Q eta'
+      load cell = gain (1/2) m_v M (1 + M_kc KC + M_kc2 KC^2) (w_t^2 - U^2 w_x^2) + bias
+      readings: g_v v_c,  g_u u(t - tau_u),  g_i i(t - tau_i)   (the instruments)
 
   (``|eta(t)|`` the instantaneous amplitude ``sqrt(eta^2 + (eta'/w)^2)``; integrated by
-  :func:`piezofin_ros.physics.timedomain.simulate_law`);
+  :func:`piezofin_ros.physics.timedomain.simulate_law`; every coefficient may depend on the trial's
+  frequency, voltage and start time, which is how drifts enter);
 * its **describing function** (:meth:`Effect.describe`): the same law seen by the single-term
   harmonic balance, as changes of the balance's coefficients (:class:`~.knobs.Knobs`) at an
   operating point and a tip amplitude ``X = phi(L) A``.  For ``c3 eta^3`` it is

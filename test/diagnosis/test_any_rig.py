@@ -321,3 +321,17 @@ def test_trial_times_survive_a_csv_and_a_drift_is_fitted_on_them(tmp_path: Path)
         "\n".join(",".join(c for j, c in enumerate(r.split(",")) if j != k) for r in rows) + "\n"
     )
     assert "capacitance_drift" not in diagnose(from_csv(timeless), FIN).named
+
+
+def test_on_a_fish_a_negative_power_names_both_suspects(tmp_path: Path) -> None:
+    """Without a vibrometer the tip phase cannot tell a reversed current monitor from a reversed
+    voltage channel: both are named, and the power is corrected."""
+
+    def flip(topic: str, block: Block) -> Block | None:
+        return _channel(block, "current_A", lambda t, x: -x) if topic == "/fin/drive" else None
+
+    bag = rewrite(tmp_path / "fish.mcap", flip, drop=("/fin/tip_velocity", "/fin/loadcell"))
+    trials, _ = from_bags([bag], FIN)
+    d = diagnose(trials, FIN)
+    assert any("or the voltage channel's: without a vibrometer" in n for n in d.notes), d.notes
+    assert np.all(d.trials.power_w > 0)
