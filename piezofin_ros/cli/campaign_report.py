@@ -17,6 +17,7 @@ import numpy as np
 
 from ..bags import block_of, read_messages
 from ..bags.blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..diagnosis.paper import PAPER_MAX_TPW, PAPER_OPERATION_HZ, PAPER_POWER_RATIO, half_max_band
 from ..identification.identify import Identification
 from ..physics import hydro
 from ..physics.fin import Fin
@@ -58,9 +59,6 @@ PAPER: dict[str, dict[str, float]] = {
 }
 #: Sec. 3.3: M8528-P1's representative run (Fig. 6), the common maximum of T/P (Fig. 10b), and the
 #: power near resonance at 800 Vpp, psi 5.4 : 3.9 : 2.1 about 1 : 2 : 5.
-PAPER_OPERATION_HZ = 5.5
-PAPER_MAX_TPW = 0.0607
-PAPER_POWER_RATIO = {"M8507-P1": 1.0, "M8514-P1": 2.0, "M8528-P1": 5.0}
 
 
 def namespace(name: str) -> str:
@@ -117,25 +115,6 @@ def _by_voltage(results: list[dict[str, float]]) -> dict[float, dict[str, np.nda
 def _top_hz(status: dict[str, Any]) -> float:
     """The highest protocol frequency of a fin (its band), Hz."""
     return float(max((r["frequency_hz"] for r in status["results"]), default=11.0))
-
-
-def half_max_band(f: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """Lowest and highest frequency of the run around the peak of ``y`` where ``y`` is at least half
-    its maximum; NaN when the peak is at an end of the samples (no peak inside them)."""
-    ok = np.isfinite(y)
-    f, y = f[ok], y[ok]
-    if f.size < 3:
-        return math.nan, math.nan
-    k = int(np.argmax(y))
-    if k in (0, f.size - 1):
-        return math.nan, math.nan
-    above = y >= 0.5 * y[k]
-    lo, hi = k, k
-    while lo > 0 and above[lo - 1]:
-        lo -= 1
-    while hi < f.size - 1 and above[hi + 1]:
-        hi += 1
-    return float(f[lo]), float(f[hi])
 
 
 def fin_numbers(

@@ -20,29 +20,18 @@ import numpy as np
 import pytest
 import yaml
 
-from piezofin_ros.bags import BagError, BagWriter, block_of, read_messages, typestore
-from piezofin_ros.bags.blocks import Block, to_layout
+from piezofin_ros.bags import BagError, BagWriter, block_of, read_messages
+from piezofin_ros.bags.blocks import Block
 from piezofin_ros.diagnosis.attribute import diagnose
 from piezofin_ros.diagnosis.blind import BlindCase, named_family, simulate_blind
 from piezofin_ros.diagnosis.data import from_bags, from_csv, scan_bag
 from piezofin_ros.estimation.estimator import EstimatorConfig, StreamEstimator, analyse_window
 from piezofin_ros.physics.fin import load_fin
+from test.bags.test_bagio import cdr_block
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_M8528-P1.mcap"
 FIN = load_fin("M8528-P1")
 EXE = Path(sys.executable).parent / "piezofin"
-
-
-def _cdr(block: Block) -> bytes:
-    store = typestore()
-    dims, data = to_layout(block)
-    Dim = store.types["std_msgs/msg/MultiArrayDimension"]
-    Layout = store.types["std_msgs/msg/MultiArrayLayout"]
-    Msg = store.types["std_msgs/msg/Float64MultiArray"]
-    msg = Msg(
-        layout=Layout(dim=[Dim(label=a, size=b, stride=c) for a, b, c in dims], data_offset=0), data=data
-    )
-    return bytes(store.serialize_cdr(msg, "std_msgs/msg/Float64MultiArray"))
 
 
 Edit = Callable[[str, Block], Block | None]
@@ -58,7 +47,7 @@ def rewrite(path: Path, edit: Edit | None = None, drop: tuple[str, ...] = ()) ->
             if edit is not None and m.type_name.endswith("Float64MultiArray"):
                 new = edit(m.topic, block_of(m.type_name, m.data))
                 if new is not None:
-                    data = _cdr(new)
+                    data = cdr_block(new)
             bag.add_topic(m.topic, m.type_name)
             bag.write(m.topic, m.log_time_ns, data)
     return path
@@ -148,7 +137,7 @@ def test_split_files_are_read_in_rosbag2_order_without_metadata(tmp_path: Path) 
     for k in (10, 2, 1):
         with BagWriter(run / f"run_{k}.mcap") as bag:
             bag.add_topic("/x", "std_msgs/msg/Float64MultiArray")
-            bag.write("/x", k, _cdr(Block(("a",), np.array([[float(k)]]))))
+            bag.write("/x", k, cdr_block(Block(("a",), np.array([[float(k)]]))))
     assert [m.log_time_ns for m in read_messages(run)] == [1, 2, 10]
 
 

@@ -310,7 +310,11 @@ def test_fast_simulation_does_not_trip_on_scheduling_jitter() -> None:
 @pytest.mark.slow
 def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
     """fin_sim (the /clock source at x10) is SIGKILLed: within 5 s both the estimator and the
-    controller say that their input stopped (their ROS-time timers stopped with the clock)."""
+    controller say that their input stopped (their ROS-time timers stopped with the clock).
+
+    The controller runs one protocol trial with a 600 s burst (60 s of wall time), so that the fin is
+    driven when it is killed; a ``continuous`` point ends at its first running estimate (8 s of fin
+    time, under a second of wall time), which the witness could miss on a slow graph."""
     sim = start("fin_sim", "-r", "__ns:=/quiet", "-p", "realtime_factor:=10.0", "-p", "publish_clock:=true")
     est = start("thrust_estimator", "-r", "__ns:=/quiet", "-p", "use_sim_time:=true")
     ctl = start(
@@ -320,7 +324,7 @@ def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
         "-p",
         "use_sim_time:=true",
         "-p",
-        "mode:=continuous",
+        "mode:=protocol",
         "-p",
         "on_s:=600.0",
     )
