@@ -132,12 +132,11 @@ def fit(
     if start:
         x0 = np.concatenate([np.asarray(start.get(n, effect_class(n).neutral()), float) for n in names])
         starts.append(space.to_z(x0))
-    if starts and only_start:
-        pass  # the given start alone
-    elif len(params) == 1 and params[0].starts:
-        starts += list(space.to_z(params[0].starts)[:, None])
-    else:
-        starts += [np.full(len(params), 0.5), np.full(len(params), -0.5)]
+    if not (starts and only_start):
+        if len(params) == 1 and params[0].starts:
+            starts += list(space.to_z(params[0].starts)[:, None])
+        else:
+            starts += [np.full(len(params), 0.5), np.full(len(params), -0.5)]
     best, best_cost = None, math.inf
     for z0 in starts:
         z0 = np.clip(z0, zlo + 1e-9 * (zhi - zlo), zhi - 1e-9 * (zhi - zlo))

@@ -22,6 +22,7 @@ most: the measurement that would decide between them (:func:`deciding_measuremen
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import os
@@ -195,7 +196,6 @@ def quantities(models: dict[str, Model], definition: str, fins: Fins) -> dict[st
         if all(math.isfinite(x) and x > 0 for x in b)
         else 1.0  # no peak of T/P inside the band: no band to order
     )
-    out["bands"] = bands  # type: ignore[assignment]
     return out
 
 
@@ -242,7 +242,7 @@ class Hypothesis:
 
 def fit_hypothesis(definition: str, names: tuple[str, ...], fins: Fins | None = None) -> Hypothesis:
     """The effects' parameters (shared by the three fins) that best reproduce every fact."""
-    fins = fins or Fins()
+    fins = fins or _fins()
     spaces = {nm: ParamSpace(fin, names) for nm, fin in fins.fins.items()}
 
     def evaluate(z: FloatArray) -> dict[str, float]:
@@ -275,10 +275,13 @@ def fit_hypothesis(definition: str, names: tuple[str, ...], fins: Fins | None = 
 
 
 def _fit_job(args: tuple[str, tuple[str, ...]]) -> Hypothesis:
-    return fit_hypothesis(*args, fins=_FINS)
+    return fit_hypothesis(*args, fins=_fins())
 
 
-_FINS = Fins()
+@functools.cache
+def _fins() -> Fins:
+    """The three fins, read once per process (when first needed, not at import)."""
+    return Fins()
 
 
 def paper_gap(
@@ -330,7 +333,7 @@ def deciding_facts(hypotheses: Sequence[Hypothesis]) -> list[tuple[Fact, int]]:
 
 def deciding_measurement(a: Hypothesis, b: Hypothesis, fins: Fins | None = None) -> str:
     """Where two hypotheses' predictions of what a rig measures differ most (relative)."""
-    fins = fins or _FINS
+    fins = fins or _fins()
     if a.definition != b.definition:
         return (
             f"record v(t) and i(t) and compute both mean(v i) and Vrms x Irms (and the amplifier's supply "

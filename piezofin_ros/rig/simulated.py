@@ -463,13 +463,15 @@ class SimulatedRig:
         return self._knobs
 
     def _lagged(self, name: str, t: FloatArray, x: FloatArray, delay_s: float) -> FloatArray:
-        """``x`` read ``delay_s`` late: interpolated in this block and the end of the previous one."""
+        """``x`` read ``delay_s`` late: interpolated in this block and the end of the previous one
+        (nothing is kept or copied for an instrument without a lag, the rule on every block)."""
+        if delay_s == 0.0:
+            self._history.pop(name, None)
+            return x
         t_prev, x_prev = self._history.get(name, (np.empty(0), np.empty(0)))
         tt, xx = np.concatenate([t_prev, t]), np.concatenate([x_prev, x])
         keep = tt > t[-1] - LAG_HISTORY_S
         self._history[name] = (tt[keep], xx[keep])
-        if delay_s == 0.0:
-            return x
         return np.interp(t - delay_s, tt, xx, left=0.0)
 
     def step(self, n: int) -> RigBlock:
