@@ -45,10 +45,10 @@ from numpy.typing import NDArray
 from scipy import optimize
 
 from ..errors import ControlError
+from ..limits import HARD_VOLTAGE_PP_MAX
 from ..physics.effects import DielectricLoss, DragOffset, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
-from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from .plants import EstimateNoise, PlantResponse
 
 FloatArray = NDArray[Any]

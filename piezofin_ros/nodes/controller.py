@@ -32,11 +32,11 @@ from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
+from ..limits import HARD_VOLTAGE_PP_MAX
 from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model
 from ..physics.waveforms import ProtocolTiming
-from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,

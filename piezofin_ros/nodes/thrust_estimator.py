@@ -27,7 +27,6 @@ from ..config import setting
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
 from ..physics.fin import load_fin
-from ..rig.simulated import RigConfig
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -61,10 +60,9 @@ class ThrustEstimator(Node):
     ):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         fin_name = declare(self, ThrustEstimatorConfig).fin
-        default = EstimatorConfig(loadcell_stiffness_n_per_m=RigConfig().loadcell_stiffness)
         try:
             self.fin = load_fin(fin_name)
-            config = declare(self, EstimatorConfig, "estimator", base=default)
+            config = declare(self, EstimatorConfig, "estimator")
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         freeze_parameters(self)
