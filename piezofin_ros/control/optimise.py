@@ -44,8 +44,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
+from ..config import HARD_VOLTAGE_PP_MAX
 from ..errors import ControlError
-from ..limits import HARD_VOLTAGE_PP_MAX
 from ..physics.effects import DielectricLoss, DragOffset, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model

@@ -25,14 +25,13 @@ from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..bags.blocks import Block, BlockFormatError
-from ..config import setting
+from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.driveloop import DriveLoop
 from ..control.optimise import OperatingBox, Optimiser
 from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
-from ..limits import HARD_VOLTAGE_PP_MAX
 from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model

@@ -34,9 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, signal
 
-from ..config import setting
+from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..errors import RigError
-from ..limits import HARD_VOLTAGE_PP_MAX
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
 from ..physics.timedomain import default_step, integrate_nodes
