@@ -31,9 +31,9 @@ velocity:
 * **self-sensed** tip velocity and thrust, from the drive alone: by Eq. (10) the motional
   current is ``i - C_eq dv/dt = theta deta/dt``, so ``U_k^self = (phi(L)/theta)(I_k - j k w C_eq V_k)``,
   with the capacitance, loss conductance, coupling and ``c_m`` of a :class:`~.selfsense.Calibration`
-  when one is given (a loaded model's: ``thrust_estimator``'s ``model`` parameter).
-  a fish with no vibrometer and no load cell gets the same Lighthill thrust from this.  The
-  fundamental admittance ``I_1 / V_1`` is reported too, so that a consumer can calibrate online;
+  when one is given (a loaded model's: ``thrust_estimator``'s ``model`` parameter).  A fish with no
+  vibrometer and no load cell gets the same Lighthill thrust from this.  The fundamental
+  admittance ``I_1 / V_1`` is reported too, so that a consumer can calibrate online;
 * **load-cell** thrust as the paper measures it: mean deflection during the window minus the
   baseline (pre and post, each ``baseline_s`` long, with the drive off), times the transducer
   stiffness.  The baseline is the line through the two baselines' means, read at the window's mean
@@ -562,7 +562,8 @@ class StreamEstimator:
         freq = p.n_periods / (p.t_end - p.t_start)
         tt, u = self.tip.slice(p.t_start, p.t_end)
         speed = self._speed_at(p.t_start, p.t_end)
-        cal = NOMINAL if self.calibrate is None else self.calibrate(freq, float(np.ptp(vi[:, 0])))
+        vpp = float(np.ptp(vi[:, 0]))  # (the calibration's field: the window's peak-to-peak drive)
+        cal = NOMINAL if self.calibrate is None else self.calibrate(freq, vpp)
         r = analyse_window(
             self.fin,
             t,

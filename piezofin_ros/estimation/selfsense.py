@@ -10,8 +10,9 @@ in-phase current of dielectric loss and leakage, which does no motion) and ``q``
 at this field.  With ``c = q = 1`` and ``G = 0`` this is the paper's Eq. (10); each error in them goes
 straight into the self-sensed thrust (dielectric loss of tan delta 0.05 read as motion: +30 % near
 resonance on M8528-P1).  :class:`Calibration` holds them, and the added-mass factor of ``c_m`` that
-enters Lighthill's ``m_v``; the controller fits them online from the drive's admittance
-(:mod:`piezofin_ros.control.optimise`), and ``thrust_estimator`` takes them from a loaded model.
+enters Lighthill's ``m_v``.  ``thrust_estimator`` takes them from a loaded model (its ``model``
+parameter); every estimate carries the drive's admittance ``I_1 / V_1``, from which they can also
+be fitted online.
 """
 
 from __future__ import annotations

@@ -65,3 +65,10 @@ def test_the_estimate_carries_the_drive_admittance(both) -> None:
     truth = MODEL.predict([e.frequency_hz for e in nominal], [e.voltage_pp for e in nominal])
     measured = np.array([complex(e.admittance_re, e.admittance_im) for e in nominal])
     assert np.allclose(measured, truth.admittance, rtol=5e-3)
+
+
+def test_the_estimators_load_cell_stiffness_is_the_simulated_rigs() -> None:
+    """(``thrust_estimator`` no longer loads the simulated rig to learn it: the two defaults agree.)"""
+    from piezofin_ros.rig.simulated import RigConfig
+
+    assert EstimatorConfig().loadcell_stiffness_n_per_m == pytest.approx(RigConfig().loadcell_stiffness)
