@@ -20,6 +20,12 @@ from collections.abc import Sequence
 from dataclasses import Field, dataclass, field, fields
 from typing import Any
 
+#: Hard cap on the peak-to-peak drive voltage that no configuration can exceed.  Smart Material's
+#: MFC datasheet rates the P1 (d33) types for -500 V .. +1500 V; a symmetric bipolar sine is
+#: therefore limited to +-500 V, i.e. 1000 Vpp.  The paper drives at most 800 Vpp.  (Here, among the
+#: settings, so that the nodes a fish runs know it without loading the simulated rig.)
+HARD_VOLTAGE_PP_MAX = 1000.0
+
 
 @dataclass(frozen=True)
 class Setting:

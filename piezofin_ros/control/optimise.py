@@ -44,11 +44,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
+from ..config import HARD_VOLTAGE_PP_MAX
 from ..errors import ControlError
 from ..physics.effects import DielectricLoss, DragOffset, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
-from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from .plants import EstimateNoise, PlantResponse
 
 FloatArray = NDArray[Any]

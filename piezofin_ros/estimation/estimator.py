@@ -29,8 +29,11 @@ velocity:
 * thrust per watt ``T / P`` and the thrust coefficient of Eq. (22),
   ``c_tau = T / ((1/2) rho_w w^2 |w(L)|^2 b L)`` with ``|w(L)| = |U_1| / w``;
 * **self-sensed** tip velocity and thrust, from the drive alone: by Eq. (10) the motional
-  current is ``i - C_eq dv/dt = theta deta/dt``, so ``U_k^self = (phi(L)/theta)(I_k - j k w C_eq V_k)``.
-  A fish with no vibrometer and no load cell gets the same Lighthill thrust from this;
+  current is ``i - C_eq dv/dt = theta deta/dt``, so ``U_k^self = (phi(L)/theta)(I_k - j k w C_eq V_k)``,
+  with the capacitance, loss conductance, coupling and ``c_m`` of a :class:`~.selfsense.Calibration`
+  when one is given (a loaded model's: ``thrust_estimator``'s ``model`` parameter).  A fish with no
+  vibrometer and no load cell gets the same Lighthill thrust from this.  The fundamental
+  admittance ``I_1 / V_1`` is reported too, so that a consumer can calibrate online;
 * **load-cell** thrust as the paper measures it: mean deflection during the window minus the
   baseline (pre and post, each ``baseline_s`` long, with the drive off), times the transducer
   stiffness.  The baseline is the line through the two baselines' means, read at the window's mean
@@ -55,6 +58,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -64,6 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..config import setting
 from ..errors import EstimationError
 from ..physics.fin import Fin
+from .selfsense import NOMINAL, Calibration, self_sensed_tip
 
 FloatArray = NDArray[Any]
 
@@ -94,6 +99,8 @@ class Estimate:
     loadcell_baselines: float  # 0, 1 (pre only) or 2 (pre and post)
     swim_speed_m_s: float  # U used in Eq. (19)
     tip_phase_rad: float = math.nan  # phase of the fundamental tip velocity relative to the voltage's
+    admittance_re: float = math.nan  # S, the drive's fundamental I_1 / V_1: conductance
+    admittance_im: float = math.nan  # S, and susceptance (what self-sensing is calibrated from)
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
@@ -111,7 +118,7 @@ class Estimate:
 
 
 #: Fields added after the first recordings: older bags lack them, and they read as NaN.
-OPTIONAL_FIELDS = ("tip_phase_rad",)
+OPTIONAL_FIELDS = ("tip_phase_rad", "admittance_re", "admittance_im")
 
 
 @dataclass(frozen=True)
@@ -177,12 +184,13 @@ def analyse_window(
     tip_t: ArrayLike | None = None,
     swim_speed_m_s: float = 0.0,
     harmonics: int = 3,
+    calibration: Calibration = NOMINAL,
 ) -> dict[str, float]:
     """Estimates over one window of drive samples that spans whole periods of ``frequency_hz``.
 
     ``tip_velocity`` may have its own sample times ``tip_t`` (default: ``t``).  Returns the
     fields of :class:`Estimate` that a window determines (not the window bookkeeping or the
-    load cell).
+    load cell).  ``calibration`` corrects the self-sensing and ``c_m`` (:mod:`.selfsense`).
     """
     t = np.asarray(t, dtype=float)
     v = np.asarray(voltage, dtype=float)
@@ -201,7 +209,7 @@ def analyse_window(
     def lighthill(Uk: FloatArray) -> tuple[float, float, float]:
         ms_u = float(np.sum(np.abs(Uk) ** 2) / 2.0)
         ms_w = float(np.sum(np.abs(Uk) ** 2 / (2.0 * (orders * w) ** 2)))
-        thrust = 0.5 * fin.m_v * (ms_u - U2 * slope_ratio**2 * ms_w)
+        thrust = 0.5 * fin.m_v * float(calibration.mass) * (ms_u - U2 * slope_ratio**2 * ms_w)
         amp_w1 = abs(Uk[0]) / w
         denom = 0.5 * fin.rho_w * w**2 * amp_w1**2 * fin.b * fin.L
         c_tau = thrust / denom if denom > 0 else math.nan
@@ -210,8 +218,8 @@ def analyse_window(
     def per_watt(thrust: float) -> float:
         return thrust / power if power > 0 else math.nan
 
-    motional = I_ - 1j * orders * w * fin.C_eq * V
-    u_self, thrust_self, _ = lighthill(fin.phi_tip / fin.theta * motional)
+    u_self, thrust_self, _ = lighthill(self_sensed_tip(fin, I_, V, orders * w, calibration))
+    admittance = I_[0] / V[0] if abs(V[0]) > 0 else complex(math.nan, math.nan)
     out = {
         "frequency_hz": frequency_hz,
         "voltage_pp": 2.0 * float(abs(V[0])),
@@ -226,6 +234,8 @@ def analyse_window(
         "thrust_per_watt_self": per_watt(thrust_self),
         "swim_speed_m_s": swim_speed_m_s,
         "tip_phase_rad": math.nan,
+        "admittance_re": float(admittance.real),
+        "admittance_im": float(admittance.imag),
     }
     if tip_velocity is not None:
         tu = t if tip_t is None else np.asarray(tip_t, dtype=float)
@@ -322,9 +332,15 @@ class StreamEstimator:
     same estimates.  ``fin`` supplies ``m_v``, ``C_eq``, ``theta`` and ``phi(L)``.
     """
 
-    def __init__(self, fin: Fin, config: EstimatorConfig | None = None) -> None:
+    def __init__(
+        self,
+        fin: Fin,
+        config: EstimatorConfig | None = None,
+        calibrate: Callable[[float, float], Calibration] | None = None,
+    ) -> None:
         self.fin = fin
         self.config = config or EstimatorConfig()
+        self.calibrate = calibrate  # (frequency Hz, Vpp) -> the self-sensing's calibration there
         self.drive = _Channel()
         self.tip = _Channel()
         self.loadcell = _Channel()
@@ -546,6 +562,8 @@ class StreamEstimator:
         freq = p.n_periods / (p.t_end - p.t_start)
         tt, u = self.tip.slice(p.t_start, p.t_end)
         speed = self._speed_at(p.t_start, p.t_end)
+        vpp = float(np.ptp(vi[:, 0]))  # (the calibration's field: the window's peak-to-peak drive)
+        cal = NOMINAL if self.calibrate is None else self.calibrate(freq, vpp)
         r = analyse_window(
             self.fin,
             t,
@@ -556,6 +574,7 @@ class StreamEstimator:
             tip_t=tt if tt.size else None,
             swim_speed_m_s=speed,
             harmonics=self.config.harmonics,
+            calibration=cal,
         )
         thrust_lc, n_base = math.nan, 0
         baselines: list[tuple[float, float]] = []  # (mean time, mean deflection)

@@ -25,7 +25,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..bags.blocks import Block, BlockFormatError
-from ..config import setting
+from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.driveloop import DriveLoop
 from ..control.optimise import OperatingBox, Optimiser
 from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
@@ -36,7 +36,6 @@ from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model
 from ..physics.waveforms import ProtocolTiming
-from ..rig.simulated import HARD_VOLTAGE_PP_MAX
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,

@@ -9,6 +9,7 @@ estimates recorded live.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from rclpy.context import Context
@@ -26,8 +27,8 @@ from ..bags.blocks import (
 from ..config import setting
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
-from ..physics.fin import load_fin
-from ..rig.simulated import RigConfig
+from ..estimation.selfsense import Calibration
+from ..physics.fin import Fin, load_fin
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -51,6 +52,11 @@ class ThrustEstimatorConfig:
     """``thrust_estimator``'s parameters (and ``estimator.*`` from :class:`EstimatorConfig`)."""
 
     fin: str = setting("M8528-P1", "fin preset name or YAML path")
+    model: str = setting(
+        "",
+        "augmented model YAML (`piezofin diagnose --report`): its capacitance, loss conductance, coupling "
+        "and c_m calibrate the self-sensed and Lighthill thrust (replaces fin)",
+    )
 
 
 class ThrustEstimator(Node):
@@ -60,15 +66,18 @@ class ThrustEstimator(Node):
         self, *, context: Context | None = None, node_name: str = "thrust_estimator", **kwargs: object
     ):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
-        fin_name = declare(self, ThrustEstimatorConfig).fin
-        default = EstimatorConfig(loadcell_stiffness_n_per_m=RigConfig().loadcell_stiffness)
+        own = declare(self, ThrustEstimatorConfig)
+        calibrate = None
         try:
-            self.fin = load_fin(fin_name)
-            config = declare(self, EstimatorConfig, "estimator", base=default)
+            if own.model:
+                self.fin, calibrate = _calibration_of(own.model)
+            else:
+                self.fin = load_fin(own.fin)
+            config = declare(self, EstimatorConfig, "estimator")
         except PiezofinError as exc:
-            raise StartupError(str(exc)) from None
+            raise StartupError(f"{'parameter model: ' if own.model else ''}{exc}") from None
         freeze_parameters(self)
-        self.core = StreamEstimator(self.fin, config)
+        self.core = StreamEstimator(self.fin, config, calibrate)
         self.estimates: list[Estimate] = []
         self.rejected = 0
         self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
@@ -132,6 +141,22 @@ class ThrustEstimator(Node):
     def close(self) -> None:
         """Flush the last open window (end of a replay or of the run)."""
         self._emit(self.core.flush())
+
+
+def _calibration_of(path: str) -> tuple[Fin, Callable[[float, float], Calibration]]:
+    """An augmented model's fin, and its self-sensing calibration at any (frequency, Vpp).  (The model
+    and its steady state load only here: an estimator without one stays small, for a fish.)"""
+    from ..physics.model import load_model
+
+    model = load_model(path)
+
+    def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
+        law = model.law(frequency_hz, voltage_pp)
+        return Calibration(
+            float(law.capacitance), float(law.loss_conductance), float(law.coupling), float(law.mass)
+        )
+
+    return model.fin, calibrate
 
 
 def main(args: list[str] | None = None) -> int:

@@ -14,7 +14,6 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import CubicSpline
 
 from ..errors import PhysicsError
 
@@ -115,7 +114,7 @@ class Sampled:
 
     t: FloatArray
     v: FloatArray
-    _spline: CubicSpline = field(init=False, repr=False, compare=False)
+    _spline: Any = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
@@ -128,6 +127,8 @@ class Sampled:
             raise PhysicsError("sample times must increase strictly")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "v", v)
+        from scipy.interpolate import CubicSpline  # (loaded only by a sampled waveform)
+
         object.__setattr__(self, "_spline", CubicSpline(t, v))
 
     def _inside(self, t: FloatArray) -> FloatArray:

@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, signal
 
-from ..config import setting
+from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..errors import RigError
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
@@ -43,10 +43,6 @@ from ..physics.waveforms import ProtocolTiming
 
 FloatArray = NDArray[Any]
 
-#: Hard cap on the peak-to-peak drive voltage that no configuration can exceed.  Smart Material's
-#: MFC datasheet rates the P1 (d33) types for -500 V .. +1500 V; a symmetric bipolar sine is
-#: therefore limited to +-500 V, i.e. 1000 Vpp.  The paper drives at most 800 Vpp.
-HARD_VOLTAGE_PP_MAX = 1000.0
 
 #: Every stop (off, the watchdog, a lowered cap, lifecycle deactivate/shutdown) ramps the amplitude
 #: The lagging instruments of an augmented model read this far back at most (s).

@@ -253,6 +253,29 @@ def test_fin_sim_and_controller_load_a_diagnosed_model(tmp_path: Any) -> None:
             )
 
 
+def test_the_estimator_takes_a_diagnosed_model_for_its_self_sensing(tmp_path) -> None:
+    """`thrust_estimator -p model:=...`: its capacitance, loss, coupling and c_m calibrate every
+    estimate (the live numbers are in test/estimation/test_selfsense.py); a bad file fails at start
+    naming the parameter and the file."""
+    from piezofin_ros.physics.fin import load_fin
+    from piezofin_ros.physics.model import Model
+
+    model = Model.of(load_fin("M8528-P1"), {"dielectric_loss": [0.08], "added_mass_offset": [1.2]})
+    path = tmp_path / "augmented_model.yaml"
+    path.write_text(yaml.safe_dump(model.to_mapping()))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("fin: {}\neffects: {warp_drive: {}}\n")
+    with graph() as g:
+        est = g.add(ThrustEstimator(context=g.context, parameter_overrides=params(model=str(path))))
+        assert est.core.calibrate is not None
+        cal = est.core.calibrate(9.0, 800.0)
+        assert float(cal.conductance_s) == pytest.approx(0.08 * model.fin.C_eq * 2 * math.pi * 9.0)
+        assert float(cal.mass) == pytest.approx(1.2) and float(cal.capacitance) == 1.0
+        assert ThrustEstimator(context=g.context, node_name="plain").core.calibrate is None
+        with pytest.raises(StartupError, match=r"parameter model: .*bad\.yaml"):
+            ThrustEstimator(context=g.context, node_name="e3", parameter_overrides=params(model=str(bad)))
+
+
 def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
     with graph() as g:
         sim = g.add(

@@ -1,0 +1,149 @@
+"""Embedded footprint: CPU (per cent of one core) and resident memory of the nodes a fish runs.
+
+    python benchmarks/bench_footprint.py [--seconds 60] [--source self]
+
+``fin_sim`` streams at 1 kHz in real time (its 50-sample blocks, 20 per second per topic) in its
+own process; ``thrust_estimator`` and ``controller`` (``mode:=optimise``) run as ``ros2 run`` starts
+them, each in its own process.  The baseline, in the same run: the least a competent user would
+write, an rclpy node that subscribes the same drive topic and does nothing with it.  Measured from
+``/proc``: CPU time over ``--seconds`` after a warm-up, the resident set at the end and its peak.
+
+Run with the project's environment (``source tools/env.sh``); DDS stays on loopback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+BIN = Path(sys.executable).parent
+TICK = os.sysconf("SC_CLK_TCK")
+
+#: What a fish's footprint must stay under (issue 18): per cent of one core, MB resident.
+CPU_GOAL = 10.0
+RSS_GOAL_MB = 120.0
+
+BASELINE = """
+import rclpy
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
+rclpy.init()
+node = Node("bare_subscriber")
+qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+node.create_subscription(Float64MultiArray, "{ns}/drive", lambda msg: None, qos)
+try:
+    rclpy.spin(node)
+except KeyboardInterrupt:
+    pass
+"""
+
+
+@dataclass
+class Footprint:
+    name: str
+    cpu_percent: float  # of one core, over the measured interval
+    rss_mb: float  # resident at the end
+    peak_mb: float  # the process's high-water mark
+
+    def row(self) -> str:
+        return f"| {self.name} | {self.cpu_percent:.1f} % | {self.rss_mb:.0f} MB | {self.peak_mb:.0f} MB |"
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK  # utime + stime
+
+
+def memory_mb(pid: int) -> tuple[float, float]:
+    """(VmRSS, VmHWM) in MB."""
+    values = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key, _, rest = line.partition(":")
+        if key in ("VmRSS", "VmHWM"):
+            values[key] = int(rest.split()[0]) / 1024
+    return values["VmRSS"], values["VmHWM"]
+
+
+def start(argv: list[str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+
+
+def stop(*procs: subprocess.Popen[bytes]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def measure(seconds: float = 60.0, warmup_s: float = 15.0, source: str = "self") -> list[Footprint]:
+    """The footprints of the two nodes and of the baseline, measured together in one run."""
+    ns = f"/footprint{os.getpid()}"
+    ros = ["--ros-args", "-r", f"__ns:={ns}"]
+    sim = start([str(BIN / "fin_sim"), *ros, "-p", "realtime_factor:=1.0"])
+    nodes = {
+        "thrust_estimator": start([str(BIN / "thrust_estimator"), *ros]),
+        "controller": start(
+            [
+                str(BIN / "controller"),
+                *ros,
+                "-p",
+                "mode:=optimise",
+                "-p",
+                f"source:={source}",
+                "-p",
+                "demand_n:=0.002",
+            ]
+        ),
+        "bare rclpy subscriber (baseline)": start([sys.executable, "-c", BASELINE.format(ns=ns)]),
+    }
+    try:
+        time.sleep(warmup_s)
+        dead = [name for name, p in nodes.items() if p.poll() is not None]
+        if dead or sim.poll() is not None:
+            raise RuntimeError(f"exited during the warm-up: {dead or ['fin_sim']}")
+        before = {name: cpu_seconds(p.pid) for name, p in nodes.items()}
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        wall = time.monotonic() - t0
+        out = []
+        for name, p in nodes.items():
+            cpu = 100.0 * (cpu_seconds(p.pid) - before[name]) / wall
+            out.append(Footprint(name, cpu, *memory_mb(p.pid)))
+        return out
+    finally:
+        stop(*nodes.values(), sim)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=60.0, help="measured interval after the warm-up, s")
+    ap.add_argument("--source", default="self", choices=("self", "vibrometer"), help="controller's source")
+    args = ap.parse_args()
+    print(f"fin_sim at 1 kHz in real time; measuring {args.seconds:g} s after a 15 s warm-up ...", flush=True)
+    rows = measure(args.seconds, source=args.source)
+    print("| process | CPU (one core) | resident | peak resident |")
+    print("|---|---|---|---|")
+    for r in rows:
+        print(r.row())
+    ok = all(r.cpu_percent < CPU_GOAL and r.peak_mb < RSS_GOAL_MB for r in rows[:2])
+    print(f"goal (< {CPU_GOAL:g} % of a core, < {RSS_GOAL_MB:g} MB): {'met' if ok else 'MISSED'}")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
