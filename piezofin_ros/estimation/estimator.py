@@ -562,8 +562,9 @@ class StreamEstimator:
         freq = p.n_periods / (p.t_end - p.t_start)
         tt, u = self.tip.slice(p.t_start, p.t_end)
         speed = self._speed_at(p.t_start, p.t_end)
-        vpp = float(np.ptp(vi[:, 0]))  # (the calibration's field: the window's peak-to-peak drive)
-        cal = NOMINAL if self.calibrate is None else self.calibrate(freq, vpp)
+        cal = NOMINAL  # (a calibration's field: the window's peak-to-peak drive)
+        if self.calibrate is not None:
+            cal = self.calibrate(freq, float(np.ptp(vi[:, 0])))
         r = analyse_window(
             self.fin,
             t,

@@ -75,7 +75,7 @@ class ThrustEstimator(Node):
                 self.fin = load_fin(own.fin)
             config = declare(self, EstimatorConfig, "estimator")
         except PiezofinError as exc:
-            raise StartupError(f"{'parameter model: ' if own.model else ''}{exc}") from None
+            raise StartupError(str(exc)) from None
         freeze_parameters(self)
         self.core = StreamEstimator(self.fin, config, calibrate)
         self.estimates: list[Estimate] = []
@@ -148,7 +148,10 @@ def _calibration_of(path: str) -> tuple[Fin, Callable[[float, float], Calibratio
     and its steady state load only here: an estimator without one stays small, for a fish.)"""
     from ..physics.model import load_model
 
-    model = load_model(path)
+    try:
+        model = load_model(path)
+    except PiezofinError as exc:
+        raise StartupError(f"parameter model: {exc}") from None
 
     def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
         law = model.law(frequency_hz, voltage_pp)

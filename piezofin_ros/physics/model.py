@@ -55,18 +55,8 @@ class Prediction:
     power_w: FloatArray  # W
     thrust_n: FloatArray  # N, Lighthill on the motion (what the vibrometer gives)
     thrust_loadcell_n: FloatArray  # N, what the load cell reads
-    # the fundamentals as the instruments read them, phases relative to the drive voltage's
-    # (complex amplitudes, not RMS): what a lock-in of the drive and the vibrometer gives
-    voltage_amplitude: FloatArray | None = None  # V
-    current_phasor: FloatArray | None = None  # A
-    tip_phasor: FloatArray | None = None  # m/s
-
-    @property
-    def admittance(self) -> FloatArray:
-        """The drive's fundamental admittance ``I_1 / V_1`` as read, S (complex)."""
-        assert self.current_phasor is not None and self.voltage_amplitude is not None
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.asarray(self.current_phasor / self.voltage_amplitude)
+    #: the drive's fundamental admittance ``I_1 / V_1`` as the monitors read it, S (complex)
+    admittance: FloatArray | None = None
 
     @property
     def thrust_per_watt(self) -> FloatArray:
@@ -394,7 +384,5 @@ def predict(
         power_w=0.5 * v_read * np.real(i_read),
         thrust_n=thrust,
         thrust_loadcell_n=kk.thrust_gain * thrust + kk.thrust_bias_n,
-        voltage_amplitude=v_read,
-        current_phasor=i_read,
-        tip_phasor=tip_read,
+        admittance=np.divide(i_read, v_read, out=np.full(np.shape(i_read), np.nan + 0j), where=v_read != 0),
     )

@@ -8,6 +8,8 @@ Without either, these tests are skipped with one line saying why.
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -108,6 +110,48 @@ def test_ros2_run_refuses_a_mistyped_parameter(ros_env: dict[str, str]) -> None:
     assert run.returncode != 0
     assert "unknown parameter realtime_factr" in run.stderr + run.stdout
     assert "Traceback" not in run.stderr + run.stdout
+
+
+def test_ros2_run_estimator_with_a_model_file(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """`ros2 run piezofin_ros thrust_estimator --ros-args -p model:=...`: a file that is no model stops
+    it with one line naming the parameter; a diagnosed model starts it on that model's fin."""
+    import yaml
+
+    from piezofin_ros.physics.fin import load_fin
+    from piezofin_ros.physics.model import Model
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("fin: {}\neffects: {warp_drive: {}}\n")
+    run = subprocess.run(
+        ["ros2", "run", "piezofin_ros", "thrust_estimator", "--ros-args", "-p", f"model:={bad}"],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
+    assert run.returncode != 0
+    assert "parameter model: " in run.stderr + run.stdout and "bad.yaml" in run.stderr + run.stdout
+    assert "Traceback" not in run.stderr + run.stdout
+    good = tmp_path / "model.yaml"
+    good.write_text(yaml.safe_dump(Model.of(load_fin("M8514-P1"), {"dielectric_loss": [0.05]}).to_mapping()))
+    proc = subprocess.Popen(
+        ["ros2", "run", "piezofin_ros", "thrust_estimator", "--ros-args", "-p", f"model:={good}"],
+        env=ros_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    assert "M8514-P1" in first, first + out
+    assert "Traceback" not in first + out
 
 
 @pytest.mark.parametrize("case", ["two_fins", "without_sim"])
