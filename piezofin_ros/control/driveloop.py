@@ -22,7 +22,7 @@ class DriveLoop:
     """
 
     optimiser: Optimiser
-    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer"
+    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer": the optimiser's too
     slew_vpp_per_s: float = 400.0
     estimate_timeout_s: float = 10.0
     settle_tolerance: float = 0.03
@@ -37,6 +37,9 @@ class DriveLoop:
     _t_settled_from: float | None = None
     _last_estimate_t: float | None = None
     _windows: list[tuple[float, float]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.optimiser.source = self.source  # (it reads the same estimate)
 
     def tick(self, t: float) -> tuple[float, float, float]:
         if self._t_last is None:
@@ -90,7 +93,8 @@ class DriveLoop:
         )
         if not (agree or len(w) >= self.max_windows):
             return True
-        self.optimiser.observe(e.t_end, e.frequency_hz, e.voltage_pp, thrust, power)
+        admittance = complex(getattr(e, "admittance_re", math.nan), getattr(e, "admittance_im", math.nan))
+        self.optimiser.observe(e.t_end, e.frequency_hz, e.voltage_pp, thrust, power, admittance)
         self.trials += 1
         self._windows = []
         new = self.optimiser.propose()

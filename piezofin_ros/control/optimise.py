@@ -170,10 +170,13 @@ class Correction:
 
 # The fitted parameters: (name, log-transformed, prior sigma, lower, upper) in fit coordinates (inside
 # each effect's bounds in the library: exp(log(x)) may round across them).  The prior mean is the
-# nominal fin (0 in these coordinates).
+# nominal fin (0 in these coordinates).  The stiffness is held close (5 %) to the fin's: its in-air
+# resonance is what a fin file states (``piezofin identify`` measures it), so a resonance that moves
+# in water is read as added mass (the issue's "in-water resonance reveals c_m"), and with it every
+# Lighthill thrust; the softening separates what moves with the voltage.
 _PARAMS = (
     ("resonance_scale", True, 0.3, math.log(0.3), math.log(2.0)),
-    ("added_mass", True, 0.25, math.log(0.3), math.log(4.0)),
+    ("added_mass", True, 0.3, math.log(0.3), math.log(4.0)),
     ("softening", False, 0.3, 0.0, 0.8),
     ("drag_scale", True, 0.7, math.log(0.1), math.log(10.0)),
     ("coupling_k", False, 0.3, -0.5, 2.0),
@@ -260,9 +263,10 @@ class Optimiser:
     change_sigma: float = 4.0  # a measurement this many sigma off the map means the fin changed
     changes: int = 0
     tolerance: float = 0.01
-    probe_every: int = 4
-    probe_step: float = 0.06
+    probe_every: int = 2
+    probe_step: float = 0.03
     n_grid: int = 160
+    identify: bool = True  # begin with a quiet trial below resonance (see _identification_point)
     observations: list[Observation] = field(default_factory=list)
     correction: Correction = field(default_factory=Correction)
     choice: Choice | None = None
@@ -456,9 +460,10 @@ class Optimiser:
         m_t, m_p = mean[:, 0].reshape(shape), mean[:, -1].reshape(shape)
         s_t, s_p = np.sqrt(var[:, 0]).reshape(shape), np.sqrt(var[:, -1]).reshape(shape)
         thrust = r.thrust_n * np.exp(m_t)
-        noise_t, _ = self._noise(np.maximum(thrust, 1e-300), 1.0)
+        # the true thrust's lower bound: the map's own uncertainty and the estimate's calibration (the
+        # measurement noise of a trial is not the truth's: a trial must still count, see _counted)
         bound = np.nan_to_num(self.self_sensing_bound) / 2.0
-        low = thrust * np.exp(-self.z_demand * np.sqrt(s_t**2 + noise_t**2 + bound**2))
+        low = thrust * np.exp(-self.z_demand * np.sqrt(s_t**2 + bound**2))
         return Surface(f, v, thrust, r.power_w * np.exp(m_p), low, s_t, s_p)
 
     def _frontier(self, f: FloatArray) -> tuple[Surface, FloatArray]:
@@ -468,7 +473,7 @@ class Optimiser:
         if self.demand_n is None:
             v = min(max(self.voltage_pp, lim.voltage_pp_min), lim.voltage_pp_max)
             s = self._surface(f, np.full_like(f, v))
-            return s, s.thrust_n >= self.min_thrust_n
+            return s, s.thrust_low_n >= self.min_thrust_n  # (the least thrust, with the margin too)
         top = self._surface(f, np.full_like(f, lim.voltage_pp_max))
         feasible = top.thrust_low_n >= self.demand_n
         lo, hi = np.full_like(f, lim.voltage_pp_min), np.full_like(f, lim.voltage_pp_max)
@@ -529,11 +534,12 @@ class Optimiser:
 
     def incumbent(self) -> tuple[float, float] | None:
         """The best measured point that counts (what the controller holds), or None."""
+        best = self._incumbent()
+        return None if best is None else (best[1].frequency_hz, best[1].voltage_pp)
+
+    def _incumbent(self) -> tuple[float, Observation, float] | None:
         counted = self._counted()
-        if not counted:
-            return None
-        _, o, _ = max(counted, key=lambda c: c[0])
-        return o.frequency_hz, o.voltage_pp
+        return max(counted, key=lambda c: c[0]) if counted else None
 
     def held(self) -> tuple[float, float]:
         """The point to hold now: the incumbent, or the map's choice while nothing counts."""
@@ -603,11 +609,29 @@ class Optimiser:
                 s, ok = self._frontier(local)
                 pick = self._best(s, ok, optimism=self.kappa)
                 self._next = (pick.frequency_hz, pick.voltage_pp)
+        quiet = self._identification_point()
+        if quiet is not None:
+            self._next = quiet
         held = inc is not None and _close(self._next, inc, self.tolerance)
         if held and not self.converged:
             self.converged = True
         elif not held:
             self.converged = False
+
+    def _identification_point(self) -> tuple[float, float] | None:
+        """A quiet trial well below the resonance, if none is in memory: there the tip moves as
+        ``theta V / K`` and the motional current as ``theta^2 V / K``, which fix the coupling and the
+        stiffness; the resonance then gives the added mass, hence ``c_m`` and every thrust estimate
+        (without it a softer fin and a heavier added mass look alike).  None when there is one."""
+        if not self.identify:
+            return None
+        fin = self.fin
+        f_res = fin.omega_n / (2 * math.pi * math.sqrt(1 + fin.mu))
+        f_quiet = max(0.5 * f_res, self.limits.frequency_min_hz)
+        if f_quiet >= 0.7 * f_res or any(o.frequency_hz <= 0.7 * f_res for o in self.observations):
+            return None
+        v = min(max(0.5 * self.limits.voltage_pp_max, self.limits.voltage_pp_min), self.limits.voltage_pp_max)
+        return f_quiet, v
 
     def _mode(self, inc: tuple[float, float] | None) -> None:
         n = len(self.observations)
@@ -647,25 +671,39 @@ class Optimiser:
             f, v = self.held()
             self._held += 1
             if self.probe_every and self._held % self.probe_every == 0:
+                # a probe on either side in turn (extremum seeking's dither, one trial at a time), at
+                # the voltage that meets the demand there: the fish keeps its thrust while it probes
                 self._probe_sign = -self._probe_sign
                 f = f * (1 + self._probe_sign * self.probe_step)
+                if self.demand_n is not None:
+                    s, ok = self._frontier(np.array([f]))
+                    v = float(s.voltage_pp[0]) if ok[0] else v
         return self.limits.clamp(f, v)
 
     def status(self) -> dict[str, Any]:
         c = self.choice
         assert c is not None
-        inc = self.incumbent()
+        inc = self._incumbent()
+        held = None
+        if inc is not None:
+            _, o, thrust = inc
+            held = {
+                "frequency_hz": o.frequency_hz,
+                "voltage_pp": o.voltage_pp,
+                "thrust_n": thrust,  # the estimate, re-calibrated
+                "power_w": o.power_w,
+            }
         return {
             "converged": self.converged,
             "feasible": c.feasible,
             "demand_n": self.demand_n,
-            "mode": self.mode,
-            "reason": self.reason,
+            "optimiser_mode": self.mode,
+            "optimiser_reason": self.reason,
             "frequency_hz": c.frequency_hz,
             "voltage_pp": c.voltage_pp,
             "predicted_thrust_n": c.thrust_n,
             "predicted_power_w": c.power_w,
-            "held": None if inc is None else {"frequency_hz": inc[0], "voltage_pp": inc[1]},
+            "held": held,
             "source": self.source,
             "self_sensing_bound": self.self_sensing_bound,
             "unexplained": dict(zip(("thrust", "power"), self.gp.signal_sigma(), strict=False)),

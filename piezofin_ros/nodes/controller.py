@@ -135,7 +135,13 @@ class Controller(Node):
             box = OperatingBox(c.frequency_min_hz, c.frequency_max_hz, 50.0, c.voltage_pp_max)
             fin = model.fin if model is not None else load_fin(c.fin)
             optimiser = Optimiser(
-                fin, box, c.voltage_pp, c.demand_n or None, min_thrust_n=c.min_thrust_n, model=model
+                fin,
+                box,
+                c.voltage_pp,
+                c.demand_n or None,
+                min_thrust_n=c.min_thrust_n,
+                source=c.source,
+                model=model,
             )
         except PiezofinError as exc:
             raise StartupError(f"optimiser: {exc}") from None
