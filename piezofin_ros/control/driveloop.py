@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,6 +38,11 @@ class DriveLoop:
     _t_settled_from: float | None = None
     _last_estimate_t: float | None = None
     _windows: list[tuple[float, float]] = field(default_factory=list)
+    background: bool = False  # fit in a worker thread (the node: the heartbeat must not wait)
+    _next: tuple[float, float] | None = None
+    _pending: Future[None] | None = None
+    _executor: ThreadPoolExecutor | None = None
+    _learnt: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         self.optimiser.source = self.source  # (it reads the same estimate)
@@ -47,10 +53,18 @@ class DriveLoop:
         assert self._last_estimate_t is not None
         dt = max(0.0, t - self._t_last)
         self._t_last = t
+        self._take_next()
         if self.target is None:
             self.target = self.optimiser.propose()
         f, v_target = self.target
-        silence = t - self._last_estimate_t
+        # (a new point needs the estimator's settling and a window from when the drive got there:
+        # silence counts from then, so a slow fit or a long ramp is not taken for a dead estimator)
+        since = (
+            self._last_estimate_t
+            if self._t_settled_from is None
+            else max(self._last_estimate_t, self._t_settled_from)
+        )
+        silence = t - since
         if self.state in ("driving", "holding") and silence > 2 * self.estimate_timeout_s:
             self.state = "ramping down"
             self.events.append(f"no estimate for {silence:.1f} s: ramping the drive down to 0 V")
@@ -94,14 +108,40 @@ class DriveLoop:
         if not (agree or len(w) >= self.max_windows):
             return True
         admittance = complex(getattr(e, "admittance_re", math.nan), getattr(e, "admittance_im", math.nan))
-        self.optimiser.observe(e.t_end, e.frequency_hz, e.voltage_pp, thrust, power, admittance)
-        self.trials += 1
         self._windows = []
-        new = self.optimiser.propose()
-        if new != self.target:
+        args = (e.t_end, e.frequency_hz, e.voltage_pp, thrust, power, admittance)
+        if self.background:
+            # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
+            # commands keep coming (fin_sim's watchdog trips after 0.25 s of wall time at x10)
+            if self._pending is None or self._pending.done():
+                self._pending = self._worker().submit(self._learn, *args)
+        else:
+            self._learn(*args)
+            self._take_next()
+        return True
+
+    def _learn(self, *observation: Any) -> None:
+        self.optimiser.observe(*observation)
+        self._next = self.optimiser.propose()
+        self._learnt = self.optimiser.status()  # (read by the heartbeat while the next fit runs)
+        self.trials += 1
+
+    def _worker(self) -> ThreadPoolExecutor:
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="optimiser")
+        return self._executor
+
+    def _take_next(self) -> None:
+        """Move to the point the last fit proposed (once it is there)."""
+        if self._pending is not None and not self._pending.done():
+            return
+        if self._pending is not None:
+            self._pending.result()  # (an error in the fit surfaces here, in the heartbeat)
+            self._pending = None
+        new, self._next = self._next, None
+        if new is not None and new != self.target:
             self.target = new
             self._t_settled_from = None
-        return True
 
     def status(self) -> dict[str, Any]:
         return {
@@ -110,5 +150,5 @@ class DriveLoop:
             "target": self.target,
             "command_vpp": self.command_v,
             "self_vs_vibrometer": self.discrepancy,
-            **self.optimiser.status(),
+            **(self._learnt if self._learnt is not None else self.optimiser.status()),
         }

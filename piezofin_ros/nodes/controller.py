@@ -149,7 +149,7 @@ class Controller(Node):
             self.get_logger().info(
                 f"optimiser starts from the augmented model {c.model} ({', '.join(model.names)})"
             )
-        loop = DriveLoop(optimiser, c.source, c.slew_vpp_per_s, c.estimate_timeout_s)
+        loop = DriveLoop(optimiser, c.source, c.slew_vpp_per_s, c.estimate_timeout_s, background=True)
         goal = (
             f"demand {c.demand_n * 1e3:.2f} mN" if c.demand_n else f"best frequency at {c.voltage_pp:g} Vpp"
         )
