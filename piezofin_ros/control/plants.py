@@ -140,7 +140,7 @@ def read(
     power = (
         float(p.power_w) * (1 + n.power_rel * rng.standard_normal()) + n.power_abs_w * rng.standard_normal()
     )
-    v_amp = float(np.asarray(p.voltage_amplitude))
+    v_amp = 0.5 * float(np.asarray(p.voltage_pp_drive))  # (as the voltage monitor reads it)
     y = complex(np.asarray(p.admittance))
     y = complex(2.0 * power / v_amp**2, y.imag + n.admittance_rel * abs(y) * rng.standard_normal())
     if source == "self":
