@@ -396,6 +396,7 @@ class Optimiser:
         has_y = np.array([o.has_admittance for o in obs])
         rb = np.zeros(len(obs))
         if np.any(has_y):
+            assert pred.admittance is not None
             b_pred = np.imag(pred.admittance)
             rb[has_y] = (y[has_y].imag - b_pred[has_y]) / (
                 (self.noise.admittance_rel + model_error / 4) * np.abs(y[has_y]) + 1e-12
