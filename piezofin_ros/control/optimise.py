@@ -452,8 +452,31 @@ class Optimiser:
             return None
 
     # --- the map -------------------------------------------------------------------------------
-    def _surface(self, f: Any, v: Any) -> Surface:
-        """The corrected model times the residual process's correction, with the demand's bound."""
+    def _model_sigma(self, f: Any, v: Any) -> FloatArray:
+        """Standard deviation of the corrected model's log thrust at the points, from the fitted
+        parameters' covariance (0 before the first fit)."""
+        f, v = np.broadcast_arrays(np.asarray(f, float), np.asarray(v, float))
+        cov = self._covariance
+        if cov is None:
+            return np.zeros(f.shape)
+        x = _vector(self.correction)
+        base = np.log(np.maximum(self.correction.response(self.fin, f, v).thrust_n, 1e-300))
+        grad = np.zeros((*f.shape, len(x)))
+        for k in range(len(x)):
+            if _PARAMS[k][0] == "thrust_gain" and self.source != "loadcell":
+                continue  # (a load cell's gain: the truth only where the load cell is the reference)
+            step = 1e-4 * _PRIOR_SIGMA[k]
+            xk = x.copy()
+            xk[k] += step if xk[k] + step <= _UPPER[k] else -step
+            r = _correction(xk, self.model).response(self.fin, f, v)
+            grad[..., k] = (np.log(np.maximum(r.thrust_n, 1e-300)) - base) / (xk[k] - x[k])
+        var = np.einsum("...i,ij,...j->...", grad, cov, grad)
+        return np.asarray(np.sqrt(np.maximum(var, 0.0)))
+
+    def _surface(self, f: Any, v: Any, model_sigma: Any = 0.0) -> Surface:
+        """The corrected model times the residual process's correction, with the demand's bound:
+        the true thrust less ``z`` times the map's uncertainty (the residual process's, and the
+        model's own, ``model_sigma``, from :meth:`_model_sigma`)."""
         f, v = np.broadcast_arrays(np.asarray(f, float), np.asarray(v, float))
         r = self.correction.response(self.fin, f, v)
         mean, var = self.gp.predict(f, v)
@@ -461,10 +484,13 @@ class Optimiser:
         m_t, m_p = mean[:, 0].reshape(shape), mean[:, -1].reshape(shape)
         s_t, s_p = np.sqrt(var[:, 0]).reshape(shape), np.sqrt(var[:, -1]).reshape(shape)
         thrust = r.thrust_n * np.exp(m_t)
-        # the true thrust's lower bound: the map's own uncertainty and the estimate's calibration (the
-        # measurement noise of a trial is not the truth's: a trial must still count, see _counted)
+        # where a trial there will count (_counted): the truth's uncertainty (the map's) and the
+        # estimate's (one trial's noise, and the calibration of its source)
+        noise_t, _ = self._noise(thrust, 1.0)
         bound = np.nan_to_num(self.self_sensing_bound) / 2.0
-        low = thrust * np.exp(-self.z_demand * np.sqrt(s_t**2 + bound**2))
+        low = thrust * np.exp(
+            -self.z_demand * np.sqrt(s_t**2 + np.asarray(model_sigma) ** 2 + noise_t**2 + bound**2)
+        )
         return Surface(f, v, thrust, r.power_w * np.exp(m_p), low, s_t, s_p)
 
     def _frontier(self, f: FloatArray) -> tuple[Surface, FloatArray]:
@@ -472,17 +498,21 @@ class Optimiser:
         the least voltage whose thrust meets the demand with the margin.  Also: feasible there."""
         lim = self.limits
         if self.demand_n is None:
-            v = min(max(self.voltage_pp, lim.voltage_pp_min), lim.voltage_pp_max)
-            s = self._surface(f, np.full_like(f, v))
+            v = np.full_like(f, min(max(self.voltage_pp, lim.voltage_pp_min), lim.voltage_pp_max))
+            s = self._surface(f, v, self._model_sigma(f, v))
             return s, s.thrust_low_n >= self.min_thrust_n  # (the least thrust, with the margin too)
-        top = self._surface(f, np.full_like(f, lim.voltage_pp_max))
+        vmax = np.full_like(f, lim.voltage_pp_max)
+        # the model's uncertainty in log thrust, taken at full voltage for every voltage of a frequency
+        # (it barely changes with V, and a bisection that re-derived it would cost 8 maps a step)
+        sigma = self._model_sigma(f, vmax)
+        top = self._surface(f, vmax, sigma)
         feasible = top.thrust_low_n >= self.demand_n
-        lo, hi = np.full_like(f, lim.voltage_pp_min), np.full_like(f, lim.voltage_pp_max)
+        lo, hi = np.full_like(f, lim.voltage_pp_min), vmax.copy()
         for _ in range(24):  # bisection on V (to 0.5 mV): T increases with V at every f
             mid = 0.5 * (lo + hi)
-            ok = self._surface(f, mid).thrust_low_n >= self.demand_n
+            ok = self._surface(f, mid, sigma).thrust_low_n >= self.demand_n
             hi, lo = np.where(ok, mid, hi), np.where(ok, lo, mid)
-        return self._surface(f, np.where(feasible, hi, lim.voltage_pp_max)), feasible
+        return self._surface(f, np.where(feasible, hi, lim.voltage_pp_max), sigma), feasible
 
     def _best(self, surface: Surface, feasible: FloatArray, optimism: float = 0.0) -> Choice:
         """The best frontier point (the most thrust if none is feasible); ``optimism``: plus that many
@@ -505,8 +535,13 @@ class Optimiser:
         )
 
     # --- what counts -----------------------------------------------------------------------------
-    def _counted(self) -> list[tuple[float, Observation, float]]:
-        """Measured points that meet the task with the margin: (objective, observation, thrust)."""
+    def _counted(self, confirmed: bool = True) -> list[tuple[float, Observation, float]]:
+        """Measured points that meet the task with the margin: (objective, observation, thrust).
+
+        A point counts on the trials that did not choose it (``confirmed``): the first trial at a
+        point is what made it look best, and of several noisy trials near the demand the best is the
+        luckiest (the winner's curse); the trials after it are independent.  ``confirmed=False``: the
+        points whose first trial alone meets the task (candidates for a confirming trial)."""
         if not self.observations:
             return []
         obs = self.observations
@@ -521,10 +556,11 @@ class Optimiser:
                 for j, q in enumerate(obs)
                 if _close((q.frequency_hz, q.voltage_pp), (o.frequency_hz, o.voltage_pp), 1e-3)
             ]
-            t = float(np.exp(np.mean(np.log(thrust[same]))))
-            noise_t = float(np.sqrt(np.mean(noise[same] ** 2) / len(same)))
-            if same[0] != k:
+            if same[0] != k or (len(same) > 1) != confirmed:
                 continue
+            use = same[1:] if confirmed else same
+            t = float(np.exp(np.mean(np.log(thrust[use]))))
+            noise_t = float(np.sqrt(np.mean(noise[use] ** 2) / len(use)))
             low = t * math.exp(-self.z_demand * math.hypot(noise_t, bound))
             if self.demand_n is not None:
                 if low >= self.demand_n:
@@ -532,6 +568,15 @@ class Optimiser:
             elif low >= self.min_thrust_n and abs(o.voltage_pp - self.voltage_pp) <= 0.01 * self.voltage_pp:
                 out.append((float(t) / o.power_w, o, float(t)))
         return out
+
+    def _candidate(self) -> tuple[float, float] | None:
+        """The best point whose one trial meets the task and would beat the incumbent, if any."""
+        inc = self._incumbent()
+        better = [c for c in self._counted(confirmed=False) if inc is None or c[0] > inc[0]]
+        if not better:
+            return None
+        o = max(better, key=lambda c: c[0])[1]
+        return o.frequency_hz, o.voltage_pp
 
     def incumbent(self) -> tuple[float, float] | None:
         """The best measured point that counts (what the controller holds), or None."""
@@ -610,6 +655,9 @@ class Optimiser:
                 s, ok = self._frontier(local)
                 pick = self._best(s, ok, optimism=self.kappa)
                 self._next = (pick.frequency_hz, pick.voltage_pp)
+        candidate = self._candidate()
+        if candidate is not None:
+            self._next = candidate  # confirm it: a trial that did not choose it
         quiet = self._identification_point()
         if quiet is not None:
             self._next = quiet
