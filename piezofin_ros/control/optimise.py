@@ -266,6 +266,9 @@ class Optimiser:
     probe_every: int = 2
     probe_step: float = 0.03
     n_grid: int = 160
+    #: On a fish (drive only) the stiffness cannot be told from the coupling (the motional admittance
+    #: is theta^2 times the mechanical response): it is held to the fin file's, within this (log) sigma.
+    stiffness_sigma: float = 0.05
     identify: bool = True  # begin with a quiet trial below resonance (see _identification_point)
     observations: list[Observation] = field(default_factory=list)
     correction: Correction = field(default_factory=Correction)
@@ -403,6 +406,14 @@ class Optimiser:
             )
         return np.concatenate([rt, rp, rb])
 
+    @property
+    def _prior_sigma(self) -> FloatArray:
+        """The priors' widths; on a fish the stiffness is the fin file's (``stiffness_sigma``)."""
+        sigma = _PRIOR_SIGMA.copy()
+        if self.source == "self":
+            sigma[0] = self.stiffness_sigma
+        return sigma
+
     def _fit(self) -> Correction:
         obs = self.observations
         if not obs:
@@ -410,7 +421,7 @@ class Optimiser:
             return Correction(base=self.model)
 
         def residuals(x: FloatArray) -> FloatArray:
-            return np.concatenate([self._residuals(_correction(x, self.model), obs), x / _PRIOR_SIGMA])
+            return np.concatenate([self._residuals(_correction(x, self.model), obs), x / self._prior_sigma])
 
         x0 = np.clip(_vector(self.correction), _LOWER, _UPPER)
         starts = (
@@ -419,7 +430,7 @@ class Optimiser:
         best = None
         for start in starts:
             res = optimize.least_squares(
-                residuals, start, bounds=(_LOWER, _UPPER), x_scale=_PRIOR_SIGMA, max_nfev=200
+                residuals, start, bounds=(_LOWER, _UPPER), x_scale=self._prior_sigma, max_nfev=200
             )
             if best is None or res.cost < best.cost:
                 best = res
@@ -436,7 +447,7 @@ class Optimiser:
         obs = self.observations
 
         def weighted(xx: FloatArray) -> FloatArray:
-            return np.concatenate([self._residuals(_correction(xx, self.model), obs, 0.0), xx / _PRIOR_SIGMA])
+            return np.concatenate([self._residuals(_correction(xx, self.model), obs, 0.0), xx / self._prior_sigma])
 
         r0 = weighted(x)
         steps = 1e-5 * _PRIOR_SIGMA
