@@ -115,3 +115,25 @@ def test_the_status_says_which_mode_and_why() -> None:
     status = opt.status()
     assert status["optimiser_mode"] != "search" or "misses the trials by" in status["optimiser_reason"]
     assert math.isfinite(status["unexplained"]["thrust"])
+
+
+def test_a_point_counts_on_the_trials_that_did_not_choose_it() -> None:
+    """The winner's curse: of several noisy trials near the demand, the one that looks best is the
+    luckiest.  With a load cell (the thrust itself, 0.5 % noise) the point held meets the demand in
+    truth at every trial of 8 runs, each with its own noise.  (Counting a point on the trial that chose
+    it, 9 of 27 load-cell runs of ``bench_unseen`` ended on a point 0.1-0.2 % short of the demand.)"""
+    fin = load_fin("M8528-P1")
+    plant = Plant(fin, softening=0.2, loss_tan_delta=0.05)
+    demand = demand_of("M8528-P1")
+    _, _, best = true_optimum(plant, LIMITS, demand)
+    finals = []
+    for seed in range(8):
+        opt = Optimiser(fin, LIMITS, demand_n=demand, source="loadcell")
+        rng, t = np.random.default_rng(100 + seed), 0.0
+        for _ in range(10):
+            t = run_trial(opt, plant, t, rng)
+            if opt.incumbent() is not None:
+                f, v = opt.held()
+                assert float(plant.steady(f, v).thrust_n) >= demand, (seed, f, v, opt.status())
+        finals.append(score(plant, *opt.held(), demand) / best)
+    assert min(finals) >= 0.95, finals
