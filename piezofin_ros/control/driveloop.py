@@ -23,7 +23,7 @@ class DriveLoop:
     """
 
     optimiser: Optimiser
-    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer": the optimiser's too
+    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer"; the optimiser's too
     slew_vpp_per_s: float = 400.0
     estimate_timeout_s: float = 10.0
     settle_tolerance: float = 0.03

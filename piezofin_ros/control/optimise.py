@@ -321,7 +321,8 @@ class Optimiser:
         if not all(math.isfinite(x) for x in values) or thrust_n <= 0 or power_w <= 0 or voltage_pp <= 0:
             return False
         new = Observation(*values, source=self.source, admittance=complex(admittance))
-        if len(self.observations) >= 3 and self._surprise(new) > self.change_sigma:
+        if self.converged and len(self.observations) >= 3 and self._surprise(new) > self.change_sigma:
+            # (only once the map has settled: before that, every trial teaches it something new)
             # The fin no longer behaves as fitted (drift, a new load): keep only the latest evidence.
             self.observations = self.observations[-1:]
             self.changes += 1
@@ -673,6 +674,11 @@ class Optimiser:
                 s, ok = self._frontier(local)
                 pick = self._best(s, ok, optimism=self.kappa)
                 self._next = (pick.frequency_hz, pick.voltage_pp)
+        near = [
+            o for o in self.observations if _close((o.frequency_hz, o.voltage_pp), self._next, self.tolerance)
+        ]
+        if near:  # measure that point again rather than one beside it: its trials add up
+            self._next = (near[-1].frequency_hz, near[-1].voltage_pp)
         candidate = self._candidate()
         if candidate is not None:
             self._next = candidate  # confirm it: a trial that did not choose it
