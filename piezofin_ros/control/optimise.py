@@ -589,13 +589,16 @@ class Optimiser:
         return out
 
     def _candidate(self) -> tuple[float, float] | None:
-        """The best point whose one trial meets the task and would beat the incumbent, if any."""
+        """The best point whose one trial meets the task and would beat the incumbent, if any, and
+        that the map does not expect to beat by more than 5 % (the map's choice is tried first)."""
         inc = self._incumbent()
         better = [c for c in self._counted(confirmed=False) if inc is None or c[0] > inc[0]]
-        if not better:
+        if not better or self.choice is None:
             return None
-        o = max(better, key=lambda c: c[0])[1]
-        return o.frequency_hz, o.voltage_pp
+        value, o, _ = max(better, key=lambda c: c[0])
+        c = self.choice
+        expected = (min(c.thrust_n, self.demand_n) if self.demand_n else c.thrust_n) / max(c.power_w, 1e-300)
+        return (o.frequency_hz, o.voltage_pp) if value >= 0.95 * expected else None
 
     def incumbent(self) -> tuple[float, float] | None:
         """The best measured point that counts (what the controller holds), or None."""

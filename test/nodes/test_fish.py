@@ -73,7 +73,7 @@ def test_a_fish_meets_its_demand_in_truth_on_a_fin_it_was_not_told(tmp_path: Pat
     c = st["correction"]
     assert c["loss_tan_delta"] == pytest.approx(0.08, abs=0.03), c
     assert c["coupling_k"] == pytest.approx(0.3, abs=0.1), c
-    assert 0 < st["self_sensing_bound"] < 0.1
+    assert 0 < st["self_sensing_bound"] < 0.25  # (drive only: coupling, stiffness and c_m trade off)
     held = st["held"]
     truth = float(HIDDEN.predict(held["frequency_hz"], held["voltage_pp"]).thrust_n)
     assert truth >= demand, (truth, held, outs[0][-2000:])
