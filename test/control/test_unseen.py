@@ -38,8 +38,9 @@ ISSUE = {
 
 #: The least fraction of the true optimum held in trials 11 and 12 (66-72 s of fin time), by source and
 #: task.  Measured (seed 1): load cell 0.96-0.98 with a demand, 0.99-1.0 without; vibrometer
-#: 0.86-0.96 with, 0.985-1.0 without; fish 0.77-0.93 with, 0.95-0.99 without.  With a demand the margin (2 sigma of a trial's noise, of the model's parameters and, on a
-#: fish, of the self-sensing's calibration) costs its own size in power, and more on a fish.
+#: 0.86-0.96 with, 0.985-1.0 without; fish 0.77-0.93 with, 0.95-0.99 without.  With a demand the
+#: margin (2 sigma of a trial's noise, of the model's parameters and, on a fish, of the self-sensing's
+#: calibration) costs its own size in power, and more on a fish.
 LEAST = {
     ("loadcell", "demand"): 0.95,
     ("loadcell", "none"): 0.97,
