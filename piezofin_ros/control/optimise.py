@@ -40,10 +40,11 @@ How it learns
    model's parametric uncertainty, the process's and one trial's, meets the demand.  The point
    the controller holds (:meth:`Optimiser.incumbent`) is the best that counts.
 
-Once the map's optimum is the incumbent (within ``tolerance``), the point is held and every
+A proposal within ``tolerance`` of a measured point measures that point again, so that its trials add
+up.  Once the map's optimum is the incumbent (within ``tolerance``), the point is held and every
 ``probe_every`` trials a probe at ``f (1 +- probe_step)`` keeps the fit informed.  A measurement
-more than ``change_sigma`` off the map means the fin has changed (drift, temperature, a new load):
-the older measurements are dropped and the fit starts again from the latest.
+more than ``change_sigma`` off the settled map means the fin has changed (drift, temperature, a new
+load): the older measurements are dropped and the fit starts again from the latest.
 """
 
 from __future__ import annotations
