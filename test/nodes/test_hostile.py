@@ -285,25 +285,38 @@ def test_a_tripped_watchdog_latches_until_an_off_command() -> None:
 @pytest.mark.slow
 def test_fast_simulation_does_not_trip_on_scheduling_jitter() -> None:
     """At x20, 1 s of fin time is 50 ms of wall time.  A commander 200 ms late (a busy executor) does
-    not trip the watchdog; one that stops does, within 0.25 s of wall time plus the ramp."""
+    not trip the watchdog; one that stops does, within WATCHDOG_MIN_WALL_S of wall time plus the ramp.
+
+    The commander here spins 400 sample blocks a second between its commands and is itself late on a
+    loaded machine (CI once saw 250 ms): its real gaps are measured, and the claim is checked for
+    the gaps it actually left, below the wall floor."""
+    from piezofin_ros.nodes.fin_sim import WATCHDOG_MIN_WALL_S as floor
+
     proc = fin_sim("jit", "-p", "realtime_factor:=20")
     try:
         with graph() as g:
             w = Witness(g, "jit")
             w.drive_until_loud()
             t0 = time.monotonic()
-            last = w.drive(3.0, rate_hz=5.0)  # 200 ms gaps: 4 s of fin time each
+            sent = []
+            while time.monotonic() < t0 + 3.0:  # 200 ms gaps: 4 s of fin time each
+                sent.append(w.command(10.0, 800.0, 1.0))
+                g.spin_for(0.2)
+            last = sent[-1]
             lowest = min(float(np.max(np.abs(b["voltage_V"]))) for a, b in w.blocks if t0 + 0.5 < a < last)
             g.spin_for(1.5)
             stopped_after = w.loud_until() - last
     finally:
         out = finish(proc)
+    gap = float(np.max(np.diff(sent)))
     print(
-        f"x20, commands 200 ms apart: lowest peak {lowest:.1f} V; stopped: quiet {stopped_after:.3f} s later"
+        f"x20, commands 200 ms apart (longest gap {gap * 1e3:.0f} ms, floor {floor * 1e3:.0f} ms): "
+        f"lowest peak {lowest:.1f} V; stopped: quiet {stopped_after:.3f} s later"
     )
+    assert gap < floor - 0.1, f"the commander itself stalled {gap:.3f} s: not the jitter this test is about"
     assert lowest > 390.0, out  # never tripped while commanded
     assert "instead of limits.command_timeout_s" in out
-    assert stopped_after < 0.25 + 0.1 + 0.15, stopped_after  # wall floor + ramp (at x20) + a block
+    assert stopped_after < floor + 0.1 + 0.15, stopped_after  # wall floor + ramp (at x20) + a block
 
 
 # ------------------------------------------------------------------------------- silence

@@ -99,14 +99,7 @@ def test_launch_without_the_simulator_and_with_a_layered_params_file(
 
 
 def test_ros2_run_refuses_a_mistyped_parameter(ros_env: dict[str, str]) -> None:
-    run = subprocess.run(
-        ["ros2", "run", "piezofin_ros", "fin_sim", "--ros-args", "-p", "realtime_factr:=10.0"],
-        env=ros_env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        stdin=subprocess.DEVNULL,
-    )
+    run = ros2(ros_env, "run", "piezofin_ros", "fin_sim", "--ros-args", "-p", "realtime_factr:=10.0")
     assert run.returncode != 0
     assert "unknown parameter realtime_factr" in run.stderr + run.stdout
     assert "Traceback" not in run.stderr + run.stdout
@@ -122,14 +115,7 @@ def test_ros2_run_estimator_with_a_model_file(ros_env: dict[str, str], tmp_path:
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("fin: {}\neffects: {warp_drive: {}}\n")
-    run = subprocess.run(
-        ["ros2", "run", "piezofin_ros", "thrust_estimator", "--ros-args", "-p", f"model:={bad}"],
-        env=ros_env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        stdin=subprocess.DEVNULL,
-    )
+    run = ros2(ros_env, "run", "piezofin_ros", "thrust_estimator", "--ros-args", "-p", f"model:={bad}")
     assert run.returncode != 0
     assert "parameter model: " in run.stderr + run.stdout and "bad.yaml" in run.stderr + run.stdout
     assert "Traceback" not in run.stderr + run.stdout
