@@ -78,6 +78,8 @@ FloatArray = NDArray[Any]
 
 #: Relative model error weighed into the fit beside the measurement noise (the map is a model).
 MODEL_ERROR = 0.02
+#: Trials this close (relative, see ``_close``) are at the same operating point.
+SAME_POINT = 1e-3
 
 #: Which estimate feeds the optimiser: Lighthill on the vibrometer's tip velocity (with the fin's
 #: ``c_m``), the drive's own current (a fish), or a load cell.
@@ -269,6 +271,7 @@ class Optimiser:
     change_sigma: float = 4.0  # a measurement this many sigma off the map means the fin changed
     changes: int = 0
     tolerance: float = 0.01
+    hold_gain: float = 0.01  # the incumbent is held unless the map expects this much more elsewhere
     probe_every: int = 2
     probe_step: float = 0.03
     n_grid: int = 160
@@ -322,10 +325,13 @@ class Optimiser:
         if not all(math.isfinite(x) for x in values) or thrust_n <= 0 or power_w <= 0 or voltage_pp <= 0:
             return False
         new = Observation(*values, source=self.source, admittance=complex(admittance))
-        if self.converged and len(self.observations) >= 3 and self._surprise(new) > self.change_sigma:
-            # (only once the map has settled: before that, every trial teaches it something new)
-            # The fin no longer behaves as fitted (drift, a new load): keep only the latest evidence.
-            self.observations = self.observations[-1:]
+        if self._repeat_disagrees(new) > self.change_sigma or (
+            # (against the map only once it has settled: before that, every trial teaches it something)
+            self.converged and len(self.observations) >= 3 and self._surprise(new) > self.change_sigma
+        ):
+            # The fin no longer behaves as measured (drift, a new load): keep only the new evidence
+            # (every earlier trial is of the fin before the change, the one just before it too).
+            self.observations = []
             self.changes += 1
             self.gp = ResidualGP(self.gp.length_log_f, self.gp.length_v)
         self.observations.append(new)
@@ -571,11 +577,7 @@ class Optimiser:
         bound = np.nan_to_num(self.self_sensing_bound) / 2.0
         for k, o in enumerate(obs):
             # the trials at this point (held points are measured again and again) average
-            same = [
-                j
-                for j, q in enumerate(obs)
-                if _close((q.frequency_hz, q.voltage_pp), (o.frequency_hz, o.voltage_pp), 1e-3)
-            ]
+            same = [j for j, q in enumerate(obs) if _close(_point(q), _point(o), SAME_POINT)]
             if same[0] != k or (len(same) > 1) != confirmed:
                 continue
             use = same[1:] if confirmed else same
@@ -678,9 +680,9 @@ class Optimiser:
                 s, ok = self._frontier(local)
                 pick = self._best(s, ok, optimism=self.kappa)
                 self._next = (pick.frequency_hz, pick.voltage_pp)
-        near = [
-            o for o in self.observations if _close((o.frequency_hz, o.voltage_pp), self._next, self.tolerance)
-        ]
+        if self.mode == "model" and inc is not None and self._gain(inc, self._next) < self.hold_gain:
+            self._next = inc  # the map expects too little elsewhere to be worth a new point's trials
+        near = [o for o in self.observations if _close(_point(o), self._next, self.tolerance)]
         if near:  # measure that point again rather than one beside it: its trials add up
             self._next = (near[-1].frequency_hz, near[-1].voltage_pp)
         candidate = self._candidate()
@@ -694,6 +696,13 @@ class Optimiser:
             self.converged = True
         elif not held:
             self.converged = False
+
+    def _gain(self, here: tuple[float, float], there: tuple[float, float]) -> float:
+        """The map's relative gain in the task's objective from ``here`` to ``there`` (both on the map,
+        so that the map's bias cancels; with a demand, where both meet it, the power's ratio)."""
+        s = self._surface(np.array([here[0], there[0]]), np.array([here[1], there[1]]))
+        obj = s.objective(self.demand_n)
+        return float(obj[1] / max(float(obj[0]), 1e-300) - 1.0)
 
     def _identification_point(self) -> tuple[float, float] | None:
         """A quiet trial well below the resonance, if none is in memory: there the tip moves as
@@ -724,6 +733,24 @@ class Optimiser:
         else:
             self.mode = "model"
             self.reason = f"the corrected model fits the {n} trial(s) ({math.sqrt(self._chi2):.1f} sigma RMS)"
+
+    def _repeat_disagrees(self, o: Observation) -> float:
+        """How far (in sigma of the trials' noise) a new trial at an operating point already measured
+        lies from the earlier trials there: the model-free sign that the fin changed (0 if none)."""
+        same = [q for q in self.observations if _close(_point(q), _point(o), SAME_POINT)]
+        if not same:
+            return 0.0
+        both = [*same, o]
+        thrust = self._thrust_estimates(self.correction, both)
+        noise_t = self._thrust_noise(self.correction, both, thrust)
+        power = np.array([q.power_w for q in both])
+        _, noise_p = self._noise(thrust, power)
+        out = 0.0
+        for y, sd in ((np.log(thrust), noise_t), (np.log(power), np.asarray(noise_p, float))):
+            earlier = float(np.mean(y[:-1]))
+            spread = math.sqrt(float(sd[-1]) ** 2 + float(np.mean(sd[:-1] ** 2)) / len(same))
+            out = max(out, abs(float(y[-1]) - earlier) / spread)
+        return out
 
     def _surprise(self, o: Observation) -> float:
         """How far (in sigma) a new measurement lies from the map's prediction."""
@@ -787,6 +814,10 @@ class Optimiser:
             "correction": self.correction.fitted(),
             "observations": len(self.observations),
         }
+
+
+def _point(o: Observation) -> tuple[float, float]:
+    return (o.frequency_hz, o.voltage_pp)
 
 
 def _close(a: tuple[float, float], b: tuple[float, float], tol: float) -> bool:
