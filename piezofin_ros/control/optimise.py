@@ -50,6 +50,7 @@ load): the older measurements are dropped and the fit starts again from the late
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -293,6 +294,10 @@ class Optimiser:
     _probe_sign: float = 1.0
     _covariance: FloatArray | None = None
     _chi2: float = 0.0
+    _fits: int = 0
+    _counted_cache: dict[tuple[Any, ...], list[tuple[float, Observation, float]]] = field(
+        default_factory=dict, repr=False
+    )
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -477,26 +482,35 @@ class Optimiser:
             return None
 
     # --- the map -------------------------------------------------------------------------------
+    def _propagated_sigma(self, log_value: Callable[[Correction], FloatArray], skip: str = "") -> FloatArray:
+        """Standard deviation of ``log_value(correction)`` from the fitted parameters' covariance
+        (first order: finite differences in each parameter but ``skip``; 0 before the first fit)."""
+        base = np.asarray(log_value(self.correction), float)
+        cov = self._covariance
+        if cov is None:
+            return np.zeros(base.shape)
+        x = _vector(self.correction)
+        grad = np.zeros((*base.shape, len(x)))
+        for k in range(len(x)):
+            if _PARAMS[k][0] == skip:
+                continue
+            step = 1e-4 * _PRIOR_SIGMA[k]
+            xk = x.copy()
+            xk[k] += step if xk[k] + step <= _UPPER[k] else -step
+            grad[..., k] = (np.asarray(log_value(_correction(xk, self.model)), float) - base) / (xk[k] - x[k])
+        var = np.einsum("...i,ij,...j->...", grad, cov, grad)
+        return np.asarray(np.sqrt(np.maximum(var, 0.0)))
+
     def _model_sigma(self, f: Any, v: Any) -> FloatArray:
         """Standard deviation of the corrected model's log thrust at the points, from the fitted
         parameters' covariance (0 before the first fit)."""
         f, v = np.broadcast_arrays(np.asarray(f, float), np.asarray(v, float))
-        cov = self._covariance
-        if cov is None:
-            return np.zeros(f.shape)
-        x = _vector(self.correction)
-        base = np.log(np.maximum(self.correction.response(self.fin, f, v).thrust_n, 1e-300))
-        grad = np.zeros((*f.shape, len(x)))
-        for k in range(len(x)):
-            if _PARAMS[k][0] == "thrust_gain" and self.source != "loadcell":
-                continue  # (a load cell's gain: the truth only where the load cell is the reference)
-            step = 1e-4 * _PRIOR_SIGMA[k]
-            xk = x.copy()
-            xk[k] += step if xk[k] + step <= _UPPER[k] else -step
-            r = _correction(xk, self.model).response(self.fin, f, v)
-            grad[..., k] = (np.log(np.maximum(r.thrust_n, 1e-300)) - base) / (xk[k] - x[k])
-        var = np.einsum("...i,ij,...j->...", grad, cov, grad)
-        return np.asarray(np.sqrt(np.maximum(var, 0.0)))
+
+        def log_thrust(c: Correction) -> FloatArray:
+            return np.log(np.maximum(c.response(self.fin, f, v).thrust_n, 1e-300))
+
+        # (a load cell's gain: the truth only where the load cell is the reference)
+        return self._propagated_sigma(log_thrust, skip="" if self.source == "loadcell" else "thrust_gain")
 
     def _surface(self, f: Any, v: Any, model_sigma: Any = 0.0) -> Surface:
         """The corrected model times the residual process's correction, with the demand's bound:
@@ -567,19 +581,44 @@ class Optimiser:
         A point counts on the trials that did not choose it (``confirmed``): the first trial at a
         point is what made it look best, and of several noisy trials near the demand the best is the
         luckiest (the winner's curse); the trials after it are independent.  ``confirmed=False``: the
-        points whose first trial alone meets the task (candidates for a confirming trial)."""
+        points whose first trial alone meets the task (candidates for a confirming trial).  Computed
+        once per fit and task (``incumbent``, ``_candidate`` and ``status`` all ask)."""
+        key = (
+            confirmed,
+            self._fits,  # (every fit: new trials, a new correction)
+            len(self.observations),
+            self.demand_n,
+            self.min_thrust_n,
+            self.voltage_pp,
+            self.z_demand,
+        )
+        cached = self._counted_cache.get(key)
+        if cached is None:
+            if len(self._counted_cache) > 8:
+                self._counted_cache.clear()
+            cached = self._counted_cache[key] = self._count(confirmed)
+        return cached
+
+    def _count(self, confirmed: bool) -> list[tuple[float, Observation, float]]:
         if not self.observations:
             return []
         obs = self.observations
         thrust = self._thrust_estimates(self.correction, obs)
         noise = self._thrust_noise(self.correction, obs, thrust)
-        out = []
         bound = np.nan_to_num(self.self_sensing_bound) / 2.0
+        groups: list[list[int]] = []  # the trials at each point (held points are measured again and again)
         for k, o in enumerate(obs):
-            # the trials at this point (held points are measured again and again) average
-            same = [j for j, q in enumerate(obs) if _close(_point(q), _point(o), SAME_POINT)]
-            if same[0] != k or (len(same) > 1) != confirmed:
+            for g in groups:
+                if _close(_point(obs[g[0]]), _point(o), SAME_POINT):
+                    g.append(k)
+                    break
+            else:
+                groups.append([k])
+        out = []
+        for same in groups:
+            if (len(same) > 1) != confirmed:
                 continue
+            o = obs[same[0]]
             use = same[1:] if confirmed else same
             t = float(np.exp(np.mean(np.log(thrust[use]))))
             noise_t = float(np.sqrt(np.mean(noise[use] ** 2) / len(use)))
@@ -636,26 +675,20 @@ class Optimiser:
 
     def _bound(self) -> float:
         """2 sigma (relative) of the thrust estimate's calibration at the latest trial."""
-        cov = self._covariance
-        if cov is None or not self.observations:
+        if self._covariance is None or not self.observations:
             return math.nan
         last = self.observations[-1]
         if last.source == "loadcell":
             return 0.0
-        x = _vector(self.correction)
-        base = math.log(float(self._thrust_estimates(self.correction, [last])[0]))
-        grad = np.zeros(len(x))
-        for k in range(len(x)):
-            step = 1e-4 * _PRIOR_SIGMA[k]
-            xk = x.copy()
-            xk[k] += step
-            grad[k] = (
-                math.log(float(self._thrust_estimates(_correction(xk, self.model), [last])[0])) - base
-            ) / step
-        return float(2.0 * math.sqrt(max(float(grad @ cov @ grad), 0.0)))
+
+        def log_estimate(c: Correction) -> FloatArray:
+            return np.log(self._thrust_estimates(c, [last]))
+
+        return float(2.0 * self._propagated_sigma(log_estimate)[0])
 
     def _update(self) -> None:
         self.correction = self._fit()
+        self._fits += 1
         self.self_sensing_bound = self._bound()
         self._fit_residual_process()
         grid = np.geomspace(self.limits.frequency_min_hz, self.limits.frequency_max_hz, self.n_grid)
