@@ -320,10 +320,21 @@ def plot(path: str, results: dict[tuple[str, str, str], list[Run]]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = sorted({(s, t) for s, t, _ in results})
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.8), constrained_layout=True)
+    order = ["loadcell", "vibrometer", "self"]
+    sources = sorted({s for s, _, _ in results}, key=lambda s: order.index(s) if s in order else len(order))
+    tasks = sorted({t for _, t, _ in results})  # ("demand", "no demand")
+    fig, axes = plt.subplots(
+        len(tasks),
+        len(sources),
+        figsize=(3.6 * len(sources), 2.9 * len(tasks)),
+        sharex=True,
+        sharey=True,
+        squeeze=False,
+        constrained_layout=True,
+    )
     colors = {"ours": "C0", "gp-bo": "C3", "grid": "C1", "random": "C2"}
-    for ax, (source, task) in zip(np.atleast_1d(axes), panels, strict=True):
+    for (i, task), (j, source) in ((it, js) for it in enumerate(tasks) for js in enumerate(sources)):
+        ax = axes[i, j]
         for method, c in colors.items():
             runs = results.get((source, task, method), [])
             if not runs:
@@ -337,10 +348,16 @@ def plot(path: str, results: dict[tuple[str, str, str], list[Run]]) -> None:
         ax.axvline(60.0, color="k", lw=0.6, ls=":")
         ax.set_xscale("log")
         ax.set_ylim(0, 1.05)
-        ax.set_xlabel("fin time [s]")
         ax.set_title(f"{source}, {task}", fontsize=10)
-    np.atleast_1d(axes)[0].set_ylabel("held point: fraction of the true optimum")
-    np.atleast_1d(axes)[0].legend(fontsize=8)
+        if i == len(tasks) - 1:
+            ax.set_xlabel("fin time [s]")
+        if j == 0:
+            ax.set_ylabel("held point / true optimum")
+    axes[0, 0].legend(fontsize=8, loc="lower right")
+    fig.suptitle(
+        "line: median over the plants; band: 5th percentile to best; dashed: 98 %; dotted: 60 s",
+        fontsize=9,
+    )
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)

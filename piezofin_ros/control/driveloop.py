@@ -32,6 +32,7 @@ class DriveLoop:
     target: tuple[float, float] | None = None
     command_v: float = 0.0
     trials: int = 0
+    skipped: int = 0  # windows that agreed while a fit was running (see add_estimate)
     discrepancy: float = math.nan  # self-sensed vs vibrometer thrust, relative, last window
     events: list[str] = field(default_factory=list)
     _t_last: float | None = None
@@ -40,7 +41,7 @@ class DriveLoop:
     _windows: list[tuple[float, float]] = field(default_factory=list)
     background: bool = False  # fit in a worker thread (the node: the heartbeat must not wait)
     _next: tuple[float, float] | None = None
-    _pending: Future[None] | None = None
+    _pending: list[Future[None]] = field(default_factory=list)  # the fit thread's work, in order
     _executor: ThreadPoolExecutor | None = None
     _learnt: dict[str, Any] | None = None
 
@@ -112,13 +113,29 @@ class DriveLoop:
         args = (e.t_end, e.frequency_hz, e.voltage_pp, thrust, power, admittance)
         if self.background:
             # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
-            # commands keep coming (fin_sim's watchdog trips after 0.25 s of wall time at x10)
-            if self._pending is None or self._pending.done():
-                self._pending = self._worker().submit(self._learn, *args)
+            # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, windows that
+            # agree are not queued (faster than real time they come faster than fits): counted only
+            if all(job.done() for job in self._pending):
+                self._pending.append(self._worker().submit(self._learn, *args))
+            else:
+                self.skipped += 1
         else:
             self._learn(*args)
             self._take_next()
         return True
+
+    def set_demand(self, demand_n: float | None) -> None:
+        """A new demand: taken by the fit's thread after the running fit (never beside it)."""
+        if self.background:
+            self._pending.append(self._worker().submit(self._demand, demand_n))
+        else:
+            self._demand(demand_n)
+            self._take_next()
+
+    def _demand(self, demand_n: float | None) -> None:
+        self.optimiser.set_demand(demand_n)
+        self._next = self.optimiser.propose()
+        self._learnt = self.optimiser.status()
 
     def _learn(self, *observation: Any) -> None:
         self.optimiser.observe(*observation)
@@ -133,11 +150,11 @@ class DriveLoop:
 
     def _take_next(self) -> None:
         """Move to the point the last fit proposed (once it is there)."""
-        if self._pending is not None and not self._pending.done():
+        if not all(job.done() for job in self._pending):
             return
-        if self._pending is not None:
-            self._pending.result()  # (an error in the fit surfaces here, in the heartbeat)
-            self._pending = None
+        for job in self._pending:
+            job.result()  # (an error in the fit surfaces here, in the heartbeat)
+        self._pending.clear()
         new, self._next = self._next, None
         if new is not None and new != self.target:
             self.target = new
@@ -150,5 +167,6 @@ class DriveLoop:
             "target": self.target,
             "command_vpp": self.command_v,
             "self_vs_vibrometer": self.discrepancy,
+            "windows_skipped": self.skipped,
             **(self._learnt if self._learnt is not None else self.optimiser.status()),
         }

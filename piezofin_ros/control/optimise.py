@@ -41,10 +41,12 @@ How it learns
    the controller holds (:meth:`Optimiser.incumbent`) is the best that counts.
 
 A proposal within ``tolerance`` of a measured point measures that point again, so that its trials add
-up.  Once the map's optimum is the incumbent (within ``tolerance``), the point is held and every
-``probe_every`` trials a probe at ``f (1 +- probe_step)`` keeps the fit informed.  A measurement
-more than ``change_sigma`` off the settled map means the fin has changed (drift, temperature, a new
-load): the older measurements are dropped and the fit starts again from the latest.
+up.  The incumbent is held unless the map expects ``hold_gain`` more elsewhere, and every
+``probe_every`` trials a probe at ``f (1 +- probe_step)`` keeps the fit informed.  The fin has
+changed (drift, temperature, a new load) when a point measured again lies more than
+``change_sigma`` of its trials' noise from its earlier trials (model-free), or a trial lies that far
+off the settled map: the earlier measurements, all of the fin before the change, are dropped and the
+fit starts again from the new one.
 """
 
 from __future__ import annotations
@@ -269,7 +271,7 @@ class Optimiser:
     kappa: float = 1.0  # the search's optimism, in standard deviations of the map
     trust_region: float = 0.15  # the search stays within f (1 +- this) of the incumbent
     memory_s: float = 300.0  # forget measurements older than this
-    change_sigma: float = 4.0  # a measurement this many sigma off the map means the fin changed
+    change_sigma: float = 4.0  # this many sigma off a point's earlier trials (or the map): a change
     changes: int = 0
     tolerance: float = 0.01
     hold_gain: float = 0.01  # the incumbent is held unless the map expects this much more elsewhere
