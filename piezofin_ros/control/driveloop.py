@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,7 +23,7 @@ class DriveLoop:
     """
 
     optimiser: Optimiser
-    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer"
+    source: str = "self"  # "self" (drive only, as on a fish) or "vibrometer"; the optimiser's too
     slew_vpp_per_s: float = 400.0
     estimate_timeout_s: float = 10.0
     settle_tolerance: float = 0.03
@@ -31,12 +32,21 @@ class DriveLoop:
     target: tuple[float, float] | None = None
     command_v: float = 0.0
     trials: int = 0
+    skipped: int = 0  # windows that agreed while a fit was running (see add_estimate)
     discrepancy: float = math.nan  # self-sensed vs vibrometer thrust, relative, last window
     events: list[str] = field(default_factory=list)
     _t_last: float | None = None
     _t_settled_from: float | None = None
     _last_estimate_t: float | None = None
     _windows: list[tuple[float, float]] = field(default_factory=list)
+    background: bool = False  # fit in a worker thread (the node: the heartbeat must not wait)
+    _next: tuple[float, float] | None = None
+    _pending: list[Future[None]] = field(default_factory=list)  # the fit thread's work, in order
+    _executor: ThreadPoolExecutor | None = None
+    _learnt: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        self.optimiser.source = self.source  # (it reads the same estimate)
 
     def tick(self, t: float) -> tuple[float, float, float]:
         if self._t_last is None:
@@ -44,10 +54,18 @@ class DriveLoop:
         assert self._last_estimate_t is not None
         dt = max(0.0, t - self._t_last)
         self._t_last = t
+        self._take_next()
         if self.target is None:
             self.target = self.optimiser.propose()
         f, v_target = self.target
-        silence = t - self._last_estimate_t
+        # (a new point needs the estimator's settling and a window from when the drive got there:
+        # silence counts from then, so a slow fit or a long ramp is not taken for a dead estimator)
+        since = (
+            self._last_estimate_t
+            if self._t_settled_from is None
+            else max(self._last_estimate_t, self._t_settled_from)
+        )
+        silence = t - since
         if self.state in ("driving", "holding") and silence > 2 * self.estimate_timeout_s:
             self.state = "ramping down"
             self.events.append(f"no estimate for {silence:.1f} s: ramping the drive down to 0 V")
@@ -90,14 +108,57 @@ class DriveLoop:
         )
         if not (agree or len(w) >= self.max_windows):
             return True
-        self.optimiser.observe(e.t_end, e.frequency_hz, e.voltage_pp, thrust, power)
-        self.trials += 1
+        admittance = complex(getattr(e, "admittance_re", math.nan), getattr(e, "admittance_im", math.nan))
         self._windows = []
-        new = self.optimiser.propose()
-        if new != self.target:
+        args = (e.t_end, e.frequency_hz, e.voltage_pp, thrust, power, admittance)
+        if self.background:
+            # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
+            # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, windows that
+            # agree are not queued (faster than real time they come faster than fits): counted only
+            if all(job.done() for job in self._pending):
+                self._pending.append(self._worker().submit(self._learn, *args))
+            else:
+                self.skipped += 1
+        else:
+            self._learn(*args)
+            self._take_next()
+        return True
+
+    def set_demand(self, demand_n: float | None) -> None:
+        """A new demand: taken by the fit's thread after the running fit (never beside it)."""
+        if self.background:
+            self._pending.append(self._worker().submit(self._demand, demand_n))
+        else:
+            self._demand(demand_n)
+            self._take_next()
+
+    def _demand(self, demand_n: float | None) -> None:
+        self.optimiser.set_demand(demand_n)
+        self._next = self.optimiser.propose()
+        self._learnt = self.optimiser.status()
+
+    def _learn(self, *observation: Any) -> None:
+        self.optimiser.observe(*observation)
+        self._next = self.optimiser.propose()
+        self._learnt = self.optimiser.status()  # (read by the heartbeat while the next fit runs)
+        self.trials += 1
+
+    def _worker(self) -> ThreadPoolExecutor:
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="optimiser")
+        return self._executor
+
+    def _take_next(self) -> None:
+        """Move to the point the last fit proposed (once it is there)."""
+        if not all(job.done() for job in self._pending):
+            return
+        for job in self._pending:
+            job.result()  # (an error in the fit surfaces here, in the heartbeat)
+        self._pending.clear()
+        new, self._next = self._next, None
+        if new is not None and new != self.target:
             self.target = new
             self._t_settled_from = None
-        return True
 
     def status(self) -> dict[str, Any]:
         return {
@@ -106,5 +167,6 @@ class DriveLoop:
             "target": self.target,
             "command_vpp": self.command_v,
             "self_vs_vibrometer": self.discrepancy,
-            **self.optimiser.status(),
+            "windows_skipped": self.skipped,
+            **(self._learnt if self._learnt is not None else self.optimiser.status()),
         }

@@ -1,42 +1,58 @@
-r"""Thrust-per-watt optimiser: the model's map, corrected by what the fin measures.
+r"""Thrust-per-watt optimiser: the model's map as a prior, corrected by what the fin measures.
 
 The problem
 -----------
 Choose the drive frequency ``f`` and peak-to-peak voltage ``V`` within :class:`OperatingBox`:
 
-* with a thrust demand ``D``: deliver ``T(f, V) >= D`` with the least electrical power (the most
-  thrust per watt at that thrust).  ``T`` increases strictly with ``V`` at any ``f`` (a property
-  the tests check on the model), so for every ``f`` the least voltage ``V*(f)`` that gives ``D`` is
-  found by bisection and the search is one-dimensional: ``min_f P(f, V*(f))``;
+* with a thrust demand ``D``: deliver ``T(f, V) >= D`` in truth with the least electrical power.
+  ``T`` increases with ``V`` at any ``f``, so for every ``f`` the least voltage ``V*(f)`` whose
+  thrust meets ``D`` *with a margin* (below) is found by bisection and the search is over ``f``;
 * without a demand: the paper's convention, the frequency of the highest thrust per watt at the
-  configured voltage, among frequencies that give at least ``min_thrust_n`` (default 1 mN: without
-  it the nominal model's optimum is the lowest frequency, where thrust and power are both a few
-  micro-units and the power is below the current monitor's noise);
+  configured voltage, among frequencies that give at least ``min_thrust_n`` (default 1 mN);
 * when ``D`` cannot be met within the limits: the most thrust available, flagged infeasible.
 
 How it learns
 -------------
-The map comes from the harmonic balance of the fin model, through a *correction*: five
-parameters a real fin changes (:class:`Correction`): the resonance (``resonance_scale``), its
-fall with drive voltage (``softening``, electroelastic), the drag coefficient (``drag_scale``), a
-dielectric loss ``P += (1/2) tan(delta) C_eq w (V/2)^2`` and a thrust gain.  After each trial
-the correction is fitted to the measurements (log thrust and log power, weighted by the
-measurement noise) with weak priors around the nominal fin, so one trial already moves the map
-and the fit stays well posed.  The next trial goes to the corrected map's optimum; when that
-optimum stops moving (within ``tolerance``) the point is held, and every ``probe_every`` trials
-a probe at ``f (1 +- probe_step)`` keeps the fit informed.  A measurement more than
-``change_sigma`` off the fit's prediction means the fin has changed (drift, temperature, a new
-load): the older measurements are dropped and the fit starts again from the latest, so a
-drifting fin is followed without a restart.
+1. **The model, corrected.**  The map is the harmonic balance of the fin model (or of a diagnosed
+   model, ``model``) plus a :class:`Correction`: eight effects of the one library that real fins
+   show (a resonance off, an added mass off ``c_m(psi)``, electroelastic softening, extra drag, a
+   coupling that grows with the field, dielectric loss, a capacitance off ``C_eq``, and a load-cell
+   gain).  After each trial they are fitted, with weak priors around the nominal fin, to everything
+   the trial measured: the power, the thrust estimate (vibrometer or load cell) and the drive's
+   admittance ``I_1 / V_1``.  The admittance carries the capacitance and loss conductance (its
+   static part) and ``theta^2`` times the mechanical response (its motional part), so on a fish
+   (``source = "self"``, drive only) the same fit *calibrates the self-sensing*: the thrust is
+   re-estimated from each trial's admittance with the fitted ``C_eq``, loss conductance, coupling
+   at that field and ``c_m`` (:mod:`piezofin_ros.estimation.selfsense`), and the fit's covariance
+   gives its error bound.
+2. **What the model misses.**  Residuals of the measured log thrust and log power against the
+   corrected map are interpolated by a Gaussian process (:mod:`.gp`): near the trials the map
+   follows the measurements, far from them it reverts to the model.  When the corrected model keeps
+   mispredicting (its residuals exceed ``search_chi2`` times the noise), the optimiser says so
+   (``mode = "search"`` with the reason) and searches model-free near the best measured point: the
+   next trial maximises the map's thrust per watt plus ``kappa`` of its uncertainty within a trust
+   region around the incumbent.
+3. **The demand, met in truth.**  A measured point counts only if its thrust estimate, less ``z``
+   times its uncertainty (the trial's noise, the calibration of its source), meets the demand, and
+   only on the trials that did not choose it: of several noisy trials near the demand the best
+   looking is the luckiest (the winner's curse), so a promising point is driven again to confirm
+   it.  Trials go where one will count: the least voltage whose map thrust, less ``z`` times the
+   model's parametric uncertainty, the process's and one trial's, meets the demand.  The point
+   the controller holds (:meth:`Optimiser.incumbent`) is the best that counts.
 
-With ``model`` (an :class:`~piezofin_ros.physics.model.Model` model saved by ``piezofin
-diagnose``) the map starts from the diagnosed model instead of the paper's: its fin and effects,
-with the same five corrections applied on top as effects of the same library.
+A proposal within ``tolerance`` of a measured point measures that point again, so that its trials add
+up.  The incumbent is held unless the map expects ``hold_gain`` more elsewhere, and every
+``probe_every`` trials a probe at ``f (1 +- probe_step)`` keeps the fit informed.  The fin has
+changed (drift, temperature, a new load) when a point measured again lies more than
+``change_sigma`` of its trials' noise from its earlier trials (model-free), or a trial lies that far
+off the settled map: the earlier measurements, all of the fin before the change, are dropped and the
+fit starts again from the new one.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -46,12 +62,31 @@ from scipy import optimize
 
 from ..config import HARD_VOLTAGE_PP_MAX
 from ..errors import ControlError
-from ..physics.effects import DielectricLoss, DragOffset, Electroelastic, ResonanceOffset
+from ..estimation.selfsense import Calibration, lighthill_thrust, self_sensed_tip
+from ..physics.effects import (
+    AddedMassOffset,
+    CapacitanceOffset,
+    DielectricLoss,
+    DragOffset,
+    Electroelastic,
+    FieldCoupling,
+    ResonanceOffset,
+)
 from ..physics.fin import Fin
-from ..physics.model import Model
+from ..physics.model import Model, Prediction
+from .gp import ResidualGP
 from .plants import EstimateNoise, PlantResponse
 
 FloatArray = NDArray[Any]
+
+#: Relative model error weighed into the fit beside the measurement noise (the map is a model).
+MODEL_ERROR = 0.02
+#: Trials this close (relative, see ``_close``) are at the same operating point.
+SAME_POINT = 1e-3
+
+#: Which estimate feeds the optimiser: Lighthill on the vibrometer's tip velocity (with the fin's
+#: ``c_m``), the drive's own current (a fish), or a load cell.
+SOURCES = ("vibrometer", "self", "loadcell")
 
 
 @dataclass(frozen=True)
@@ -97,48 +132,81 @@ class OperatingBox:
 
 @dataclass(frozen=True)
 class Correction:
-    """How the real fin differs from the model (1/0 = the nominal model): four effects of the one
-    library fitted on top of the base model, and a thrust gain (estimate over model)."""
+    """How the real fin differs from the model (1/0 = the nominal model): effects of the one library
+    fitted on top of the base model, and a load cell's gain (its reading over the model's thrust)."""
 
-    resonance_scale: float = 1.0
-    softening: float = 0.0
-    drag_scale: float = 1.0
+    resonance_scale: float = 1.0  # natural frequency x
+    added_mass: float = 1.0  # c_m x
+    softening: float = 0.0  # resonance x (1 - softening Vpp / 800)
+    drag_scale: float = 1.0  # c_d x
+    coupling_k: float = 0.0  # theta x (1 + k Vpp / 800)
     loss_tan_delta: float = 0.0
+    capacitance: float = 1.0  # C_eq x
     thrust_gain: float = 1.0
 
     base: Model | None = None  # a diagnosed model (fin + effects) the correction applies on top of
 
     def fitted(self) -> dict[str, float]:
-        """The five fitted numbers (for a status message: plain JSON, without the base model)."""
+        """The fitted numbers (for a status message: plain JSON, without the base model)."""
         return {f.name: float(getattr(self, f.name)) for f in fields(self) if f.name != "base"}
 
     def model(self, fin: Fin) -> Model:
         """The base model (``fin`` without one) plus the correction's effects."""
         base = self.base if self.base is not None else Model(fin)
-        return (
-            base
-            + ResonanceOffset(self.resonance_scale)
-            + Electroelastic(self.softening)
-            + DragOffset(self.drag_scale)
-            + DielectricLoss(self.loss_tan_delta)
+        return base + (  # noqa: RUF005 (a model plus effects)
+            ResonanceOffset(self.resonance_scale),
+            AddedMassOffset(self.added_mass),
+            Electroelastic(self.softening),
+            DragOffset(self.drag_scale),
+            FieldCoupling(self.coupling_k, 1.0),
+            DielectricLoss(self.loss_tan_delta),
+            CapacitanceOffset(self.capacitance),
         )
+
+    def predict(self, fin: Fin, f: Any, v: Any) -> Prediction:
+        return self.model(fin).predict(f, v)
 
     def response(self, fin: Fin, f: Any, v: Any) -> PlantResponse:
         # (the load-cell effects of a base describe the rig, not the fin: the thrust is Lighthill's)
-        p = self.model(fin).predict(f, v)
+        p = self.predict(fin, f, v)
         return PlantResponse(p.thrust_n * self.thrust_gain, p.power_w, p.tip_velocity_rms)
 
+    def calibration(self, fin: Fin, f: Any, v: Any) -> Calibration:
+        """The self-sensing's calibration at these points (:mod:`piezofin_ros.estimation.selfsense`)."""
+        law = self.model(fin).law(f, v)
+        return Calibration(law.capacitance, law.loss_conductance, law.coupling, law.mass)
 
-# (vector -> Correction) with log parameters where a scale is positive; priors (mean, sigma).
-_PRIOR_MEAN = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
-_PRIOR_SIGMA = np.array([0.3, 0.3, 0.7, 0.3, 0.3])
-# (inside the library's bounds of each effect: exp(log(x)) may round across them)
-_LOWER = np.array([math.log(0.3) + 1e-12, 0.0, math.log(0.1), 0.0, math.log(0.2)])
-_UPPER = np.array([math.log(2.0) - 1e-12, 0.8, math.log(10.0), 0.5, math.log(5.0)])
+
+# The fitted parameters: (name, log-transformed, prior sigma, lower, upper) in fit coordinates (inside
+# each effect's bounds in the library: exp(log(x)) may round across them).  The prior mean is the
+# nominal fin (0 in these coordinates).  The stiffness may move 30 % (a fin that drifts, a warm day):
+# the quiet identification trial below resonance measures it where a vibrometer or a load cell is
+# there; so a resonance that moves in water is read as added mass (the issue's "in-water resonance
+# reveals c_m"), and with it every Lighthill thrust; the softening separates what moves with the
+# voltage.  On a fish the drive alone cannot tell the stiffness from the coupling: it is held to the
+# fin file's (``Optimiser.stiffness_sigma``, 5 %: ``piezofin identify`` measures it in air).
+_PARAMS = (
+    ("resonance_scale", True, 0.3, math.log(0.3), math.log(2.0)),
+    ("added_mass", True, 0.3, math.log(0.3), math.log(4.0)),
+    ("softening", False, 0.3, 0.0, 0.8),
+    ("drag_scale", True, 0.7, math.log(0.1), math.log(10.0)),
+    ("coupling_k", False, 0.3, -0.5, 2.0),
+    ("loss_tan_delta", False, 0.3, 0.0, 0.5),
+    ("capacitance", True, 0.05, math.log(0.5), math.log(2.0)),
+    ("thrust_gain", True, 0.3, math.log(0.2), math.log(5.0)),
+)
+_PRIOR_SIGMA = np.array([p[2] for p in _PARAMS])
+_LOWER = np.array([p[3] for p in _PARAMS]) + 1e-9
+_UPPER = np.array([p[4] for p in _PARAMS]) - 1e-9
 
 
 def _correction(x: FloatArray, base: Model | None = None) -> Correction:
-    return Correction(math.exp(x[0]), float(x[1]), math.exp(x[2]), float(x[3]), math.exp(x[4]), base)
+    values = {name: (math.exp(v) if log else float(v)) for (name, log, *_), v in zip(_PARAMS, x, strict=True)}
+    return Correction(**values, base=base)
+
+
+def _vector(c: Correction) -> FloatArray:
+    return np.array([math.log(getattr(c, name)) if log else getattr(c, name) for name, log, *_ in _PARAMS])
 
 
 @dataclass(frozen=True)
@@ -154,64 +222,37 @@ class Choice:
         return self.thrust_n / self.power_w if self.power_w > 0 else 0.0
 
 
-def best_point(
-    fin: Fin,
-    correction: Correction,
-    limits: OperatingBox,
-    demand_n: float | None,
-    voltage_pp: float,
-    min_thrust_n: float = 1e-3,
-    n_grid: int = 160,
-) -> Choice:
-    """The optimum of the corrected map (see the module docstring)."""
-    f = np.geomspace(limits.frequency_min_hz, limits.frequency_max_hz, n_grid)
-    if demand_n is None:
-        v = min(max(voltage_pp, limits.voltage_pp_min), limits.voltage_pp_max)
-        r = correction.response(fin, f, v)
-        ok = r.thrust_n >= min_thrust_n
-        if not np.any(ok):
-            i = int(np.argmax(r.thrust_n))
-            return Choice(float(f[i]), v, float(r.thrust_n[i]), float(r.power_w[i]), False)
-        i = int(np.argmax(np.where(ok, r.thrust_per_watt, -np.inf)))
-        lo, hi = f[max(i - 1, 0)], f[min(i + 1, n_grid - 1)]
-
-        def negative_tpw(x: float) -> float:
-            rx = correction.response(fin, x, v)
-            return -float(rx.thrust_per_watt) if float(rx.thrust_n) >= min_thrust_n else 0.0
-
-        res = optimize.minimize_scalar(
-            negative_tpw, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * lo}
-        )
-        fb = float(res.x) if -res.fun >= r.thrust_per_watt[i] else float(f[i])
-        rb = correction.response(fin, fb, v)
-        return Choice(fb, v, float(rb.thrust_n), float(rb.power_w), True)
-    vmax = correction.response(fin, f, limits.voltage_pp_max)
-    feasible = vmax.thrust_n >= demand_n
-    if not np.any(feasible):
-        i = int(np.argmax(vmax.thrust_n))
-        return Choice(
-            float(f[i]), limits.voltage_pp_max, float(vmax.thrust_n[i]), float(vmax.power_w[i]), False
-        )
-    lo = np.full_like(f, limits.voltage_pp_min)
-    hi = np.full_like(f, limits.voltage_pp_max)
-    for _ in range(40):  # bisection on V: T increases with V at every f
-        mid = 0.5 * (lo + hi)
-        ok = correction.response(fin, f, mid).thrust_n >= demand_n
-        hi = np.where(ok, mid, hi)
-        lo = np.where(ok, lo, mid)
-    r = correction.response(fin, f, hi)
-    power = np.where(feasible, r.power_w, np.inf)
-    i = int(np.argmin(power))
-    return Choice(float(f[i]), float(hi[i]), float(r.thrust_n[i]), float(r.power_w[i]), True)
-
-
 @dataclass(frozen=True)
 class Observation:
     t: float
     frequency_hz: float
     voltage_pp: float
-    thrust_n: float
+    thrust_n: float  # the estimate of ``source``
     power_w: float
+    source: str = "vibrometer"
+    admittance: complex = complex(math.nan, math.nan)  # I_1 / V_1, S
+
+    @property
+    def has_admittance(self) -> bool:
+        return math.isfinite(self.admittance.real) and math.isfinite(self.admittance.imag)
+
+
+@dataclass(frozen=True)
+class Surface:
+    """The map on a set of points: mean thrust and power, the thrust's lower bound, and the log
+    standard deviations (the process's, no measurement noise) of thrust and power."""
+
+    frequency_hz: FloatArray
+    voltage_pp: FloatArray
+    thrust_n: FloatArray
+    power_w: FloatArray
+    thrust_low_n: FloatArray
+    sigma_thrust: FloatArray
+    sigma_power: FloatArray
+
+    def objective(self, demand_n: float | None) -> FloatArray:
+        thrust = self.thrust_n if demand_n is None else np.minimum(self.thrust_n, demand_n)
+        return np.asarray(thrust / np.maximum(self.power_w, 1e-300))
 
 
 @dataclass
@@ -223,33 +264,52 @@ class Optimiser:
     voltage_pp: float = 800.0  # the configured voltage (no demand)
     demand_n: float | None = None
     min_thrust_n: float = 1e-3  # without a demand: the least thrust worth having
-    demand_margin: float = 0.005  # aim this much above the demand, so noise and drift rarely miss it
+    source: str = "vibrometer"  # which estimate ``observe`` receives (see SOURCES)
     noise: EstimateNoise = field(default_factory=EstimateNoise)
+    z_demand: float = 2.0  # the demand is met with this many standard deviations of margin
+    search_chi2: float = 4.0  # the model mispredicts when its residuals exceed this (per datum)
+    kappa: float = 1.0  # the search's optimism, in standard deviations of the map
+    trust_region: float = 0.15  # the search stays within f (1 +- this) of the incumbent
     memory_s: float = 300.0  # forget measurements older than this
-    change_sigma: float = 3.0  # a measurement this many sigma off the fit means the fin changed
+    change_sigma: float = 4.0  # this many sigma off a point's earlier trials (or the map): a change
     changes: int = 0
-    tolerance: float = 0.02
-    probe_every: int = 4
-    probe_step: float = 0.06
+    tolerance: float = 0.01
+    hold_gain: float = 0.01  # the incumbent is held unless the map expects this much more elsewhere
+    probe_every: int = 2
+    probe_step: float = 0.03
+    n_grid: int = 160
+    #: On a fish (drive only) the stiffness cannot be told from the coupling (the motional admittance
+    #: is theta^2 times the mechanical response): it is held to the fin file's, within this (log) sigma.
+    stiffness_sigma: float = 0.05
+    identify: bool = True  # begin with a quiet trial below resonance (see _identification_point)
     observations: list[Observation] = field(default_factory=list)
     correction: Correction = field(default_factory=Correction)
     choice: Choice | None = None
     converged: bool = False
+    mode: str = "model"  # or "search": the corrected model mispredicts, search near the incumbent
+    reason: str = "no trial yet: the model's optimum"
+    self_sensing_bound: float = math.nan  # 2 sigma, relative, of the thrust estimate's calibration
     model: Model | None = None  # a diagnosed model: its fin and effects replace ``fin``
+    gp: ResidualGP = field(default_factory=ResidualGP)
+    _next: tuple[float, float] | None = None
     _held: int = 0
     _probe_sign: float = 1.0
+    _covariance: FloatArray | None = None
+    _chi2: float = 0.0
+    _fits: int = 0
+    _counted_cache: dict[tuple[Any, ...], list[tuple[float, Observation, float]]] = field(
+        default_factory=dict, repr=False
+    )
 
     def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ControlError(f"source must be one of {', '.join(SOURCES)}, got {self.source!r}")
         if self.model is not None:
             self.fin = self.model.fin
             self.correction = replace(self.correction, base=self.model)
-        self.choice = best_point(
-            self.fin, self.correction, self.limits, self._target(), self.voltage_pp, self.min_thrust_n
-        )
+        self._update()
 
-    def _target(self) -> float | None:
-        return None if self.demand_n is None else self.demand_n * (1.0 + self.demand_margin)
-
+    # --- inputs ---------------------------------------------------------------------------------
     def set_demand(self, demand_n: float | None) -> None:
         """A new demand (None or <= 0: none).  Non-finite values are ignored."""
         if demand_n is not None and not math.isfinite(demand_n):
@@ -259,113 +319,542 @@ class Optimiser:
         self._update()
 
     def observe(
-        self, t: float, frequency_hz: float, voltage_pp: float, thrust_n: float, power_w: float
+        self,
+        t: float,
+        frequency_hz: float,
+        voltage_pp: float,
+        thrust_n: float,
+        power_w: float,
+        admittance: complex = complex(math.nan, math.nan),
     ) -> bool:
-        """Add one trial's estimate; False (and ignored) if it is not usable."""
+        """Add one trial's estimate (``thrust_n`` from ``source``); False (and ignored) if unusable."""
         values = (t, frequency_hz, voltage_pp, thrust_n, power_w)
         if not all(math.isfinite(x) for x in values) or thrust_n <= 0 or power_w <= 0 or voltage_pp <= 0:
             return False
-        new = Observation(*values)
-        if len(self.observations) >= 3 and self._surprise(new) > self.change_sigma:
-            # The fin no longer behaves as fitted (drift, a new load): keep only the latest evidence.
-            self.observations = self.observations[-1:]
+        new = Observation(*values, source=self.source, admittance=complex(admittance))
+        if self._repeat_disagrees(new) > self.change_sigma or (
+            # (against the map only once it has settled: before that, every trial teaches it something)
+            self.converged and len(self.observations) >= 3 and self._surprise(new) > self.change_sigma
+        ):
+            # The fin no longer behaves as measured (drift, a new load): keep only the new evidence
+            # (every earlier trial is of the fin before the change, the one just before it too).
+            self.observations = []
             self.changes += 1
+            self.gp = ResidualGP(self.gp.length_log_f, self.gp.length_v)
         self.observations.append(new)
         recent = [o for o in self.observations if o.t >= t - self.memory_s]
         self.observations = recent or self.observations[-2:]
         self._update()
         return True
 
-    def _sigmas(self, thrust_n: Any, power_w: Any) -> tuple[Any, Any]:
-        """Noise of log thrust and log power (relative + absolute floor) plus 2 % model error."""
+    # --- noise and what the measurements say -------------------------------------------------------
+    def _noise(self, thrust_n: Any, power_w: Any) -> tuple[Any, Any]:
+        """Measurement noise of log thrust and log power (relative + absolute floor)."""
         n = self.noise
-        sig_t = np.hypot(n.thrust_rel, n.thrust_abs_n / np.asarray(thrust_n)) + 0.02
-        sig_p = np.hypot(n.power_rel, n.power_abs_w / np.asarray(power_w)) + 0.02
-        return sig_t, sig_p
+        return (
+            np.hypot(n.thrust_rel, n.thrust_abs_n / np.asarray(thrust_n)),
+            np.hypot(n.power_rel, n.power_abs_w / np.asarray(power_w)),
+        )
 
-    def _surprise(self, o: Observation) -> float:
-        """How far (in sigma) a new measurement lies from the current fit's prediction."""
-        r = self.correction.response(self.fin, o.frequency_hz, o.voltage_pp)
-        sig_t, sig_p = self._sigmas(o.thrust_n, o.power_w)
-        dt = abs(math.log(o.thrust_n / max(float(r.thrust_n), 1e-300))) / float(sig_t)
-        dp = abs(math.log(o.power_w / max(float(r.power_w), 1e-300))) / float(sig_p)
-        return max(dt, dp)
+    def _thrust_noise(self, c: Correction, obs: list[Observation], thrust: FloatArray) -> FloatArray:
+        """Noise of each trial's log thrust estimate: the estimate's own, and for a self-sensed one the
+        admittance's noise magnified by the ratio of the whole current to its motional part."""
+        power = np.array([o.power_w for o in obs])
+        noise, _ = self._noise(np.maximum(thrust, 1e-300), power)
+        noise = np.array(noise, float, ndmin=1)
+        for k, o in enumerate(obs):
+            if o.source == "self" and o.has_admittance:
+                cal = c.calibration(self.fin, o.frequency_hz, o.voltage_pp)
+                w = 2 * math.pi * o.frequency_hz
+                motional = abs(
+                    o.admittance
+                    - (complex(float(cal.conductance_s), w * self.fin.C_eq * float(cal.capacitance)))
+                )
+                ratio = abs(o.admittance) / max(motional, 1e-300)
+                noise[k] = math.hypot(noise[k], 2.0 * self.noise.admittance_rel * ratio)
+        return noise
+
+    def _thrust_estimates(self, c: Correction, obs: list[Observation]) -> FloatArray:
+        """Each trial's thrust, re-estimated with the correction: the self-sensed thrust from the
+        admittance with the fitted calibration, Lighthill's with the fitted ``c_m``, the load cell's
+        as read."""
+        out = np.array([o.thrust_n for o in obs], float)
+        selfs = [k for k, o in enumerate(obs) if o.source == "self" and o.has_admittance]
+        vib = [
+            k
+            for k, o in enumerate(obs)
+            if o.source == "vibrometer" or (o.source == "self" and k not in selfs)
+        ]
+        out[vib] *= c.added_mass
+        if selfs:
+            f = np.array([obs[k].frequency_hz for k in selfs])
+            v_amp = 0.5 * np.array([obs[k].voltage_pp for k in selfs])
+            y = np.array([obs[k].admittance for k in selfs])
+            cal = c.calibration(self.fin, f, 2 * v_amp)
+            tip = self_sensed_tip(self.fin, y * v_amp, v_amp, 2 * math.pi * f, cal)
+            out[selfs] = lighthill_thrust(self.fin, np.abs(tip) / math.sqrt(2), cal)
+        return out
+
+    def _residuals(
+        self, c: Correction, obs: list[Observation], model_error: float = MODEL_ERROR
+    ) -> FloatArray:
+        """Each trial's misfit in noise units: log power, the thrust reading (vibrometer: Lighthill
+        with the base fin's ``c_m``; load cell: as read) and the admittance's susceptance."""
+        f = np.array([o.frequency_hz for o in obs])
+        v = np.array([o.voltage_pp for o in obs])
+        t_meas = np.array([o.thrust_n for o in obs])
+        p_meas = np.array([o.power_w for o in obs])
+        pred = c.predict(self.fin, f, v)
+        sig_t, sig_p = self._noise(t_meas, p_meas)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rp = (np.log(p_meas) - np.log(np.maximum(pred.power_w, 1e-300))) / (sig_p + model_error)
+            reading = np.where(
+                [o.source == "loadcell" for o in obs],
+                pred.thrust_n * c.thrust_gain,
+                pred.thrust_n / c.added_mass,
+            )
+            rt = (np.log(t_meas) - np.log(np.maximum(reading, 1e-300))) / (sig_t + model_error)
+        rt = np.where([o.source == "self" and o.has_admittance for o in obs], 0.0, rt)
+        y = np.array([o.admittance for o in obs])
+        has_y = np.array([o.has_admittance for o in obs])
+        rb = np.zeros(len(obs))
+        if np.any(has_y):
+            assert pred.admittance is not None
+            b_pred = np.imag(pred.admittance)
+            rb[has_y] = (y[has_y].imag - b_pred[has_y]) / (
+                (self.noise.admittance_rel + model_error / 4) * np.abs(y[has_y]) + 1e-12
+            )
+        return np.concatenate([rt, rp, rb])
+
+    @property
+    def _prior_sigma(self) -> FloatArray:
+        """The priors' widths; on a fish the stiffness is the fin file's (``stiffness_sigma``)."""
+        sigma = _PRIOR_SIGMA.copy()
+        if self.source == "self":
+            sigma[0] = self.stiffness_sigma
+        return sigma
 
     def _fit(self) -> Correction:
         obs = self.observations
         if not obs:
+            self._covariance = None
             return Correction(base=self.model)
-        f = np.array([o.frequency_hz for o in obs])
-        v = np.array([o.voltage_pp for o in obs])
-        lt = np.log([o.thrust_n for o in obs])
-        lp = np.log([o.power_w for o in obs])
-        sig_t, sig_p = self._sigmas(np.exp(lt), np.exp(lp))
 
         def residuals(x: FloatArray) -> FloatArray:
-            r = _correction(x, self.model).response(self.fin, f, v)
-            with np.errstate(divide="ignore"):
-                rt = (lt - np.log(np.maximum(r.thrust_n, 1e-300))) / sig_t
-                rp = (lp - np.log(np.maximum(r.power_w, 1e-300))) / sig_p
-            return np.concatenate([rt, rp, (x - _PRIOR_MEAN) / _PRIOR_SIGMA])
+            return np.concatenate([self._residuals(_correction(x, self.model), obs), x / self._prior_sigma])
 
-        c = self.correction
-        x = [
-            math.log(c.resonance_scale),
-            c.softening,
-            math.log(c.drag_scale),
-            c.loss_tan_delta,
-            math.log(c.thrust_gain),
-        ]
-        x0 = np.clip(x, _LOWER + 1e-9, _UPPER - 1e-9)
+        x0 = np.clip(_vector(self.correction), _LOWER, _UPPER)
+        starts = (
+            [x0] if len(obs) > 4 else [x0, np.clip(np.zeros(len(_PARAMS)), _LOWER, _UPPER)]
+        )  # (early: the nominal basin too)
         best = None
-        for start in (x0, np.zeros(5)):  # warm start, and the nominal model in case it is a better basin
-            res = optimize.least_squares(residuals, start, bounds=(_LOWER, _UPPER), x_scale=_PRIOR_SIGMA)
+        for start in starts:
+            res = optimize.least_squares(
+                residuals, start, bounds=(_LOWER, _UPPER), x_scale=self._prior_sigma, max_nfev=200
+            )
             if best is None or res.cost < best.cost:
                 best = res
         assert best is not None
+        n_data = 2 * len(obs) + sum(o.has_admittance for o in obs)
+        self._chi2 = float(np.sum(np.asarray(best.fun)[: 3 * len(obs)] ** 2)) / max(n_data, 1)
+        self._covariance = self._parameter_covariance(best.x, n_data)
         return _correction(best.x, self.model)
+
+    def _parameter_covariance(self, x: FloatArray, n_data: int) -> FloatArray | None:
+        """The fitted parameters' covariance against the measurement noise alone (the fit weighs in
+        a model error too, which would inflate it), scaled up by the reduced chi-square when the
+        trials scatter more than the noise (a model outside the correction's family)."""
+        obs = self.observations
+
+        def weighted(xx: FloatArray) -> FloatArray:
+            misfit = self._residuals(_correction(xx, self.model), obs, 0.0)
+            return np.concatenate([misfit, xx / self._prior_sigma])
+
+        r0 = weighted(x)
+        steps = 1e-5 * _PRIOR_SIGMA
+        jac = np.empty((len(r0), len(x)))
+        for k in range(len(x)):
+            xk = x.copy()
+            xk[k] += steps[k] if xk[k] + steps[k] <= _UPPER[k] else -steps[k]
+            jac[:, k] = (weighted(xk) - r0) / (xk[k] - x[k])
+        chi2 = float(np.sum(r0[: 3 * len(obs)] ** 2)) / max(n_data, 1)
+        try:
+            return np.asarray(np.linalg.inv(jac.T @ jac) * max(1.0, chi2))
+        except np.linalg.LinAlgError:
+            return None
+
+    # --- the map -------------------------------------------------------------------------------
+    def _propagated_sigma(self, log_value: Callable[[Correction], FloatArray], skip: str = "") -> FloatArray:
+        """Standard deviation of ``log_value(correction)`` from the fitted parameters' covariance
+        (first order: finite differences in each parameter but ``skip``; 0 before the first fit)."""
+        base = np.asarray(log_value(self.correction), float)
+        cov = self._covariance
+        if cov is None:
+            return np.zeros(base.shape)
+        x = _vector(self.correction)
+        grad = np.zeros((*base.shape, len(x)))
+        for k in range(len(x)):
+            if _PARAMS[k][0] == skip:
+                continue
+            step = 1e-4 * _PRIOR_SIGMA[k]
+            xk = x.copy()
+            xk[k] += step if xk[k] + step <= _UPPER[k] else -step
+            grad[..., k] = (np.asarray(log_value(_correction(xk, self.model)), float) - base) / (xk[k] - x[k])
+        var = np.einsum("...i,ij,...j->...", grad, cov, grad)
+        return np.asarray(np.sqrt(np.maximum(var, 0.0)))
+
+    def _model_sigma(self, f: Any, v: Any) -> FloatArray:
+        """Standard deviation of the corrected model's log thrust at the points, from the fitted
+        parameters' covariance (0 before the first fit)."""
+        f, v = np.broadcast_arrays(np.asarray(f, float), np.asarray(v, float))
+
+        def log_thrust(c: Correction) -> FloatArray:
+            return np.log(np.maximum(c.response(self.fin, f, v).thrust_n, 1e-300))
+
+        # (a load cell's gain: the truth only where the load cell is the reference)
+        return self._propagated_sigma(log_thrust, skip="" if self.source == "loadcell" else "thrust_gain")
+
+    def _surface(self, f: Any, v: Any, model_sigma: Any = 0.0) -> Surface:
+        """The corrected model times the residual process's correction, with the demand's bound:
+        the true thrust less ``z`` times the map's uncertainty (the residual process's, and the
+        model's own, ``model_sigma``, from :meth:`_model_sigma`)."""
+        f, v = np.broadcast_arrays(np.asarray(f, float), np.asarray(v, float))
+        r = self.correction.response(self.fin, f, v)
+        mean, var = self.gp.predict(f, v)
+        shape = f.shape
+        m_t, m_p = mean[:, 0].reshape(shape), mean[:, -1].reshape(shape)
+        s_t, s_p = np.sqrt(var[:, 0]).reshape(shape), np.sqrt(var[:, -1]).reshape(shape)
+        thrust = r.thrust_n * np.exp(m_t)
+        # the truth's margin (the map's uncertainty), and where a trial there will count (_counted):
+        # its estimate less z times its noise and calibration must meet the demand, which one more
+        # sigma of the noise makes likely (84 %) for the trial that confirms the point
+        noise_t, _ = self._noise(thrust, 1.0)
+        bound = np.nan_to_num(self.self_sensing_bound) / 2.0
+        truth = self.z_demand * np.sqrt(s_t**2 + np.asarray(model_sigma) ** 2)
+        count = self.z_demand * np.hypot(noise_t, bound) + noise_t
+        low = thrust * np.exp(-np.maximum(truth, count))
+        return Surface(f, v, thrust, r.power_w * np.exp(m_p), low, s_t, s_p)
+
+    def _frontier(self, f: FloatArray) -> tuple[Surface, FloatArray]:
+        """At each frequency, the point the task asks for: the configured voltage (no demand), or
+        the least voltage whose thrust meets the demand with the margin.  Also: feasible there."""
+        lim = self.limits
+        if self.demand_n is None:
+            v = np.full_like(f, min(max(self.voltage_pp, lim.voltage_pp_min), lim.voltage_pp_max))
+            s = self._surface(f, v, self._model_sigma(f, v))
+            return s, s.thrust_low_n >= self.min_thrust_n  # (the least thrust, with the margin too)
+        vmax = np.full_like(f, lim.voltage_pp_max)
+        # the model's uncertainty in log thrust, taken at full voltage for every voltage of a frequency
+        # (it barely changes with V, and a bisection that re-derived it would cost 8 maps a step)
+        sigma = self._model_sigma(f, vmax)
+        top = self._surface(f, vmax, sigma)
+        feasible = top.thrust_low_n >= self.demand_n
+        lo, hi = np.full_like(f, lim.voltage_pp_min), vmax.copy()
+        for _ in range(24):  # bisection on V (to 0.5 mV): T increases with V at every f
+            mid = 0.5 * (lo + hi)
+            ok = self._surface(f, mid, sigma).thrust_low_n >= self.demand_n
+            hi, lo = np.where(ok, mid, hi), np.where(ok, lo, mid)
+        return self._surface(f, np.where(feasible, hi, lim.voltage_pp_max), sigma), feasible
+
+    def _best(self, surface: Surface, feasible: FloatArray, optimism: float = 0.0) -> Choice:
+        """The best frontier point (the most thrust if none is feasible); ``optimism``: plus that many
+        standard deviations of the map's log thrust per watt."""
+        if not np.any(feasible):
+            i = int(np.argmax(surface.thrust_n))
+            feasible_here = False
+        else:
+            score = surface.objective(self.demand_n) * np.exp(
+                optimism * np.hypot(surface.sigma_thrust, surface.sigma_power)
+            )
+            i = int(np.argmax(np.where(feasible, score, -np.inf)))
+            feasible_here = True
+        return Choice(
+            float(surface.frequency_hz[i]),
+            float(surface.voltage_pp[i]),
+            float(surface.thrust_n[i]),
+            float(surface.power_w[i]),
+            feasible_here,
+        )
+
+    # --- what counts -----------------------------------------------------------------------------
+    def _counted(self, confirmed: bool = True) -> list[tuple[float, Observation, float]]:
+        """Measured points that meet the task with the margin: (objective, observation, thrust).
+
+        A point counts on the trials that did not choose it (``confirmed``): the first trial at a
+        point is what made it look best, and of several noisy trials near the demand the best is the
+        luckiest (the winner's curse); the trials after it are independent.  ``confirmed=False``: the
+        points whose first trial alone meets the task (candidates for a confirming trial).  Computed
+        once per fit and task (``incumbent``, ``_candidate`` and ``status`` all ask)."""
+        key = (
+            confirmed,
+            self._fits,  # (every fit: new trials, a new correction)
+            len(self.observations),
+            self.demand_n,
+            self.min_thrust_n,
+            self.voltage_pp,
+            self.z_demand,
+        )
+        cached = self._counted_cache.get(key)
+        if cached is None:
+            if len(self._counted_cache) > 8:
+                self._counted_cache.clear()
+            cached = self._counted_cache[key] = self._count(confirmed)
+        return cached
+
+    def _count(self, confirmed: bool) -> list[tuple[float, Observation, float]]:
+        if not self.observations:
+            return []
+        obs = self.observations
+        thrust = self._thrust_estimates(self.correction, obs)
+        noise = self._thrust_noise(self.correction, obs, thrust)
+        bound = np.nan_to_num(self.self_sensing_bound) / 2.0
+        groups: list[list[int]] = []  # the trials at each point (held points are measured again and again)
+        for k, o in enumerate(obs):
+            for g in groups:
+                if _close(_point(obs[g[0]]), _point(o), SAME_POINT):
+                    g.append(k)
+                    break
+            else:
+                groups.append([k])
+        out = []
+        for same in groups:
+            if (len(same) > 1) != confirmed:
+                continue
+            o = obs[same[0]]
+            use = same[1:] if confirmed else same
+            t = float(np.exp(np.mean(np.log(thrust[use]))))
+            noise_t = float(np.sqrt(np.mean(noise[use] ** 2) / len(use)))
+            low = t * math.exp(-self.z_demand * math.hypot(noise_t, bound))
+            if self.demand_n is not None:
+                if low >= self.demand_n:
+                    out.append((self.demand_n / o.power_w, o, float(t)))
+            elif low >= self.min_thrust_n and abs(o.voltage_pp - self.voltage_pp) <= 0.01 * self.voltage_pp:
+                out.append((float(t) / o.power_w, o, float(t)))
+        return out
+
+    def _candidate(self) -> tuple[float, float] | None:
+        """The best point whose one trial meets the task and would beat the incumbent, if any, and
+        that the map does not expect to beat by more than 5 % (the map's choice is tried first)."""
+        inc = self._incumbent()
+        better = [c for c in self._counted(confirmed=False) if inc is None or c[0] > inc[0]]
+        if not better or self.choice is None:
+            return None
+        value, o, _ = max(better, key=lambda c: c[0])
+        c = self.choice
+        expected = (min(c.thrust_n, self.demand_n) if self.demand_n else c.thrust_n) / max(c.power_w, 1e-300)
+        return (o.frequency_hz, o.voltage_pp) if value >= 0.95 * expected else None
+
+    def incumbent(self) -> tuple[float, float] | None:
+        """The best measured point that counts (what the controller holds), or None."""
+        best = self._incumbent()
+        return None if best is None else (best[1].frequency_hz, best[1].voltage_pp)
+
+    def _incumbent(self) -> tuple[float, Observation, float] | None:
+        counted = self._counted()
+        return max(counted, key=lambda c: c[0]) if counted else None
+
+    def held(self) -> tuple[float, float]:
+        """The point to hold now: the incumbent, or the map's choice while nothing counts."""
+        inc = self.incumbent()
+        assert self.choice is not None
+        return inc if inc is not None else (self.choice.frequency_hz, self.choice.voltage_pp)
+
+    # --- the update after each trial ---------------------------------------------------------------
+    def _fit_residual_process(self) -> None:
+        obs = self.observations
+        if len(obs) < 2:
+            self.gp = ResidualGP(self.gp.length_log_f, self.gp.length_v)
+            return
+        f = np.array([o.frequency_hz for o in obs])
+        v = np.array([o.voltage_pp for o in obs])
+        p = np.array([o.power_w for o in obs])
+        t = self._thrust_estimates(self.correction, obs)
+        r = self.correction.response(self.fin, f, v)
+        _, noise_p = self._noise(t, p)
+        noise_t = self._thrust_noise(self.correction, obs, t)
+        res = np.column_stack([np.log(t / r.thrust_n), np.log(p / r.power_w)])
+        self.gp.fit(f, v, res, np.column_stack([noise_t, noise_p]))
+
+    def _bound(self) -> float:
+        """2 sigma (relative) of the thrust estimate's calibration at the latest trial."""
+        if self._covariance is None or not self.observations:
+            return math.nan
+        last = self.observations[-1]
+        if last.source == "loadcell":
+            return 0.0
+
+        def log_estimate(c: Correction) -> FloatArray:
+            return np.log(self._thrust_estimates(c, [last]))
+
+        return float(2.0 * self._propagated_sigma(log_estimate)[0])
 
     def _update(self) -> None:
         self.correction = self._fit()
-        new = best_point(
-            self.fin, self.correction, self.limits, self._target(), self.voltage_pp, self.min_thrust_n
-        )
-        old = self.choice
-        self.choice = new
-        last = self.observations[-1] if self.observations else None
-        near_last = last is not None and _close(new, last.frequency_hz, last.voltage_pp, self.tolerance)
-        if near_last and old is not None and _close(new, old.frequency_hz, old.voltage_pp, self.tolerance):
+        self._fits += 1
+        self.self_sensing_bound = self._bound()
+        self._fit_residual_process()
+        grid = np.geomspace(self.limits.frequency_min_hz, self.limits.frequency_max_hz, self.n_grid)
+        surface, feasible = self._frontier(grid)
+        choice = self._best(surface, feasible)
+        for _ in range(2):  # finer around the grid's best (a grid step is 2 % of f: 3 % of power)
+            step = float(grid[1] / grid[0])
+            grid = choice.frequency_hz * np.geomspace(1 / step, step, 21)
+            grid = np.clip(grid, self.limits.frequency_min_hz, self.limits.frequency_max_hz)
+            surface, feasible = self._frontier(grid)
+            if np.any(feasible) or not choice.feasible:
+                choice = self._best(surface, feasible)
+        self.choice = choice
+        inc = self.incumbent()
+        self._mode(inc)
+        self._next = (self.choice.frequency_hz, self.choice.voltage_pp)
+        if self.mode == "search" and inc is not None:
+            f0 = inc[0]
+            local = np.geomspace(f0 * (1 - self.trust_region), f0 * (1 + self.trust_region), 31)
+            local = local[(local >= self.limits.frequency_min_hz) & (local <= self.limits.frequency_max_hz)]
+            if local.size:
+                s, ok = self._frontier(local)
+                pick = self._best(s, ok, optimism=self.kappa)
+                self._next = (pick.frequency_hz, pick.voltage_pp)
+        if self.mode == "model" and inc is not None and self._gain(inc, self._next) < self.hold_gain:
+            self._next = inc  # the map expects too little elsewhere to be worth a new point's trials
+        near = [o for o in self.observations if _close(_point(o), self._next, self.tolerance)]
+        if near:  # measure that point again rather than one beside it: its trials add up
+            self._next = (near[-1].frequency_hz, near[-1].voltage_pp)
+        candidate = self._candidate()
+        if candidate is not None:
+            self._next = candidate  # confirm it: a trial that did not choose it
+        quiet = self._identification_point()
+        if quiet is not None:
+            self._next = quiet
+        held = inc is not None and _close(self._next, inc, self.tolerance)
+        if held and not self.converged:
             self.converged = True
-        elif not near_last:
+        elif not held:
             self.converged = False
 
+    def _gain(self, here: tuple[float, float], there: tuple[float, float]) -> float:
+        """The map's relative gain in the task's objective from ``here`` to ``there`` (both on the map,
+        so that the map's bias cancels; with a demand, where both meet it, the power's ratio)."""
+        s = self._surface(np.array([here[0], there[0]]), np.array([here[1], there[1]]))
+        obj = s.objective(self.demand_n)
+        return float(obj[1] / max(float(obj[0]), 1e-300) - 1.0)
+
+    def _identification_point(self) -> tuple[float, float] | None:
+        """A quiet trial well below the resonance, if none is in memory: there the tip moves as
+        ``theta V / K`` and the motional current as ``theta^2 V / K``, which fix the coupling and the
+        stiffness; the resonance then gives the added mass, hence ``c_m`` and every thrust estimate
+        (without it a softer fin and a heavier added mass look alike).  None when there is one."""
+        if not self.identify:
+            return None
+        fin = self.fin
+        f_res = fin.omega_n / (2 * math.pi * math.sqrt(1 + fin.mu))
+        f_quiet = max(0.5 * f_res, self.limits.frequency_min_hz)
+        if f_quiet >= 0.7 * f_res or any(o.frequency_hz <= 0.7 * f_res for o in self.observations):
+            return None
+        v = min(max(0.5 * self.limits.voltage_pp_max, self.limits.voltage_pp_min), self.limits.voltage_pp_max)
+        return f_quiet, v
+
+    def _mode(self, inc: tuple[float, float] | None) -> None:
+        n = len(self.observations)
+        if n == 0:
+            self.mode, self.reason = "model", "no trial yet: the model's optimum"
+        elif self._chi2 > self.search_chi2 and n >= 2:
+            self.mode = "search"
+            self.reason = (
+                f"the corrected model misses the trials by {math.sqrt(self._chi2):.1f} sigma (RMS): "
+                f"searching near the best measured point"
+                + ("" if inc is not None else " (none meets the task yet: the map's optimum)")
+            )
+        else:
+            self.mode = "model"
+            self.reason = f"the corrected model fits the {n} trial(s) ({math.sqrt(self._chi2):.1f} sigma RMS)"
+
+    def _repeat_disagrees(self, o: Observation) -> float:
+        """How far (in sigma of the trials' noise) a new trial at an operating point already measured
+        lies from the earlier trials there: the model-free sign that the fin changed (0 if none)."""
+        same = [q for q in self.observations if _close(_point(q), _point(o), SAME_POINT)]
+        if not same:
+            return 0.0
+        both = [*same, o]
+        thrust = self._thrust_estimates(self.correction, both)
+        noise_t = self._thrust_noise(self.correction, both, thrust)
+        power = np.array([q.power_w for q in both])
+        _, noise_p = self._noise(thrust, power)
+        out = 0.0
+        for y, sd in ((np.log(thrust), noise_t), (np.log(power), np.asarray(noise_p, float))):
+            earlier = float(np.mean(y[:-1]))
+            spread = math.sqrt(float(sd[-1]) ** 2 + float(np.mean(sd[:-1] ** 2)) / len(same))
+            out = max(out, abs(float(y[-1]) - earlier) / spread)
+        return out
+
+    def _surprise(self, o: Observation) -> float:
+        """How far (in sigma) a new measurement lies from the map's prediction."""
+        s = self._surface(o.frequency_hz, o.voltage_pp)
+        t = float(self._thrust_estimates(self.correction, [o])[0])
+        noise_t = float(self._thrust_noise(self.correction, [o], np.array([t]))[0])
+        _, noise_p = self._noise(t, o.power_w)
+        dt = abs(math.log(t / max(float(s.thrust_n), 1e-300))) / math.hypot(
+            noise_t + MODEL_ERROR, float(s.sigma_thrust)
+        )
+        dp = abs(math.log(o.power_w / max(float(s.power_w), 1e-300))) / math.hypot(
+            noise_p + MODEL_ERROR, float(s.sigma_power)
+        )
+        return max(dt, dp)
+
+    # --- outputs --------------------------------------------------------------------------------
     def propose(self) -> tuple[float, float]:
         """The next operating point to drive (always inside the limits)."""
-        assert self.choice is not None
-        c = self.choice
-        f, v = c.frequency_hz, c.voltage_pp
+        assert self._next is not None
+        f, v = self._next
         if self.converged:
+            f, v = self.held()
             self._held += 1
             if self.probe_every and self._held % self.probe_every == 0:
+                # a probe on either side in turn (extremum seeking's dither, one trial at a time), at
+                # the voltage that meets the demand there: the fish keeps its thrust while it probes
                 self._probe_sign = -self._probe_sign
                 f = f * (1 + self._probe_sign * self.probe_step)
+                if self.demand_n is not None:
+                    s, ok = self._frontier(np.array([f]))
+                    v = float(s.voltage_pp[0]) if ok[0] else v
         return self.limits.clamp(f, v)
 
     def status(self) -> dict[str, Any]:
         c = self.choice
         assert c is not None
+        inc = self._incumbent()
+        held = None
+        if inc is not None:
+            _, o, thrust = inc
+            held = {
+                "frequency_hz": o.frequency_hz,
+                "voltage_pp": o.voltage_pp,
+                "thrust_n": thrust,  # the estimate, re-calibrated
+                "power_w": o.power_w,
+            }
         return {
             "converged": self.converged,
             "feasible": c.feasible,
             "demand_n": self.demand_n,
+            "optimiser_mode": self.mode,
+            "optimiser_reason": self.reason,
             "frequency_hz": c.frequency_hz,
             "voltage_pp": c.voltage_pp,
             "predicted_thrust_n": c.thrust_n,
             "predicted_power_w": c.power_w,
+            "held": held,
+            "source": self.source,
+            "self_sensing_bound": self.self_sensing_bound,
+            "unexplained": dict(zip(("thrust", "power"), self.gp.signal_sigma(), strict=False)),
             "correction": self.correction.fitted(),
             "observations": len(self.observations),
         }
 
 
-def _close(c: Choice, f: float, v: float, tol: float) -> bool:
-    return abs(c.frequency_hz - f) <= tol * f and abs(c.voltage_pp - v) <= tol * max(v, 1.0)
+def _point(o: Observation) -> tuple[float, float]:
+    return (o.frequency_hz, o.voltage_pp)
+
+
+def _close(a: tuple[float, float], b: tuple[float, float], tol: float) -> bool:
+    """Within ``tol`` in frequency and a quarter of it in voltage (the power goes as V^2)."""
+    return abs(a[0] - b[0]) <= tol * b[0] and abs(a[1] - b[1]) <= 0.25 * tol * max(b[1], 1.0)

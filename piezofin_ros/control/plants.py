@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..physics.effects import DielectricLoss, Electroelastic, ResonanceOffset
+from ..estimation.selfsense import lighthill_thrust, self_sensed_tip
+from ..physics.effects import DielectricLoss, Effect, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
 
@@ -57,6 +58,7 @@ class EstimateNoise:
     thrust_abs_n: float = 5e-6
     power_rel: float = 0.005
     power_abs_w: float = 5e-6
+    admittance_rel: float = 0.001  # of |I_1 / V_1|, on its susceptance
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,9 @@ class Plant:
     resonance_scale: float | Callable[[float], float] = 1.0
     noise: EstimateNoise = field(default_factory=EstimateNoise)
     name: str = "plant"
+    #: any further effects of the library (outside the optimiser's correction: a field-dependent
+    #: coupling, extra drag or added mass, an amplifier's sag, ...)
+    effects: tuple[Effect, ...] = ()
 
     def _scale(self, t: float) -> float:
         s = self.resonance_scale
@@ -80,6 +85,7 @@ class Plant:
                 ResonanceOffset(self._scale(t)),
                 Electroelastic(self.softening),
                 DielectricLoss(self.loss_tan_delta),
+                *self.effects,
             ),
         )
 
@@ -103,3 +109,46 @@ class Plant:
             + n.power_abs_w * rng.standard_normal()
         )
         return thrust, power
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What the controller receives from one trial: the thrust estimate of its source, the power and
+    the drive's admittance ``I_1 / V_1`` (S)."""
+
+    thrust_n: float
+    power_w: float
+    admittance: complex
+
+
+def read(
+    plant: Plant,
+    frequency_hz: float,
+    voltage_pp: float,
+    t: float,
+    rng: np.random.Generator,
+    source: str = "vibrometer",
+    fin: Fin | None = None,
+) -> Reading:
+    """One trial as ``thrust_estimator`` reports it, with noise: the thrust of ``source`` computed with
+    the estimator's fin (``fin``, default the plant's own, i.e. the paper's ``c_m``, ``C_eq`` and
+    ``theta`` without the plant's effects): Lighthill on the tip velocity (``vibrometer``), on the
+    self-sensed tip velocity (``self``), or the load cell's reading (``loadcell``)."""
+    fin = fin or plant.fin
+    p = plant.model(t).predict(frequency_hz, voltage_pp)
+    n = plant.noise
+    power = (
+        float(p.power_w) * (1 + n.power_rel * rng.standard_normal()) + n.power_abs_w * rng.standard_normal()
+    )
+    v_amp = 0.5 * float(np.asarray(p.voltage_pp_drive))  # (as the voltage monitor reads it)
+    y = complex(np.asarray(p.admittance))
+    y = complex(2.0 * power / v_amp**2, y.imag + n.admittance_rel * abs(y) * rng.standard_normal())
+    if source == "self":
+        tip = self_sensed_tip(fin, y * v_amp, v_amp, 2 * np.pi * frequency_hz)
+        thrust = float(lighthill_thrust(fin, abs(complex(tip)) / np.sqrt(2)))
+    else:
+        thrust = float(
+            lighthill_thrust(fin, p.tip_velocity_rms) if source == "vibrometer" else p.thrust_loadcell_n
+        )
+        thrust = thrust * (1 + n.thrust_rel * rng.standard_normal()) + n.thrust_abs_n * rng.standard_normal()
+    return Reading(thrust, power, y)

@@ -221,7 +221,7 @@ class OptimiseStrategy:
         return False  # the status goes out once a second
 
     def set_demand(self, demand_n: float | None) -> None:
-        self.loop.optimiser.set_demand(demand_n)
+        self.loop.set_demand(demand_n)
 
     def status_due(self, t: float) -> bool:
         if self._changed or t - self._last_status_t >= 1.0:

@@ -49,3 +49,8 @@ def self_sensed_tip(
     static = cal.conductance_s + 1j * np.asarray(omega) * fin.C_eq * cal.capacitance
     motional = np.asarray(current) - static * np.asarray(voltage)
     return np.asarray(fin.phi_tip / (fin.theta * np.asarray(cal.coupling)) * motional)
+
+
+def lighthill_thrust(fin: Fin, tip_rms: Any, calibration: Calibration = NOMINAL) -> FloatArray:
+    """Lighthill's mean thrust ``(1/2) m_v u^2`` (no swimming speed) for an RMS tip velocity ``u``."""
+    return np.asarray(0.5 * fin.m_v * np.asarray(calibration.mass) * np.asarray(tip_rms) ** 2)

@@ -265,13 +265,22 @@ def _report_fin(ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace,
     """One fin's outcome: the optimiser's choice, or the trial table (and its plot)."""
     if st.get("mode") == "optimise":
         demand = st["demand_n"]
+        held = st["held"] or {  # nothing measured meets the task yet: the map's choice
+            "frequency_hz": st["frequency_hz"],
+            "voltage_pp": st["voltage_pp"],
+            "thrust_n": st["predicted_thrust_n"],
+            "power_w": st["predicted_power_w"],
+        }
         print(
             f"\n{ns}: {fin.name}, optimiser {st['state']} after {st['trials']} trials, "
-            f"{'converged' if st['converged'] else 'not converged'}: {st['frequency_hz']:.2f} Hz, "
-            f"{st['voltage_pp']:.0f} Vpp, thrust {st['predicted_thrust_n'] * 1e3:.3f} mN, "
-            f"power {st['predicted_power_w'] * 1e3:.3f} mW"
+            f"{'converged' if st['converged'] else 'not converged'}: {held['frequency_hz']:.2f} Hz, "
+            f"{held['voltage_pp']:.0f} Vpp, thrust {held['thrust_n'] * 1e3:.3f} mN, "
+            f"power {held['power_w'] * 1e3:.3f} mW"
             + (f" (demand {demand * 1e3:.2f} mN)" if demand else "")
+            + ("" if st["held"] else " (predicted: no trial meets the task yet)")
             + f"; self-sensed vs vibrometer thrust {st['self_vs_vibrometer'] * 100:+.2f} %"
+            + f"\n  {st['optimiser_mode']}: {st['optimiser_reason']}"
+            + f"; thrust estimate's calibration +-{st['self_sensing_bound'] * 100:.1f} % (2 sigma)"
         )
         return
     print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))

@@ -135,7 +135,13 @@ class Controller(Node):
             box = OperatingBox(c.frequency_min_hz, c.frequency_max_hz, 50.0, c.voltage_pp_max)
             fin = model.fin if model is not None else load_fin(c.fin)
             optimiser = Optimiser(
-                fin, box, c.voltage_pp, c.demand_n or None, min_thrust_n=c.min_thrust_n, model=model
+                fin,
+                box,
+                c.voltage_pp,
+                c.demand_n or None,
+                min_thrust_n=c.min_thrust_n,
+                source=c.source,
+                model=model,
             )
         except PiezofinError as exc:
             raise StartupError(f"optimiser: {exc}") from None
@@ -143,7 +149,7 @@ class Controller(Node):
             self.get_logger().info(
                 f"optimiser starts from the augmented model {c.model} ({', '.join(model.names)})"
             )
-        loop = DriveLoop(optimiser, c.source, c.slew_vpp_per_s, c.estimate_timeout_s)
+        loop = DriveLoop(optimiser, c.source, c.slew_vpp_per_s, c.estimate_timeout_s, background=True)
         goal = (
             f"demand {c.demand_n * 1e3:.2f} mN" if c.demand_n else f"best frequency at {c.voltage_pp:g} Vpp"
         )

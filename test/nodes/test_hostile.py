@@ -82,6 +82,22 @@ class Witness:
         self.g.spin_until(future.done, 20.0, f"a reply from {client.srv_name}")
         return future.result()
 
+    def warm_up(self, client: Any, request: Any, timeout: float = 20.0) -> None:
+        """Send an idempotent ``request`` until it is answered.  ``service_is_ready`` says that the
+        service sees the client's requests, not that the client hears its replies: a request sent in
+        between is answered into the void (the DDS client/service discovery race, ros2/rmw_connextdds
+        #132; seen once in a full run here), so the first call that matters follows a warm-up."""
+        t_end = time.monotonic() + timeout
+        while True:
+            future = client.call_async(request)
+            t_try = time.monotonic() + 2.0
+            while not future.done() and time.monotonic() < t_try:
+                self.g.spin_for(0.05)
+            if future.done():
+                return
+            client.remove_pending_request(future)
+            assert time.monotonic() < t_end, f"no reply from {client.srv_name} within {timeout} s"
+
     def set_param(self, name: str, value: Any) -> Any:
         kinds = {bool: "bool", float: "double", int: "integer"}
         kind = kinds[type(value)]
@@ -231,6 +247,7 @@ def test_every_lifecycle_request_in_every_state_is_answered() -> None:
         with graph() as g:
             w = Witness(g, "lc")
             g.spin_until(w.change.service_is_ready, 20.0, "change_state")
+            w.warm_up(w.change, ChangeState.Request(transition=Transition(label="no_such_transition")))
             for state, valid in (("unconfigured", 1), ("inactive", 3), ("active", None)):
                 for tid in INVALID[state]:
                     if not w.transition(tid):
