@@ -110,7 +110,9 @@ class DriveLoop:
             return True
         admittance = complex(getattr(e, "admittance_re", math.nan), getattr(e, "admittance_im", math.nan))
         self._windows = []
-        args = (e.t_end, e.frequency_hz, e.voltage_pp, thrust, power, admittance)
+        # the point as commanded, which is how the optimiser knows it again (``held`` commands it, its
+        # trials group by it): the measured amplitude drifts with the monitor's gain and noise
+        args = (e.t_end, f, self.target[1], thrust, power, admittance)
         if self.background:
             # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
             # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, windows that

@@ -184,6 +184,28 @@ def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypa
     assert len(threads) == 2 and all(name.startswith("optimiser") for name in threads), threads
 
 
+def test_trials_are_known_by_the_point_commanded_not_the_amplitude_measured(m8528: Fin) -> None:
+    """The estimator measures the drive's amplitude with its monitor's noise and gain (here 0.3 % off,
+    a different draw each window): the optimiser still records each trial at the point the loop
+    commanded, so that the trials of a held point add up and ``held`` commands that point again."""
+    plant = Plant(m8528, softening=0.2, loss_tan_delta=0.05)
+    loop = DriveLoop(Optimiser(m8528, LIMITS, demand_n=4e-3), slew_vpp_per_s=4000.0)
+    rng = np.random.default_rng(5)
+    t, commanded = 0.0, set()
+    for _ in range(60):
+        t += 1.0
+        f, v, _ = loop.tick(t)
+        if loop.target is not None and loop._t_settled_from is not None and v > 0:
+            commanded.add(loop.target)
+            thrust, power = plant.measure(f, v, t, rng)
+            monitor = v * (1.0 + 0.003 * rng.standard_normal())
+            loop.add_estimate(t, estimate(t, f, monitor, thrust, power))
+    points = {(o.frequency_hz, o.voltage_pp) for o in loop.optimiser.observations}
+    assert points <= commanded
+    assert len(points) < len(loop.optimiser.observations)  # points measured again
+    assert loop.optimiser.incumbent() is not None  # their trials add up: a point counts
+
+
 def test_a_diagnosed_model_is_the_optimisers_starting_map(m8528: Fin) -> None:
     """With the fin's diagnosed effects (the softening and loss the plant has), the first choice is
     already near the plant's optimum; an empty augmented model is the paper's map."""

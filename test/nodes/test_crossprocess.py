@@ -227,11 +227,9 @@ def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Pat
     print(f"SIGKILL: recovered {len(got)}/{len(recorded_span)} drive blocks, lost the last {lost_s:.3f} s")
 
 
-@pytest.mark.slow
-def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
-    """The controller drives 800 Vpp and is SIGKILLed: fin_sim's watchdog (0.5 s) ramps the drive to
-    zero; the drive is below 2 % of its amplitude within timeout + ramp + one block of the kill."""
-    timeout_s, slew = 0.5, 4000.0
+def _drive_then_kill_the_controller(timeout_s: float) -> tuple[np.ndarray, np.ndarray, float, str]:
+    """fin_sim with a ``timeout_s`` watchdog, a controller driving 800 Vpp, SIGKILLed 1 s after the
+    drive is there: the drive's samples (time, V), the wall time of the kill, fin_sim's output."""
     sim = start(
         "fin_sim",
         "-r",
@@ -260,19 +258,38 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
             ctl.wait(timeout=10)
             g.spin_for(2.5)
     finally:
-        stop(sim, ctl)
+        out, _ = stop(sim, ctl)
     t = np.concatenate([b["t_s"] for b in drive])
     v = np.concatenate([b["voltage_V"] for b in drive])
-    assert np.max(np.abs(v)) <= 400.0 + 1e-9  # never beyond the limit
-    loud = t[np.abs(v) > 8.0]  # 2 % of 400 V
-    assert loud[-1] > killed_at - 0.2  # it was driving up to the kill
-    quiet_after = loud[-1] - killed_at
+    return t, v, killed_at, out
+
+
+@pytest.mark.slow
+def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
+    """The controller drives 800 Vpp and is SIGKILLed: fin_sim's watchdog (0.5 s) ramps the drive to
+    zero; the drive is below 2 % of its amplitude within timeout + ramp + one block of the kill.
+
+    On a loaded machine the controller's heartbeat can itself stall 0.5 s before the kill: the
+    watchdog then trips early, which is right but leaves nothing to measure at the kill; such a run
+    is checked for safety (the limit, quiet after the trip) and the scenario is run again (3 at most)."""
+    timeout_s, slew = 0.5, 4000.0
     bound = timeout_s + 800.0 / slew + 0.1 + 0.2  # watchdog + ramp + a block + scheduling
+    for attempt in range(3):
+        t, v, killed_at, out = _drive_then_kill_the_controller(timeout_s)
+        assert np.max(np.abs(v)) <= 400.0 + 1e-9  # never beyond the limit
+        loud = t[np.abs(v) > 8.0]  # 2 % of 400 V
+        assert np.all(np.abs(v[t > loud[-1]]) <= 8.0)  # quiet for good once quiet
+        if loud[-1] > killed_at - 0.2:  # it was driving up to the kill
+            break
+        assert "watchdog: no command" in out, out  # quiet early: only the watchdog may have done it
+        print(f"attempt {attempt + 1}: the controller's heartbeat stalled before the kill; again")
+    else:
+        pytest.fail("in 3 runs the controller's heartbeat always stalled before the kill")
+    quiet_after = loud[-1] - killed_at
     assert quiet_after < bound, quiet_after
     print(
         f"watchdog: drive below 2 % {quiet_after:.3f} s after the controller was killed (bound {bound:.2f} s)"
     )
-    assert np.all(np.abs(v[t > loud[-1]]) <= 8.0)
 
 
 @pytest.mark.slow
