@@ -278,9 +278,17 @@ def _report_fin(ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace,
             f"power {held['power_w'] * 1e3:.3f} mW"
             + (f" (demand {demand * 1e3:.2f} mN)" if demand else "")
             + ("" if st["held"] else " (predicted: no trial meets the task yet)")
-            + f"; self-sensed vs vibrometer thrust {st['self_vs_vibrometer'] * 100:+.2f} %"
+            + (
+                f"; self-sensed vs vibrometer thrust {gap * 100:+.2f} %"
+                if math.isfinite(gap := float(st["self_vs_vibrometer"]))
+                else "; no vibrometer to compare the self-sensed thrust with"
+            )
             + f"\n  {st['optimiser_mode']}: {st['optimiser_reason']}"
-            + f"; thrust estimate's calibration +-{st['self_sensing_bound'] * 100:.1f} % (2 sigma)"
+            + (
+                f"; thrust estimate's calibration +-{bound * 100:.1f} % (2 sigma)"
+                if math.isfinite(bound := float(st["self_sensing_bound"]))
+                else "; thrust estimate's calibration: not fitted yet (no trial finished)"
+            )
         )
         return
     print(f"\n{ns}: {fin.name}, {st['state']}" + (f" ({st['reason']})" if st["reason"] else ""))

@@ -621,3 +621,23 @@ def test_estimates_are_plottable_field_by_field(live: dict[str, Any]) -> None:
     assert thrust == pytest.approx([e.thrust_n for e in live["estimates"]], rel=1e-12)
     assert len(series["/fin/cmd/frequency_hz"]) == live["recorded"]["/fin/cmd"]
     assert len(series) > 10
+
+
+def test_bringup_summary_before_any_trial_says_so(capsys: pytest.CaptureFixture[str]) -> None:
+    """An optimise run stopped before its first trial finished (nothing fitted, nothing held): the
+    summary gives the map's point as predicted and says the calibration is not fitted and that there
+    is no vibrometer (a fish), never "nan"."""
+    import argparse
+
+    from piezofin_ros.control.optimise import OperatingBox, Optimiser
+    from piezofin_ros.nodes.bringup import _report_fin
+    from piezofin_ros.physics.fin import load_fin
+
+    fin = load_fin("M8528-P1")
+    opt = Optimiser(fin, OperatingBox(), demand_n=4e-3, source="self")
+    st = {"mode": "optimise", "state": "driving", "trials": 0, "self_vs_vibrometer": math.nan}
+    st |= opt.status()
+    _report_fin("/fin", st, fin, argparse.Namespace(), False)
+    out = capsys.readouterr().out
+    assert "predicted: no trial meets the task yet" in out
+    assert "not fitted yet" in out and "no vibrometer" in out and "nan" not in out
