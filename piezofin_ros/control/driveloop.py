@@ -136,14 +136,18 @@ class DriveLoop:
 
     def _demand(self, demand_n: float | None) -> None:
         self.optimiser.set_demand(demand_n)
-        self._next = self.optimiser.propose()
-        self._learnt = self.optimiser.status()
+        self._refit_done()
 
     def _learn(self, *observation: Any) -> None:
         self.optimiser.observe(*observation)
-        self._next = self.optimiser.propose()
-        self._learnt = self.optimiser.status()  # (read by the heartbeat while the next fit runs)
+        self._refit_done()
         self.trials += 1
+
+    def _refit_done(self) -> None:
+        """After the optimiser refitted: its next point, and its status for the heartbeat to read
+        while the next fit runs."""
+        self._next = self.optimiser.propose()
+        self._learnt = self.optimiser.status()
 
     def _worker(self) -> ThreadPoolExecutor:
         if self._executor is None:

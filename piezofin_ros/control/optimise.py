@@ -611,7 +611,7 @@ class Optimiser:
         groups: list[list[int]] = []  # the trials at each point (held points are measured again and again)
         for k, o in enumerate(obs):
             for g in groups:
-                if _close(_point(obs[g[0]]), _point(o), SAME_POINT):
+                if _same_point(obs[g[0]], o):
                     g.append(k)
                     break
             else:
@@ -772,7 +772,7 @@ class Optimiser:
     def _repeat_disagrees(self, o: Observation) -> float:
         """How far (in sigma of the trials' noise) a new trial at an operating point already measured
         lies from the earlier trials there: the model-free sign that the fin changed (0 if none)."""
-        same = [q for q in self.observations if _close(_point(q), _point(o), SAME_POINT)]
+        same = [q for q in self.observations if _same_point(q, o)]
         if not same:
             return 0.0
         both = [*same, o]
@@ -853,6 +853,11 @@ class Optimiser:
 
 def _point(o: Observation) -> tuple[float, float]:
     return (o.frequency_hz, o.voltage_pp)
+
+
+def _same_point(a: Observation, b: Observation) -> bool:
+    """Two trials at one operating point (their trials add up)."""
+    return _close(_point(a), _point(b), SAME_POINT)
 
 
 def _close(a: tuple[float, float], b: tuple[float, float], tol: float) -> bool:
