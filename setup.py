@@ -19,7 +19,9 @@ setup(
         (f"share/{PACKAGE}/bags", ["bags/sample_M8528-P1.mcap"]),  # `player -p bag:=bags/sample_...`
     ],
     install_requires=["setuptools", "numpy", "scipy", "pyyaml", "matplotlib"],
-    extras_require={"test": ["pytest", "hypothesis"], "fast": ["numba"]},
+    # ray: the benchmarks' and `diagnose --paper`'s tasks on a Ray cluster (piezofin_ros.workers);
+    # optional, and without it they run on local worker processes
+    extras_require={"test": ["pytest", "hypothesis"], "fast": ["numba"], "ray": ["ray>=2.9"]},
     zip_safe=False,
     maintainer="piezofin_ros developers",
     maintainer_email="dev@piezofin.local",

@@ -1,6 +1,7 @@
 """Thrust-per-watt controller against the paper's grid and random search, on plants it does not know.
 
     python benchmarks/bench_controller.py [--seeds 6] [--plot docs/controller.png]
+                                          [--workers 2] [--ray ADDRESS] [--no-drift]
 
 Plants (``piezofin_ros.control.plants``), each with measurement noise, parameters drawn per seed: the
 nominal model; electroelastic softening (resonance down by 10-40 % at 800 Vpp); dielectric loss
@@ -23,11 +24,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from piezofin_ros import workers
 from piezofin_ros.control.evaluation import (
     TRIAL_S_CONTINUOUS,
     TRIAL_S_PROTOCOL,
@@ -57,6 +60,14 @@ class Run:
             if ok[k:].all():
                 return k + 1
         return None
+
+
+PLANTS = ("nominal", "softening", "loss", "combined")
+N_OURS = 15
+
+
+def progress(prefix: str) -> Callable[[str], None]:
+    return lambda line: print(f"  {prefix}: {line}", file=sys.stderr, flush=True)
 
 
 def plants_for(fin_name: str, rng: np.random.Generator) -> dict[str, Plant]:
@@ -152,39 +163,57 @@ def drift_run(fin_name: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.array(ts), np.array(frac_ours), np.array(frac_frozen)
 
 
+def plant_task(task: tuple[str, str, int, int]) -> list[tuple[tuple[str, str, str], Run]]:
+    """One plant of one fin, task and seed: ours, the grid and random search on the same plant and
+    noise.  The seed's generator is replayed up to this plant (its draws do not depend on the runs),
+    so the task gives the same numbers whether it runs alone, on a worker or on a cluster."""
+    fin_name, task_name, seed, index = task
+    fin = load_fin(fin_name)
+    max_thrust = float(np.max(Plant(fin).steady(np.linspace(1, 20, 400), 800.0).thrust_n))
+    demand = 0.3 * max_thrust if task_name == "demand" else None
+    rng = np.random.default_rng(1000 * seed + 7)
+    plants = list(plants_for(fin_name, rng).items())
+    for _ in range(index):  # the random points of the plants before this one
+        random_points(demand, 33, rng)
+    pname, plant = plants[index]
+    _, _, best = true_optimum(plant, LIMITS, demand)
+    runs = [
+        run_ours(fin_name, plant, demand, best, seed, N_OURS),
+        run_points("grid", GRID, plant, demand, best, seed, TRIAL_S_PROTOCOL),
+        run_points("random", random_points(demand, 33, rng), plant, demand, best, seed, TRIAL_S_CONTINUOUS),
+    ]
+    return [((task_name, pname, r.method), r) for r in runs]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--plot", default="docs/controller.png")
     ap.add_argument("--fins", nargs="+", default=["M8528-P1", "M8514-P1", "M8507-P1"])
+    ap.add_argument("--no-drift", action="store_true", help="skip the drift run (a table only)")
+    workers.add_arguments(ap)
     args = ap.parse_args()
     t0 = time.perf_counter()
+    tasks = [
+        (fin_name, task, seed, index)
+        for fin_name in args.fins
+        for task in ("demand", "no demand")
+        for seed in range(args.seeds)
+        for index in range(len(PLANTS))
+    ]
+    say = progress("bench_controller")
+    done = workers.run_tasks(
+        plant_task,
+        tasks,
+        workers=args.workers,
+        ray_address=args.ray,
+        say=say,
+        label=lambda t: f"{t[0]} {t[1]} seed {t[2]} {PLANTS[t[3]]}",
+    )
     results: dict[tuple[str, str, str], list[Run]] = {}
-    n_ours = 15
-    for fin_name in args.fins:
-        fin = load_fin(fin_name)
-        max_thrust = float(np.max(Plant(fin).steady(np.linspace(1, 20, 400), 800.0).thrust_n))
-        for task, demand in (("demand", 0.3 * max_thrust), ("no demand", None)):
-            for seed in range(args.seeds):
-                rng = np.random.default_rng(1000 * seed + 7)
-                for pname, plant in plants_for(fin_name, rng).items():
-                    _, _, best = true_optimum(plant, LIMITS, demand)
-                    runs = [
-                        run_ours(fin_name, plant, demand, best, seed, n_ours),
-                        run_points("grid", GRID, plant, demand, best, seed, TRIAL_S_PROTOCOL),
-                        run_points(
-                            "random",
-                            random_points(demand, 33, rng),
-                            plant,
-                            demand,
-                            best,
-                            seed,
-                            TRIAL_S_CONTINUOUS,
-                        ),
-                    ]
-                    for r in runs:
-                        results.setdefault((task, pname, r.method), []).append(r)
-        print(f"  {fin_name} done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    for runs in done:
+        for key, r in runs:
+            results.setdefault(key, []).append(r)
 
     print(f"{len(args.fins)} fins x {args.seeds} seeds per plant and task; median [worst] over runs")
     print(
@@ -205,6 +234,9 @@ def main() -> int:
             f"{task:<10} {pname:<10} {method:<7} {trials:>16} {fin_s:>18} {len(reached):>5}/{len(runs):<6} "
             f"{np.median(final):>8.3f} [{min(final):.3f}]"
         )
+    if args.no_drift:
+        print(f"({time.perf_counter() - t0:.0f} s)")
+        return 0
     ts, ours, frozen = drift_run(args.fins[0], seed=3)
     after = ts > 200.0
     print(

@@ -13,6 +13,7 @@ time, missing physics, interference), ``--blind`` datasets each, and as many cle
 family named (the chosen effects', the least-bad candidate's stated family, or a reversed sensor).
 
     python benchmarks/bench_diagnose.py [--per-effect 4] [--outside 20] [--double 14] [--clean 6] [--blind 4]
+                                        [--workers 2] [--ray ADDRESS]
 """
 
 from __future__ import annotations
@@ -21,13 +22,13 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from piezofin_ros import workers
 from piezofin_ros.diagnosis.attribute import diagnose
 from piezofin_ros.diagnosis.blind import BLIND, BlindCase, named_family, random_blind, simulate_blind
 from piezofin_ros.diagnosis.synthetic import IN_LIBRARY, Case, draw_strength, random_case, simulate_case
@@ -120,22 +121,27 @@ def main() -> int:
     ap.add_argument("--clean", type=int, default=6)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--blind", type=int, default=4, help="datasets per blind effect (and clean)")
-    ap.add_argument("--workers", type=int, default=2)
+    workers.add_arguments(ap)
     ap.add_argument("--json", help="write every result here")
     args = ap.parse_args()
     items = cases(args.per_effect, args.outside, args.double, args.clean, args.seed, args.blind)
     t0 = time.perf_counter()
-    results = []
-    with ProcessPoolExecutor(args.workers) as pool:
-        for j, r in enumerate(pool.map(run, items)):
-            results.append(r)
-            mark = "ok" if r["correct"] or (r["kind"] == "outside" and not r["confident"]) else "MISS"
-            said = ",".join(r["named"]) or str(r.get("named_family") or "")  # type: ignore[arg-type]
-            print(
-                f"[{j + 1:3d}/{len(items)}] {r['kind']:<7} {r['fin']:<9} {','.join(r['truth']) or '-':<45} -> "  # type: ignore[arg-type]  # noqa: E501
-                f"{r['verdict']:<11} {said:<45} {mark} ({r['seconds']:.1f} s)",
-                flush=True,
-            )
+    results = workers.run_tasks(
+        run,
+        items,
+        workers=args.workers,
+        ray_address=args.ray,
+        say=lambda line: print(f"  {line}", file=sys.stderr, flush=True),
+        label=lambda item: f"{item[0]} {item[1].fin}",
+    )
+    for j, r in enumerate(results):  # in the datasets' order, on any number of workers
+        mark = "ok" if r["correct"] or (r["kind"] == "outside" and not r["confident"]) else "MISS"
+        said = ",".join(r["named"]) or str(r.get("named_family") or "")  # type: ignore[arg-type]
+        print(
+            f"[{j + 1:3d}/{len(items)}] {r['kind']:<7} {r['fin']:<9} {','.join(r['truth']) or '-':<45} -> "  # type: ignore[arg-type]
+            f"{r['verdict']:<11} {said:<45} {mark} ({r['seconds']:.1f} s)",
+            flush=True,
+        )
     wall = time.perf_counter() - t0
 
     def pick(kind: str) -> list[dict[str, object]]:

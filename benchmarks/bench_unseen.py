@@ -1,6 +1,7 @@
 """The controller on fins it has never seen: effects outside its correction, and a fish's drive alone.
 
     python benchmarks/bench_unseen.py [--seeds 2] [--fins M8528-P1 M8514-P1 M8507-P1] [--plot docs/unseen.png]
+                                      [--workers 2] [--ray ADDRESS]
 
 Plants: each fin with one effect of the library that the optimiser's correction does not contain
 (amplitude-dependent damping, a Duffing spring, drag and added mass that vary with KC, a coupling
@@ -35,12 +36,12 @@ import sys
 import time
 import zlib
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from piezofin_ros import workers
 from piezofin_ros.control.evaluation import (
     TRIAL_S_CONTINUOUS,
     TRIAL_S_PROTOCOL,
@@ -216,6 +217,13 @@ def run_ours(fin: Fin, plant: Plant, demand: float | None, best: float, source: 
     return Run("ours", fr, TRIAL_S_CONTINUOUS)
 
 
+def plant_task(
+    case: tuple[str, str, int, list[str]],
+) -> tuple[list[tuple[tuple[str, str, str], Run]], list[str]]:
+    """:func:`plant_runs` of one (fin, effect, seed, sources): a worker's task."""
+    return plant_runs(*case)
+
+
 def plant_runs(
     fin_name: str, effect: str, seed: int, sources: list[str]
 ) -> tuple[list[tuple[tuple[str, str, str], Run]], list[str]]:
@@ -259,30 +267,30 @@ def main() -> int:
     ap.add_argument("--fins", nargs="+", default=["M8528-P1", "M8514-P1", "M8507-P1"])
     ap.add_argument("--sources", nargs="+", default=["loadcell", "vibrometer", "self"])
     ap.add_argument("--effects", nargs="+", default=list(OUTSIDE))
-    ap.add_argument("--jobs", type=int, default=2, help="worker processes")
+    workers.add_arguments(ap)
     ap.add_argument("--plot", default="")
     args = ap.parse_args()
     t0 = time.perf_counter()
     cases = [
-        (fin_name, effect, seed)
+        (fin_name, effect, seed, list(args.sources))
         for fin_name in args.fins
         for effect in [*args.effects, "issue"]
         for seed in (range(args.seeds) if effect != "issue" else [0])
     ]
     results: dict[tuple[str, str, str], list[Run]] = {}
     failures: list[str] = []
-    with ProcessPoolExecutor(args.jobs) as pool:
-        jobs = [pool.submit(plant_runs, *case, args.sources) for case in cases]
-        for done, job in enumerate(as_completed(jobs), 1):
-            runs, missed = job.result()
-            for key, r in runs:
-                results.setdefault(key, []).append(r)
-            failures += missed
-            print(
-                f"  {done}/{len(cases)} plants ({time.perf_counter() - t0:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
+    done = workers.run_tasks(
+        plant_task,
+        cases,
+        workers=args.workers,
+        ray_address=args.ray,
+        say=lambda line: print(f"  plants {line}", file=sys.stderr, flush=True),
+        label=lambda c: f"{c[0]} {c[1]} seed {c[2]}",
+    )
+    for runs, missed in done:  # in the cases' order: the same table on any number of workers
+        for key, r in runs:
+            results.setdefault(key, []).append(r)
+        failures += missed
     print(
         f"{len(args.fins)} fins x ({len(args.effects)} effects x {args.seeds} seeds + the issue's hidden fin)"
     )

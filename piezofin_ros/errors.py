@@ -16,6 +16,7 @@ code keeps working::
     +-- DiagnosisError      diagnosis/: DataError (a recording that cannot be diagnosed)
     +-- NodeError           nodes/: StartupError
     +-- CliError            cli/: UsageError
+    +-- TaskError           workers.py: a task that kills its worker, a Ray that cannot start
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ The package is read bottom-up::
     physics  <  bags  <  rig  <  estimation  <  identification  <  control  <  diagnosis  <  cli  <  nodes
 
 A module may import from its own package and from the packages below it, never from one above
-(``errors`` and ``config``, the error base and the declare-once settings, are below everything).
+(``errors``, ``config`` and ``workers``, the error base, the declare-once settings and the engine
+that runs independent tasks on worker processes, are below everything).
 Only ``nodes/`` imports rclpy or any other ROS client code, so the
 science runs, and is tested, without ROS.  Every package says in its ``__init__`` docstring what it
 is for, and every error the package raises on purpose derives from :class:`PiezofinError`.
@@ -53,7 +54,7 @@ def _modules() -> list[Path]:
 
 def _layer_of(path: Path) -> str:
     rel = path.relative_to(PACKAGE)
-    return rel.parts[0] if len(rel.parts) > 1 else "base"  # errors.py and config.py: the bottom
+    return rel.parts[0] if len(rel.parts) > 1 else "base"  # errors.py, config.py, workers.py: the bottom
 
 
 def _imports(path: Path) -> list[tuple[int, str]]:
@@ -79,7 +80,7 @@ def _imports(path: Path) -> list[tuple[int, str]]:
 
 def test_the_top_level_holds_only_the_packages() -> None:
     loose = sorted(
-        p.name for p in PACKAGE.glob("*.py") if p.name not in ("__init__.py", "errors.py", "config.py")
+        p.name for p in PACKAGE.glob("*.py") if p.name not in ("__init__.py", "errors.py", "config.py", "workers.py")
     )
     assert loose == [], f"modules outside the layer packages: {loose}"
     packages = sorted(p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -94,6 +95,9 @@ ROSDEP = {
     "lz4": "mcap-ros2-support",
     "rosbags": "python3-rosbags-pip",
 }
+#: Optional imports (inside ``try: ... except ImportError``), with no rosdep key: declared as a pip
+#: extra in setup.py and named in a package.xml comment, never as a dependency rosdep must install.
+OPTIONAL = {"ray": "ray"}
 
 
 def test_every_import_is_declared_in_package_xml() -> None:
@@ -105,6 +109,7 @@ def test_every_import_is_declared_in_package_xml() -> None:
     stdlib = set(sys.stdlib_module_names)
     files = [*(ROOT / "piezofin_ros").rglob("*.py"), *(ROOT / "launch").glob("*.py")]
     needed: dict[str, str] = {}
+    optional: dict[str, str] = {}
     for path in files:
         for node in ast.walk(ast.parse(path.read_text())):
             names = []
@@ -114,9 +119,20 @@ def test_every_import_is_declared_in_package_xml() -> None:
                 names = [node.module]
             for name in names:
                 top = name.split(".")[0]
+                if top in OPTIONAL:
+                    optional[top] = str(path.relative_to(ROOT))
+                    continue
                 if top not in stdlib and top != "piezofin_ros":
                     needed[ROSDEP.get(top, top)] = str(path.relative_to(ROOT))
     missing = {key: where for key, where in needed.items() if key not in declared}
     assert not missing, f"imported but not declared in package.xml: {missing}"
     unused = declared - set(needed) - {"python3-pytest", "python3-hypothesis"}
     assert not unused, f"declared in package.xml but never imported: {unused}"
+    # an optional import is guarded, a pip extra, and said in package.xml (not a dependency)
+    extras = (ROOT / "setup.py").read_text()
+    xml = (ROOT / "package.xml").read_text()
+    for top, where in optional.items():
+        source = (ROOT / where).read_text()
+        assert re.search(rf"try:\n\s+import {top}\b.*\n\s+except ImportError", source), where
+        assert f'"{top}": ["{OPTIONAL[top]}' in extras, f"{top}: no extra in setup.py"
+        assert re.search(rf"<!--[^>]*\b{top.capitalize()}\b[^>]*piezofin_ros\[{top}\][^>]*-->", xml), top

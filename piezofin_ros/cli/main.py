@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import workers
 from ..errors import CliError
 from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
 from ..physics.steady import SteadyState, harmonic_balance
@@ -472,6 +473,7 @@ def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--force", action="store_true", help="replace an existing --json file or --report directory's files"
     )
+    workers.add_arguments(p)  # --workers, --ray: where --paper fits its hypotheses
 
 
 def _refuse_existing(args: argparse.Namespace) -> None:
@@ -511,7 +513,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
         if args.data:
             raise UsageError("--paper takes no data files")
-        result = paper.paper_gap(progress=say)
+        result = paper.paper_gap(progress=say, workers=args.workers, ray_address=args.ray)
         print(paper.paper_text(result))
         if args.json:
             with open(args.json, "w") as fh:
@@ -575,6 +577,9 @@ def _run(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
     try:
         return int(args.func(args))
     except UsageError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except workers.TaskError as exc:  # --workers 0, an unreachable Ray, a task that kills its worker
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except BrokenPipeError:  # e.g. `piezofin sweep | head`

@@ -25,9 +25,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,6 +36,7 @@ from scipy import optimize, stats
 from ..physics.effects import LIBRARY, effect_class
 from ..physics.fin import Fin, load_fin
 from ..physics.model import Model, Prediction
+from ..workers import run_tasks
 from .space import ParamSpace
 
 FloatArray = NDArray[Any]
@@ -290,25 +289,22 @@ def paper_gap(
     candidates: Sequence[str] = CANDIDATES,
     definitions: Sequence[str] = tuple(POWER_DEFINITIONS),
     pairs_of: int = 5,
+    ray_address: str | None = None,
 ) -> dict[str, Any]:
     """Every hypothesis: each definition with no effect, each single effect, and the pairs of its
-    ``pairs_of`` best singles; fitted on ``workers`` processes (default: one per core)."""
+    ``pairs_of`` best singles; fitted on ``workers`` processes (default: one per core), or on Ray
+    (``ray_address``, :func:`piezofin_ros.workers.run_tasks`).  The result does not depend on either."""
     say = progress or (lambda _m: None)
-    workers = workers or os.cpu_count() or 1
 
     def run(jobs: list[tuple[str, tuple[str, ...]]], stage: str) -> list[Hypothesis]:
-        out: list[Hypothesis] = []
-        if workers == 1:
-            for j, job in enumerate(jobs):
-                out.append(_fit_job(job))
-                say(f"paper facts, {stage}: {out[-1].label} ({j + 1}/{len(jobs)})")
-            return out
-        with ProcessPoolExecutor(workers) as pool:
-            futures = [pool.submit(_fit_job, job) for job in jobs]
-            for j, fut in enumerate(as_completed(futures)):
-                out.append(fut.result())
-                say(f"paper facts, {stage}: {out[-1].label} ({j + 1}/{len(jobs)})")
-        return out
+        return run_tasks(
+            _fit_job,
+            jobs,
+            workers=workers,
+            ray_address=ray_address,
+            say=lambda line: say(f"paper facts, {stage}: {line}"),
+            label=lambda job: f"[{job[0]}] " + (" + ".join(job[1]) or "no effect"),
+        )
 
     singles = run([(d, names) for d in definitions for names in [(), *((n,) for n in candidates)]], "singles")
     pairs_jobs = []

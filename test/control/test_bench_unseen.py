@@ -23,7 +23,7 @@ def test_the_benchmark_runs_reduced_and_plots(tmp_path: Path) -> None:
         "--fins", "M8507-P1",
         "--effects", "leakage",
         "--sources", "loadcell",
-        "--jobs", "1",
+        "--workers", "1",
         "--plot", str(png),
     ]  # fmt: skip
     out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
@@ -38,6 +38,6 @@ def test_the_benchmark_runs_reduced_and_plots(tmp_path: Path) -> None:
     assert rows["loadcell", "demand", "ours"][-1] == "0/2"  # no held point short of the demand in truth
     median = float(rows["loadcell", "no demand", "ours"][2].split()[0])
     assert median >= 0.95, rows
-    assert "2/2 plants" in out.stderr  # progress, as the plants finish
+    assert "plants [2/2]" in out.stderr  # progress, as the plants finish
     height, width, _ = matplotlib.image.imread(png).shape
     assert height > 0.9 * width  # two rows (tasks) by one column (the source)
