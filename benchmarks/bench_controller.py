@@ -1,7 +1,7 @@
 """Thrust-per-watt controller against the paper's grid and random search, on plants it does not know.
 
     python benchmarks/bench_controller.py [--seeds 6] [--plot docs/controller.png]
-                                          [--workers 2] [--ray ADDRESS] [--no-drift]
+                                          [--plants ...] [--workers 2] [--ray ADDRESS] [--no-drift]
 
 Plants (``piezofin_ros.control.plants``), each with measurement noise, parameters drawn per seed: the
 nominal model; electroelastic softening (resonance down by 10-40 % at 800 Vpp); dielectric loss
@@ -190,6 +190,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--plot", default="docs/controller.png")
     ap.add_argument("--fins", nargs="+", default=["M8528-P1", "M8514-P1", "M8507-P1"])
+    ap.add_argument("--plants", nargs="+", default=list(PLANTS), choices=PLANTS)
     ap.add_argument("--no-drift", action="store_true", help="skip the drift run (a table only)")
     workers.add_arguments(ap)
     args = ap.parse_args()
@@ -200,6 +201,7 @@ def main() -> int:
         for task in ("demand", "no demand")
         for seed in range(args.seeds)
         for index in range(len(PLANTS))
+        if PLANTS[index] in args.plants
     ]
     say = progress("bench_controller")
     done = workers.run_tasks(

@@ -139,14 +139,27 @@ def check(path: Path, kind: str, which: list[str], time_limit_s: float = 20.0) -
     return out
 
 
-def run(directory: Path, n: int, seed: int, which_per_file: Callable[[int], list[str]]) -> list[Outcome]:
-    """``n`` mutated copies of the base bag in ``directory``, each checked by the chosen readers."""
+def run(
+    directory: Path,
+    n: int,
+    seed: int,
+    which_per_file: Callable[[int], list[str]],
+    only: range | None = None,
+    kinds: tuple[str, ...] | None = None,
+) -> list[Outcome]:
+    """``n`` mutated copies of the base bag in ``directory``, each checked by the chosen readers.
+
+    ``only``: check just these of the ``n`` (a shard; the others are drawn but not checked, so a
+    shard's files are the same as in the whole run); ``kinds``: the k-th file's damage is
+    ``kinds[k % len(kinds)]`` (a fixed sample of every kind) instead of a random kind."""
     base = base_bag(directory / "base.mcap")
     data = base.read_bytes()
     rng = np.random.default_rng(seed)
     outcomes: list[Outcome] = []
     for k in range(n):
-        kind, mutated = mutate(data, rng)
+        kind, mutated = mutate(data, rng, kinds[k % len(kinds)] if kinds else None)
+        if only is not None and k not in only:
+            continue
         path = directory / f"mutant_{seed}_{k:05d}_{kind}.mcap"
         path.write_bytes(mutated)
         outcomes += check(path, kind, which_per_file(k))

@@ -80,7 +80,9 @@ def _imports(path: Path) -> list[tuple[int, str]]:
 
 def test_the_top_level_holds_only_the_packages() -> None:
     loose = sorted(
-        p.name for p in PACKAGE.glob("*.py") if p.name not in ("__init__.py", "errors.py", "config.py", "workers.py")
+        p.name
+        for p in PACKAGE.glob("*.py")
+        if p.name not in ("__init__.py", "errors.py", "config.py", "workers.py")
     )
     assert loose == [], f"modules outside the layer packages: {loose}"
     packages = sorted(p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists())

@@ -1,8 +1,10 @@
 """Every command line in a ``bash`` block of README.md and docs/*.md, run as a user types it.
 
-Lines run in the order written, in one scratch directory holding a copy of ``bags/`` and the
-placeholders the text names (``mine.yaml``, ``my_fin.yaml``, ``bags/run.mcap``, ``trials.csv``), so a
-line may use what an earlier one wrote (``out/diag/augmented_model.yaml``).  Three kinds:
+Lines run in the order written, each section (a ``## `` heading) in a scratch directory of its own
+holding a copy of ``bags/`` and the placeholders the text names (``mine.yaml``, ``my_fin.yaml``,
+``bags/run.mcap``, ``trials.csv``), so a line may use what an earlier line of its section wrote
+(``out/diag/augmented_model.yaml``).  A section's lines stay together on one test worker; sections
+run in parallel (pytest-xdist, each worker on its own DDS domain).  Three kinds:
 
 - a node or a launch (runs until Ctrl-C): still running, or exited 0, after a few seconds and once
   it is up (every process it started has logged its first line: a user presses Ctrl-C on a suite
@@ -46,17 +48,21 @@ UP_S = 120.0  # a loaded machine: the processes may take this long to import and
 LIMIT_S = 600.0
 
 
-def command_lines() -> list[tuple[str, int, str]]:
-    """(document, line number, command) of every command line in a ``bash`` block."""
+def command_lines() -> list[tuple[str, int, str, str]]:
+    """(document, line number, command, section) of every command line in a ``bash`` block; the
+    section is the ``## `` heading above it (a line may use only what its own section wrote)."""
     found = []
     for doc in DOCUMENTS:
         inside = False
+        section = ""
         for number, line in enumerate(doc.read_text().splitlines(), start=1):
             if line.startswith("```"):
                 inside = line.strip() == "```bash" if not inside else False
                 continue
+            if not inside and line.startswith("## "):
+                section = line[3:].strip()
             if inside and line.strip() and not line.lstrip().startswith("#"):
-                found.append((doc.name, number, line.strip()))
+                found.append((doc.name, number, line.strip(), section))
     return found
 
 
@@ -65,25 +71,43 @@ LINES = command_lines()
 
 def test_the_documents_have_commands_to_run() -> None:
     assert len(LINES) >= 30, LINES
-    marked = [line for _, _, line in LINES if NOT_RUN in line]
+    marked = [line for _, _, line, _ in LINES if NOT_RUN in line]
     assert all(re.search(r"\(not run by the tests: \S.+\)", line) for line in marked)  # a reason each
 
 
 @pytest.fixture(scope="module")
-def scratch(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def placeholders(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The files the text names, made once: each section's scratch directory starts as a copy."""
     from piezofin_ros.diagnosis.synthetic import Case, simulate_case
 
-    here = tmp_path_factory.mktemp("readme")
+    here = tmp_path_factory.mktemp("readme-placeholders")
     (here / "bags").mkdir()
     sample = ROOT / "bags" / "sample_M8528-P1.mcap"
     shutil.copy2(sample, here / "bags" / sample.name)
     shutil.copy2(sample, here / "bags" / "run.mcap")
-    for name in ("tools", "requirements.txt", "requirements-dev.txt", "setup.py"):
-        (here / name).symlink_to(ROOT / name)  # tools/main.sh runs here, on the project's venv
     shutil.copy2(ROOT / "config" / "fins" / "M8528-P1.yaml", here / "my_fin.yaml")
     (here / "mine.yaml").write_text("/**/controller:\n  ros__parameters:\n    frequencies: [5.0, 6.0]\n")
     simulate_case(Case("M8528-P1", {"electroelastic_softening": 0.3}, 5)).trials.to_csv(here / "trials.csv")
     return here
+
+
+@pytest.fixture(scope="module")
+def scratches() -> dict[str, Path]:
+    """Each section's scratch directory, by ``"document: section"``."""
+    return {}
+
+
+def scratch_for(
+    key: str, scratches: dict[str, Path], placeholders: Path, factory: pytest.TempPathFactory
+) -> Path:
+    """The section's own scratch directory: a copy of the placeholders, on first use."""
+    if key not in scratches:
+        here = factory.mktemp("readme")
+        shutil.copytree(placeholders, here, dirs_exist_ok=True)
+        for name in ("tools", "requirements.txt", "requirements-dev.txt", "setup.py"):
+            (here / name).symlink_to(ROOT / name)  # tools/main.sh runs here, on the project's venv
+        scratches[key] = here
+    return scratches[key]
 
 
 class Background:
@@ -167,18 +191,29 @@ def _run_until_stopped(command: str, env: dict[str, str], cwd: Path) -> str:
     return out
 
 
-@pytest.mark.parametrize(("document", "number", "command"), LINES, ids=[f"{d}:{n}" for d, n, _ in LINES])
+@pytest.mark.parametrize(
+    ("document", "number", "command", "section"),
+    [
+        # a section's lines stay together, in order, on one test worker; sections run in parallel
+        pytest.param(*line, id=f"{line[0]}:{line[1]}", marks=pytest.mark.xdist_group(f"{line[0]}: {line[3]}"))
+        for line in LINES
+    ],
+)
 def test_command_line(
     document: str,
     number: int,
     command: str,
-    scratch: Path,
+    section: str,
+    scratches: dict[str, Path],
+    placeholders: Path,
     background: Background,
     plain_env: dict[str, str],
     request: pytest.FixtureRequest,
+    tmp_path_factory: pytest.TempPathFactory,
 ) -> None:
     if NOT_RUN in command:
         pytest.skip(command[command.index(NOT_RUN) + 1 : command.rindex(")")])
+    scratch = scratch_for(f"{document}: {section}", scratches, placeholders, tmp_path_factory)
     env = request.getfixturevalue("ros_env") if NEEDS_ROS.match(command) else plain_env
     if TALKS_TO_THE_SUITE.match(command):
         background.start(env, scratch)

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import re
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 
 from piezofin_ros.workers import TaskError, run_tasks
@@ -80,13 +85,85 @@ def test_bad_settings_are_one_clear_error() -> None:
 
 @pytest.mark.slow
 def test_on_a_local_ray_instance_the_same_results_and_a_killed_worker_is_run_again(tmp_path: Path) -> None:
-    pytest.importorskip("ray", reason="ray is an optional extra (pip install 'piezofin_ros[ray]')")
-    lines: list[str] = []
+    ray = pytest.importorskip("ray", reason="ray is an optional extra (pip install 'piezofin_ros[ray]')")
     reference = run_tasks(draw, range(12), workers=1)
     marker = str(tmp_path / "killed")
-    on_ray = run_tasks(draw, range(12), workers=2, ray_address="local", say=lines.append)
-    assert on_ray == reference
-    assert lines[0].startswith("ray: local, 2 CPUs"), lines
-    killed = run_tasks(dies_once, [(k, marker) for k in range(6)], workers=2, ray_address="local")
+    ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", log_to_driver=False)
+    try:  # one instance for both runs (run_tasks uses a Ray it finds running)
+        assert run_tasks(draw, range(12), ray_address="local") == reference
+        killed = run_tasks(dies_once, [(k, marker) for k in range(6)], ray_address="local")
+    finally:
+        ray.shutdown()
     assert Path(marker).exists()
     assert killed == [k * k for k in range(6)]
+
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = [
+    "benchmarks/bench_controller.py",
+    "--fins", "M8528-P1",
+    "--seeds", "1",
+    "--plants", "nominal", "loss", "combined",
+    "--no-drift",
+    "--plot", "",
+]  # fmt: skip
+
+
+def _table(stdout: str) -> str:
+    """The benchmark's table without its wall-time line."""
+    return "\n".join(line for line in stdout.splitlines() if not re.fullmatch(r"\(\d+ s\)", line))
+
+
+def _bench(*extra: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, *BENCH, *extra],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        stdin=subprocess.DEVNULL,
+        env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"},
+    )
+
+
+@pytest.mark.slow
+def test_a_benchmark_gives_the_same_table_on_one_two_workers_ray_and_with_a_worker_killed() -> None:
+    """`bench_controller.py` as a user runs it (6 tasks): the table is the same on one worker, on two,
+    on a local Ray instance, and when one of the two workers is SIGKILLed mid-run."""
+    one = _bench("--workers", "1")
+    assert one.returncode == 0, one.stderr
+    assert "ours" in one.stdout and "[6/6]" in one.stderr
+    two = _bench("--workers", "2")
+    assert two.returncode == 0, two.stderr
+    assert _table(two.stdout) == _table(one.stdout)
+
+    # a worker killed once the first task is in: the others' tasks and its own are run again
+    proc = subprocess.Popen(
+        [sys.executable, *BENCH, "--workers", "2"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        stdin=subprocess.DEVNULL,
+    )
+    assert proc.stderr is not None
+    err = []
+    for line in proc.stderr:
+        err.append(line)
+        if "[1/6]" in line:
+            break
+    workers = [p for p in psutil.Process(proc.pid).children() if "python" in p.name()]
+    assert workers, "no worker processes"
+    workers[0].send_signal(signal.SIGKILL)
+    out, rest = proc.communicate(timeout=600)
+    err.append(rest)
+    assert proc.returncode == 0, "".join(err)
+    assert "a worker process died" in "".join(err)
+    assert _table(out) == _table(one.stdout)
+
+    if importlib.util.find_spec("ray") is None:
+        pytest.skip("ray is an optional extra (pip install 'piezofin_ros[ray]'): the Ray run is skipped")
+    on_ray = _bench("--workers", "2", "--ray", "local")
+    assert on_ray.returncode == 0, on_ray.stderr
+    assert "ray: local, 2 CPUs" in on_ray.stderr
+    assert _table(on_ray.stdout) == _table(one.stdout)

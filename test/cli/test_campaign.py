@@ -206,6 +206,7 @@ def test_the_campaign_runs_on_a_diagnosed_twin(tmp_path: Path) -> None:
     assert ident.c_m == pytest.approx(1.2 * fin.c_m, rel=0.03)
 
 
+@pytest.mark.slow
 def test_campaign_mistakes_end_in_one_line(tmp_path: Path) -> None:
     one_line_error(run("campaign", "paper", "-o", str(tmp_path), "--fins", "no-such-fin"), "no-such-fin")
     one_line_error(run("campaign", "paper", "-o", str(tmp_path), "--sweep-points", "2"), "--sweep-points")

@@ -33,6 +33,7 @@ def campaign(
     return fractions, t
 
 
+@pytest.mark.fast_cases("None")
 @pytest.mark.parametrize("demand", [4e-3, None])
 def test_converges_on_a_plant_with_shifted_resonance(m8528: Fin, demand: float | None) -> None:
     """Resonance 40 % lower at 800 Vpp (softening) and 10 % off overall, plus dielectric loss."""
@@ -48,6 +49,7 @@ def test_converges_on_a_plant_with_shifted_resonance(m8528: Fin, demand: float |
     assert min(fractions[7:]) >= (0.98 if demand is None else 0.96), fractions
 
 
+@pytest.mark.slow
 def test_reconverges_after_a_step_drift(m8528: Fin) -> None:
     plant = Plant(
         m8528, softening=0.2, loss_tan_delta=0.1, resonance_scale=lambda t: 1.0 if t < 60.0 else 0.85

@@ -51,6 +51,7 @@ LEAST = {
 }
 
 
+@pytest.mark.fast_cases("M8528-P1-none-loadcell", "M8507-P1-none-self")
 @pytest.mark.parametrize("source", ["loadcell", "vibrometer", "self"])
 @pytest.mark.parametrize("task", ["demand", "none"])
 @pytest.mark.parametrize("fin_name", list(ISSUE))
@@ -76,6 +77,7 @@ def test_the_issues_hidden_fins(fin_name: str, task: str, source: str) -> None:
     assert opt.changes == 0  # the fin does not change: a change seen would be a false alarm
 
 
+@pytest.mark.slow
 def test_a_fish_calibrates_its_self_sensing_from_the_drive_alone() -> None:
     """Dielectric loss of tan delta 0.1 and a coupling 30 % stronger at 800 Vpp: the raw self-sensed
     thrust is off by tens of per cent; the fit of the drive's admittance finds the loss and the
@@ -98,6 +100,7 @@ def test_a_fish_calibrates_its_self_sensing_from_the_drive_alone() -> None:
     assert abs(estimate / truth - 1) < abs(raw / truth - 1) / 3
 
 
+@pytest.mark.slow
 def test_the_status_says_which_mode_and_why() -> None:
     """On a fin the corrected model describes, the status says "model"; where it keeps mispredicting
     (an amplifier clipping its output far into the band), "search" with the misfit in the reason."""
@@ -118,6 +121,7 @@ def test_the_status_says_which_mode_and_why() -> None:
     assert math.isfinite(status["unexplained"]["thrust"])
 
 
+@pytest.mark.slow
 def test_a_point_counts_on_the_trials_that_did_not_choose_it() -> None:
     """The winner's curse: of several noisy trials near the demand, the one that looks best is the
     luckiest.  With a load cell (the thrust itself, 0.5 % noise) the point held meets the demand in

@@ -67,6 +67,7 @@ def clean() -> tuple:
     return trials, scan_bag(SAMPLE, "/fin")
 
 
+@pytest.mark.slow
 def test_a_rosbag2_directory_reads_like_its_file(tmp_path: Path, clean: tuple) -> None:
     """rosbag2 writes a directory (metadata.yaml and numbered .mcap splits); it is read in the order
     the metadata lists, and gives exactly what the file gives."""
@@ -141,6 +142,7 @@ def test_split_files_are_read_in_rosbag2_order_without_metadata(tmp_path: Path) 
     assert [m.log_time_ns for m in read_messages(run)] == [1, 2, 10]
 
 
+@pytest.mark.slow
 def test_mains_pickup_is_named_and_rejected_by_the_lock_in(tmp_path: Path, clean: tuple) -> None:
     """30 uA of 50 Hz on the current channel: the RMS current comes from the lock-in (unchanged), the
     noise from the drive-off stretches net of the line (unchanged), and the line is named."""
@@ -186,6 +188,7 @@ def test_the_sample_rate_comes_from_the_block_times(tmp_path: Path, clean: tuple
     assert any("sampled at 500 Hz" in n for n in trials.notes)
 
 
+@pytest.mark.slow
 def test_a_bag_without_commands_is_said_and_the_drive_is_not_judged_against_itself(
     tmp_path: Path,
 ) -> None:
@@ -200,6 +203,7 @@ def test_a_bag_without_commands_is_said_and_the_drive_is_not_judged_against_itse
     assert with_cmd.commanded and "drive" in {s.stage for s in diagnose(with_cmd, FIN).stages}
 
 
+@pytest.mark.fast_cases("tip_velocity_m_s-the vibrometer's sign is reversed")
 @pytest.mark.parametrize(
     ("channel", "said"),
     [
@@ -276,6 +280,7 @@ def test_a_step_of_the_drive_still_splits() -> None:
     assert [round(e.voltage_pp) for e in finals] == [800, 600]
 
 
+@pytest.mark.fast_cases("vibrometer_reversed-1.0-vibrometer reversed", "-0.0-None")
 @pytest.mark.parametrize(
     ("effect", "strength", "family"),
     [
@@ -295,6 +300,7 @@ def test_blind_instruments(effect: str, strength: float, family: str | None) -> 
         assert d.verdict == "no gap"
 
 
+@pytest.mark.slow
 def test_trial_times_survive_a_csv_and_a_drift_is_fitted_on_them(tmp_path: Path) -> None:
     """A capacitance warming over the run (blind form: exponential) in a CSV with ``time_s``: the
     drift is named from the CSV as from the table; without the times it cannot be."""
@@ -312,6 +318,7 @@ def test_trial_times_survive_a_csv_and_a_drift_is_fitted_on_them(tmp_path: Path)
     assert "capacitance_drift" not in diagnose(from_csv(timeless), FIN).named
 
 
+@pytest.mark.slow
 def test_on_a_fish_a_negative_power_names_both_suspects(tmp_path: Path) -> None:
     """Without a vibrometer the tip phase cannot tell a reversed current monitor from a reversed
     voltage channel: both are named, and the power is corrected."""

@@ -252,6 +252,7 @@ SUBSET = [
 ]
 
 
+@pytest.mark.fast_cases("drag_offset", "dielectric_loss", "loadcell_offset")
 @pytest.mark.parametrize("case", SUBSET, ids=lambda c: next(iter(c.effects)))
 def test_blind_attribution_of_single_effects(case: Case) -> None:
     g = simulate_case(case)
@@ -262,6 +263,7 @@ def test_blind_attribution_of_single_effects(case: Case) -> None:
     assert d.chosen is not None and d.chosen.chi2_test < 0.05 * d.nominal.chi2_test
 
 
+@pytest.mark.slow
 def test_swim_speed_is_fitted_in_m_per_s_and_unseen_below_its_threshold() -> None:
     """U^2 w_x^2 against w_t^2 is (U / (2 pi f phi/phi'))^2: the generator's reduced speed. At 0.3
     of the resonance's scale U is named and fitted; at 0.08 it hides in the load-cell noise."""
@@ -284,6 +286,7 @@ def test_two_hidden_effects_are_both_named() -> None:
     assert all(largest_move(d.chosen.model, e, g.trials) > 3.0 for e in d.named)  # type: ignore[union-attr]
 
 
+@pytest.mark.slow
 def test_a_tiny_partner_that_only_mends_a_form_is_not_named() -> None:
     """A 20 % softening Duffing spring: its describing function leaves chi2/n 5.9 at 800 Vpp, and a
     0.1 % linear stiffness offset halves that, moving no prediction by 3 sigma. One cause, named alone."""
@@ -310,6 +313,7 @@ def test_a_gap_only_in_the_held_out_trials_is_unexplained_and_says_why() -> None
     assert "the training trials show no gap" in d.notes[1]
 
 
+@pytest.mark.slow
 def test_summary_is_json_and_model_reloads() -> None:
     g = simulate_case(Case("M8528-P1", {"resonance_offset": 0.85}, 9))
     d = diagnose(g.trials, FIN)
@@ -323,6 +327,7 @@ def test_generator_covers_the_library() -> None:
     assert set(IN_LIBRARY) == set(LIBRARY)
 
 
+@pytest.mark.slow
 def test_csv_input_and_cli(tmp_path: Path) -> None:
     g = simulate_case(Case("M8528-P1", {"electroelastic_softening": 0.3}, 5))
     path = tmp_path / "trials.csv"
@@ -384,6 +389,7 @@ def test_the_papers_facts_decide_between_hypotheses() -> None:
     assert np.max(np.abs(best.residuals)) < 3.0
 
 
+@pytest.mark.slow
 def test_paper_cli(tmp_path: Path) -> None:
     exe = Path(sys.executable).parent / "piezofin"
     out = tmp_path / "paper.json"
@@ -395,7 +401,7 @@ def test_paper_cli(tmp_path: Path) -> None:
     assert "| [amplifier draw] drag_offset + electroelastic_softening |" in run.stdout
     assert "swim_speed (quiescent water" in run.stdout  # not tried, with the reason
     assert "## Which facts decide" in run.stdout and "## The measurement that would decide" in run.stdout
-    assert "(30/30)" in run.stderr  # progress
+    assert "pairs: [30/30]" in run.stderr  # progress
     data = json.loads(out.read_text())
     assert len(data["facts"]) == 10
     survivors = [h for h in data["hypotheses"] if h["survives"]]
@@ -419,6 +425,7 @@ def test_fitted_parameters_carry_an_uncertainty_that_covers_the_truth(
         assert abs(value - true) <= 3 * sigma, (seed, value, sigma)
 
 
+@pytest.mark.slow
 def test_uncertainties_reach_the_report_the_json_and_the_saved_model(tmp_path: Path) -> None:
     d = diagnose(simulate_case(Case("M8528-P1", {"drag_offset": 2.5}, 104)).trials, FIN)
     sigma = d.final_model.uncertainties["drag_offset"]["scale"]

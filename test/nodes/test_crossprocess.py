@@ -25,6 +25,7 @@ from ..rosutil import BIN, graph, start, start_driving_controller, stop
 pytestmark = pytest.mark.ros
 
 
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_no_drops_at_the_default_rate_for_10_s() -> None:
     """fin_sim at 1 kHz in real time, 12 s: every published sample arrives, in order, once.
@@ -181,6 +182,7 @@ def test_bringup_optimise_mode_converges(tmp_path: Path) -> None:
     assert 4.0 <= thrust <= 4.3
 
 
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Path) -> None:
     """SIGKILL mid-run: `piezofin bag recover` gets every block up to the last flushed chunk, and
@@ -264,6 +266,7 @@ def _drive_then_kill_the_controller(timeout_s: float) -> tuple[np.ndarray, np.nd
     return t, v, killed_at, out
 
 
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
     """The controller drives 800 Vpp and is SIGKILLed: fin_sim's watchdog (0.5 s) ramps the drive to
@@ -292,6 +295,7 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_short_soak_has_no_drops_and_flat_memory(tmp_path: Path) -> None:
     """`benchmarks/bench_soak.py` for 40 s: four processes at the default rate; no sample dropped

@@ -26,6 +26,7 @@ def test_a_node_loads_nothing_it_does_not_use(node: str, allowed: tuple[str, ...
     assert [m for m in loaded if m not in allowed] == []
 
 
+@pytest.mark.exclusive
 @pytest.mark.ros
 @pytest.mark.slow
 def test_estimator_and_controller_fit_a_fish_at_1_khz() -> None:

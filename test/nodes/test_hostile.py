@@ -133,6 +133,7 @@ def finish(proc: subprocess.Popen[str]) -> str:
 
 
 # ------------------------------------------------------------------------------- time sources
+@pytest.mark.exclusive
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "attack", ["set use_sim_time", "frozen /clock", "racing /clock", "start with use_sim_time"]
@@ -269,6 +270,7 @@ def test_every_lifecycle_request_in_every_state_is_answered() -> None:
 
 
 # ------------------------------------------------------------------ watchdog: latch and pace
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_a_tripped_watchdog_latches_until_an_off_command() -> None:
     """The controller is SIGSTOPped while driving 800 Vpp (the watchdog trips), then SIGCONTinued: it
@@ -299,6 +301,7 @@ def test_a_tripped_watchdog_latches_until_an_off_command() -> None:
     assert 190.0 < peak_rearmed <= 200.0 + 1e-9
 
 
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_fast_simulation_does_not_trip_on_scheduling_jitter() -> None:
     """At x20, 1 s of fin time is 50 ms of wall time.  A commander 200 ms late (a busy executor) does
@@ -337,6 +340,7 @@ def test_fast_simulation_does_not_trip_on_scheduling_jitter() -> None:
 
 
 # ------------------------------------------------------------------------------- silence
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
     """fin_sim (the /clock source at x10) is SIGKILLed: within 5 s both the estimator and the
@@ -393,6 +397,7 @@ def test_booleans_and_strings_are_not_limits() -> None:
         assert sim.rig.drive.limits.voltage_pp_max == 0.0
 
 
+@pytest.mark.slow
 def test_an_aborted_run_finishes_and_stops_the_drive() -> None:
     """No estimator: the controller's trials get no estimate, it aborts after max_missing and
     finishes at once (before, it waited for the trial in progress forever and bringup never exited)."""
@@ -423,6 +428,7 @@ def test_an_aborted_run_finishes_and_stops_the_drive() -> None:
 
 
 # ----------------------------------------------------------------------------- the recorder
+@pytest.mark.exclusive
 @pytest.mark.slow
 def test_a_recorder_killed_at_any_moment_leaves_a_recoverable_bag(tmp_path) -> None:
     """SIGKILL 0-4 s after the recorder created its file (it never leaves a 0-byte file: the header is
