@@ -129,14 +129,14 @@ FUZZ_FILES, FUZZ_SHARDS = 1000, 4
 
 
 def test_a_fixed_sample_of_fuzzed_bags_never_crash_or_hang(tmp_path: Path) -> None:
-    """The fast tier's fuzz: 30 mutated bags, every kind of damage three times, each read in full and
-    given to each heavy reader in turn (the estimator's replay, the diagnosis's scan, its data path)."""
-    outcomes = run(tmp_path, 30, seed=7, which_per_file=lambda k: ["read", HEAVY[k % 3]], kinds=KINDS)
+    """The fast tier's fuzz: 20 mutated bags, every kind of damage twice, each read in full and given
+    to a heavy reader in turn (the estimator's replay, the diagnosis's scan, its data path)."""
+    outcomes = run(tmp_path, 20, seed=7, which_per_file=lambda k: ["read", HEAVY[k % 3]], kinds=KINDS)
     failures = [o for o in outcomes if o.result.startswith("FAIL")]
     assert not failures, failures[:10]
-    assert collections.Counter(o.kind for o in outcomes if o.reader == "read") == dict.fromkeys(KINDS, 3)
+    assert collections.Counter(o.kind for o in outcomes if o.reader == "read") == dict.fromkeys(KINDS, 2)
     results = collections.Counter(o.result for o in outcomes if o.reader == "read")
-    assert results["ok"] >= 10 and results["error"] >= 3  # both: readable parts kept, clear refusals
+    assert results["ok"] >= 6 and results["error"] >= 2  # both: readable parts kept, clear refusals
     assert max(o.seconds for o in outcomes) < 10.0
 
 
@@ -161,6 +161,7 @@ def test_fuzzed_bags_never_crash_or_hang(tmp_path: Path, shard: int) -> None:
     assert max(o.seconds for o in outcomes) < 10.0
 
 
+@pytest.mark.fast_cases("-empty")
 @pytest.mark.parametrize(
     ("content", "why"),
     [

@@ -212,6 +212,15 @@ YAML_READERS = {
 }
 
 
+# the fast tier: every kind of bomb once, and every reader twice
+@pytest.mark.fast_cases(
+    "20 MB-fin (sweep --fin)",
+    "deep nesting-model (sweep --model)",
+    "100,000-digit integer-parameters (bringup --config)",
+    "python tag-fin (sweep --fin)",
+    "aliases-model (sweep --model)",
+    "not UTF-8-parameters (bringup --config)",
+)
 @pytest.mark.parametrize("reader", list(YAML_READERS))
 @pytest.mark.parametrize("kind", YAML_KINDS)
 def test_no_configuration_file_hangs_or_crashes_a_reader(tmp_path: Path, kind: str, reader: str) -> None:

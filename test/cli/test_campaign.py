@@ -62,6 +62,10 @@ def one_line_error(proc: subprocess.CompletedProcess[str], *words: str) -> None:
         assert w in lines[0], lines[0]
 
 
+#: The tests of the module fixture below: on one test worker, so that it is built once.
+ON_ITS_WORKER = pytest.mark.xdist_group("campaign")
+
+
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("campaign")
@@ -80,6 +84,7 @@ def campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@ON_ITS_WORKER
 @pytest.mark.slow
 def test_the_campaign_identifies_the_fin_through_the_live_suite(campaign: Path) -> None:
     truth = load_fin("M8528-P1")
@@ -93,6 +98,7 @@ def test_the_campaign_identifies_the_fin_through_the_live_suite(campaign: Path) 
         assert abs(ident[name]["value"] - getattr(truth, name)) <= 4 * ident[name]["sigma"], name
 
 
+@ON_ITS_WORKER
 @pytest.mark.slow
 def test_the_report_puts_the_papers_numbers_beside_the_suites(campaign: Path) -> None:
     text = (campaign / "report.md").read_text()
@@ -119,6 +125,7 @@ def test_the_report_puts_the_papers_numbers_beside_the_suites(campaign: Path) ->
         assert f"]({png})" in text
 
 
+@ON_ITS_WORKER
 @pytest.mark.slow
 def test_every_bag_reads_back_with_an_independent_reader(campaign: Path) -> None:
     for stage, topics in (
@@ -134,6 +141,7 @@ def test_every_bag_reads_back_with_an_independent_reader(campaign: Path) -> None
             assert counts.get(f"/m8528_p1/{t}", 0) > 0, (stage, t, counts)
 
 
+@ON_ITS_WORKER
 @pytest.mark.slow
 def test_identify_from_the_two_recorded_sweeps(campaign: Path, tmp_path: Path) -> None:
     """What a lab does with two recorded sweeps: one command, a fin file and Fig. 5, no code."""
@@ -168,6 +176,7 @@ def test_identify_from_the_two_recorded_sweeps(campaign: Path, tmp_path: Path) -
     )
 
 
+@ON_ITS_WORKER
 @pytest.mark.slow
 def test_a_recorded_campaign_is_analysed_again_without_ros(campaign: Path) -> None:
     """`--analyse-only`: identification and report from the bags and status files already there."""
@@ -180,6 +189,7 @@ def test_a_recorded_campaign_is_analysed_again_without_ros(campaign: Path) -> No
     assert json.loads((campaign / "report.json").read_text())["facts"] == before
 
 
+@ON_ITS_WORKER
 @pytest.mark.slow
 def test_the_protocol_bag_is_no_in_air_sweep(campaign: Path) -> None:
     """Data that are not an in-air stepped sine are said to be so, not fitted silently."""

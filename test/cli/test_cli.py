@@ -60,6 +60,7 @@ def test_sweep_json_has_parameters_and_points() -> None:
     assert p["thrust_per_watt"] == pytest.approx(p["thrust_n"] / p["power_w"], rel=1e-12)
 
 
+@pytest.mark.slow
 def test_ros2_run_alias_and_plot(tmp_path: Path) -> None:
     png = tmp_path / "sweep.png"
     proc = run("sweep", "--fin", "M8507-P1", "--vpp", "800", "--freq", "5", "10", "--plot", str(png))

@@ -7,10 +7,12 @@ import sys
 from pathlib import Path
 
 import matplotlib.image
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.slow
 def test_the_benchmark_runs_reduced_and_plots(tmp_path: Path) -> None:
     """One fin (a leak outside the correction, and the issue's hidden fin), a load cell: the table has
     every method for both tasks, our held points meet the demand in truth, and the figure is one row

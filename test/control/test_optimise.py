@@ -186,6 +186,7 @@ def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypa
     assert len(threads) == 2 and all(name.startswith("optimiser") for name in threads), threads
 
 
+@pytest.mark.slow
 def test_trials_are_known_by_the_point_commanded_not_the_amplitude_measured(m8528: Fin) -> None:
     """The estimator measures the drive's amplitude with its monitor's noise and gain (here 0.3 % off,
     a different draw each window): the optimiser still records each trial at the point the loop

@@ -252,7 +252,7 @@ SUBSET = [
 ]
 
 
-@pytest.mark.fast_cases("drag_offset", "dielectric_loss", "loadcell_offset")
+@pytest.mark.fast_cases("dielectric_loss", "loadcell_offset")
 @pytest.mark.parametrize("case", SUBSET, ids=lambda c: next(iter(c.effects)))
 def test_blind_attribution_of_single_effects(case: Case) -> None:
     g = simulate_case(case)
@@ -276,6 +276,7 @@ def test_swim_speed_is_fitted_in_m_per_s_and_unseen_below_its_threshold() -> Non
     assert hidden.verdict == "no gap"
 
 
+@pytest.mark.slow
 def test_two_hidden_effects_are_both_named() -> None:
     hidden = {"dielectric_loss": 0.076, "stiffness_nonlinearity": 0.22}
     g = simulate_case(Case("M8528-P1", hidden, 1346491434))
@@ -304,6 +305,7 @@ def test_out_of_library_effect_is_unexplained() -> None:
     assert "no candidate closes the gap" in d.notes[0]
 
 
+@pytest.mark.slow
 def test_a_gap_only_in_the_held_out_trials_is_unexplained_and_says_why() -> None:
     """An amplifier that clips only at 800 Vpp and the highest frequencies: the 400/600 Vpp training
     trials show nothing to learn from, and the report says so instead of naming a guess."""
@@ -409,6 +411,7 @@ def test_paper_cli(tmp_path: Path) -> None:
     assert all(h["definition"] != "mean(v i)" for h in survivors)
 
 
+@pytest.mark.fast_cases("drag_offset-2.5-M8528-P1")
 @pytest.mark.parametrize(
     ("name", "true", "fin"), [("drag_offset", 2.5, "M8528-P1"), ("dielectric_loss", 0.05, "M8507-P1")]
 )

@@ -61,18 +61,21 @@ def _check(fin: Fin, got: dict[str, tuple[float, float, float]]) -> None:
         )
 
 
+@pytest.mark.fast_cases("M8507-P1")
 @pytest.mark.parametrize("name", ["M8507-P1", "M8514-P1", "M8528-P1"])
 def test_the_paper_fins_come_back(name: str) -> None:
     fin = load_fin(name)
     _check(fin, _round_trip(fin))
 
 
+@pytest.mark.fast_cases("1")
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_random_fins_come_back(seed: int) -> None:
     fin = random_fin(np.random.default_rng(seed), f"random-{seed}")
     _check(fin, _round_trip(fin, seed))
 
 
+@pytest.mark.slow
 def test_uncertainty_grows_with_the_noise_and_still_covers() -> None:
     """Ten times the instruments' noise: ten times the sigmas (measured, not assumed), same coverage."""
     fin = load_fin("M8514-P1")
@@ -86,6 +89,7 @@ def test_uncertainty_grows_with_the_noise_and_still_covers() -> None:
         assert abs(value - truth) <= MAX_Z * sigma, f"{name}: {abs(value - truth) / sigma:.1f} sigma off"
 
 
+@pytest.mark.slow
 def test_identified_fin_predicts_held_out_trials_as_well_as_the_true_one() -> None:
     """Protocol-like points at 400-800 Vpp (not used by the identification): the identified fin's
     prediction differs from the measured rig no more than the true fin's does (+0.5 %)."""
@@ -150,6 +154,7 @@ def test_an_unsettled_step_weighs_less() -> None:
     )
 
 
+@pytest.mark.slow
 def test_what_the_data_cannot_give_is_said() -> None:
     fin = load_fin("M8528-P1")
     # a sweep that stays below the resonance: no half-power points

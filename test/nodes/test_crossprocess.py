@@ -80,6 +80,7 @@ def test_no_drops_at_the_default_rate_for_10_s() -> None:
     assert 390 < np.max(np.abs(v)) < 402  # the command reached the drive, within the limit
 
 
+@pytest.mark.fast_cases("realtime_factr:=10.0-unknown parameter realtime_factr")
 @pytest.mark.parametrize(
     ("arg", "named"),
     [

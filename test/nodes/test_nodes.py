@@ -39,6 +39,10 @@ def params(**kw: Any) -> list[Parameter]:
     return [Parameter(k.replace("__", "."), value=v) for k, v in kw.items()]
 
 
+#: The tests of the module fixture below: on one test worker, so that it is built once.
+ON_ITS_WORKER = pytest.mark.xdist_group("the live graph")
+
+
 @pytest.fixture(scope="module")
 def live(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """Two protocol trials (9 and 6 Hz at 800 Vpp), 50x real time, recorded."""
@@ -89,6 +93,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         }
 
 
+@ON_ITS_WORKER
 def test_live_estimates_match_the_steady_state(live: dict[str, Any]) -> None:
     finals = [e for e in live["estimates"] if e.final]
     assert [round(e.frequency_hz, 3) for e in finals] == [9.0, 6.0]
@@ -104,6 +109,7 @@ def test_live_estimates_match_the_steady_state(live: dict[str, Any]) -> None:
         assert abs(e.thrust_loadcell_n - e.thrust_n) <= 5 * sigma + 3e-3 * e.thrust_n
 
 
+@ON_ITS_WORKER
 def test_times_come_from_the_samples_not_the_wall_clock(live: dict[str, Any]) -> None:
     for e in live["estimates"]:
         assert T0 < e.t_start < e.t_end < T0 + 60.0
@@ -111,6 +117,7 @@ def test_times_come_from_the_samples_not_the_wall_clock(live: dict[str, Any]) ->
     assert min(times) >= T0 and max(times) < T0 + 60.0  # the recorder logs in simulated time
 
 
+@ON_ITS_WORKER
 def test_controller_reports_both_trials(live: dict[str, Any]) -> None:
     st = live["status"]
     assert st["state"] == "done"
@@ -118,6 +125,7 @@ def test_controller_reports_both_trials(live: dict[str, Any]) -> None:
     assert st["chosen"]["frequency_hz"] == 6.0  # more thrust per watt below resonance
 
 
+@ON_ITS_WORKER
 def test_rosbags_reads_every_recorded_message(live: dict[str, Any]) -> None:
     with AnyReader([live["bag"]]) as reader:
         counts: dict[str, int] = {}
@@ -133,6 +141,7 @@ def test_rosbags_reads_every_recorded_message(live: dict[str, Any]) -> None:
     assert counts["/clock"] > 0
 
 
+@ON_ITS_WORKER
 def test_replay_reproduces_the_live_estimates(live: dict[str, Any]) -> None:
     recorded = [
         Estimate.from_dict(block_of(m.type_name, m.data).as_dict())
@@ -560,6 +569,7 @@ def check_qos(profiles: list[dict[str, Any]]) -> None:
             assert set(p[key]) == {"sec", "nsec"} and all(isinstance(v, int) for v in p[key].values())
 
 
+@ON_ITS_WORKER
 def test_the_bag_is_what_rosbag2_storage_mcap_reads(live: dict[str, Any], tmp_path: Any) -> None:
     """Checked with two readers that share no code with the writer: mcap's own reader against
     rosbag2's decoding rules, and rosbags' rosbag2 implementation on a bag directory."""
@@ -609,6 +619,7 @@ def test_the_bag_is_what_rosbag2_storage_mcap_reads(live: dict[str, Any], tmp_pa
         assert sum(1 for _ in r2.messages()) == stats.message_count
 
 
+@ON_ITS_WORKER
 def test_estimates_are_plottable_field_by_field(live: dict[str, Any]) -> None:
     """Foxglove and PlotJuggler plot `/fin/estimate/<field>.data` (a Float64 per estimate)."""
     with AnyReader([live["bag"]]) as reader:
