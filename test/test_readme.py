@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -37,6 +38,10 @@ pytestmark = [pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 NOT_RUN = "(not run by the tests:"
+#: A line another test runs as typed and checks more closely (run once, not twice): ``(run by FILE, ...)``
+RUN_ELSEWHERE = re.compile(r"\(run by (test/[\w/]+\.py)\b[^)]*\)")
+#: Options whose value is the user's own output path (a test writes to its own).
+OUTPUT_OPTIONS = ("-o", "--json", "--report", "--plot")
 RUNS_UNTIL_STOPPED = re.compile(
     r"^(ros2 launch |ros2 run piezofin_ros (fin_sim|fin_sims|thrust_estimator|controller|recorder|player)\b)"
 )
@@ -213,6 +218,14 @@ def test_command_line(
 ) -> None:
     if NOT_RUN in command:
         pytest.skip(command[command.index(NOT_RUN) + 1 : command.rindex(")")])
+    elsewhere = RUN_ELSEWHERE.search(command)
+    if elsewhere:  # that test holds the command, word for word but its output paths
+        text = (ROOT / elsewhere.group(1)).read_text()
+        words = shlex.split(command.split("#")[0])
+        skip = {i + 1 for i, w in enumerate(words) if w in OUTPUT_OPTIONS}
+        absent = [w for i, w in enumerate(words[1:], 1) if i not in skip and f'"{w}"' not in text]
+        assert not absent, f"{elsewhere.group(1)} does not run {command!r}: {absent} not in it"
+        pytest.skip(elsewhere.group(0)[1:-1])
     scratch = scratch_for(f"{document}: {section}", scratches, placeholders, tmp_path_factory)
     env = request.getfixturevalue("ros_env") if NEEDS_ROS.match(command) else plain_env
     if TALKS_TO_THE_SUITE.match(command):

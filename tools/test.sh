@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # The test suite: linter, type check of the ROS-free core, then pytest on one worker per core.
 #
-#   bash tools/test.sh            the whole suite (what CI runs): every test
 #   bash tools/test.sh --fast     the fast tier, after each edit: every layer's science and every
 #                                 node's logic at small sizes (the tests not marked `slow`)
+#   bash tools/test.sh            the whole suite: every test but the long scenarios
+#   bash tools/test.sh --long     every test, the long scenarios too (marked `long`: the soak, the
+#                                 full fuzz); CI runs this
 #
 # Other arguments go to pytest (`bash tools/test.sh --fast -k steady`, `bash tools/test.sh -n 0`).
 # Both print the slowest tests and the time of each step.
@@ -15,15 +17,17 @@ export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( (RANDOM % 100) + 1 ))}"
 tier=whole
 args=()
 for a in "$@"; do
-  if [ "$a" = "--fast" ]; then tier=fast; else args+=("$a"); fi
+  case "$a" in
+    --fast) tier=fast ;;
+    --long) tier=long ;;
+    *) args+=("$a") ;;
+  esac
 done
-if [ "$tier" = fast ]; then
-  select="not slow"
-  slowest=10
-else
-  select=""
-  slowest=30
-fi
+case "$tier" in
+  fast) select="not slow and not long"; slowest=10 ;;
+  whole) select="not long"; slowest=30 ;;
+  long) select=""; slowest=30 ;;
+esac
 t0=$SECONDS
 # One command per line: under `set -e` a failure inside an `a && b && c` list (other than the last
 # command) does not stop the script, and a lint error once went on to pytest unnoticed.
@@ -44,9 +48,10 @@ python -m pytest -n "${PIEZOFIN_TEST_WORKERS:-auto}" --dist loadgroup --duration
   -m "not exclusive${select:+ and ($select)}" "${args[@]}" </dev/null || rc1=$?
 t2=$SECONDS
 rc2=0
-if [ "$tier" = whole ]; then
+if [ "$tier" != fast ]; then
   echo "== pytest, $tier tier, phase 2: the exclusive tests, one at a time"
-  python -m pytest -p no:xdist --durations="$slowest" --durations-min=1.0 -m "exclusive" "${args[@]}" </dev/null || rc2=$?
+  python -m pytest -p no:xdist --durations="$slowest" --durations-min=1.0 -m "exclusive${select:+ and ($select)}" \
+    "${args[@]}" </dev/null || rc2=$?
   [ "$rc2" -eq 5 ] && rc2=0  # none selected (e.g. -k matched none of them)
 fi
 t3=$SECONDS

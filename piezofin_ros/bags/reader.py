@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import lz4.frame
-import yaml
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
@@ -88,25 +87,41 @@ def _warn(damage: Damage) -> None:
     _LOG.warning("warning: %s", damage)
 
 
+#: What a rosbag2 directory may ask a reader for: its ``metadata.yaml`` is refused above this size
+#: (rosbag2 writes a few kB, plus about 60 bytes per split), and it may list at most this many splits.
+MAX_METADATA_BYTES = 4 * 1024 * 1024
+MAX_SPLITS = 4096
+
+
+class MetadataError(BagError, ValueError):
+    """A rosbag2 ``metadata.yaml`` that is not read (too large, not YAML, aliases, unsafe tags)."""
+
+
 def bag_files(path: str | os.PathLike[str]) -> list[Path]:
     """The MCAP files of a bag: the file itself, or those of a rosbag2 directory.
 
     A rosbag2 directory lists its files, in recording order, under
-    ``rosbag2_bagfile_information.relative_file_paths`` of its ``metadata.yaml``; without a readable
-    metadata file, every ``*.mcap`` in it is read in name order (rosbag2 numbers its splits
-    ``<name>_0.mcap``, ``<name>_1.mcap``, ...).  Raises :class:`BagError` when the directory holds no
-    MCAP file or its metadata names another storage (sqlite3) or a missing file.
+    ``rosbag2_bagfile_information.relative_file_paths`` of its ``metadata.yaml``; without a metadata
+    file, every ``*.mcap`` in it is read in name order (rosbag2 numbers its splits ``<name>_0.mcap``,
+    ``<name>_1.mcap``, ...).  Raises :class:`BagError` naming the directory when it holds no MCAP
+    file, its metadata names another storage (sqlite3), a missing file, a file outside the directory
+    (``../``, an absolute path, a symbolic link leading out) or something that is not a regular file
+    (a FIFO would block the reader), or lists more than :data:`MAX_SPLITS` files; and
+    :class:`MetadataError` when ``metadata.yaml`` is larger than :data:`MAX_METADATA_BYTES`, not
+    YAML, or uses aliases or tags (the safe loader of fin files: no "billion laughs").
     """
     path = Path(path)
     if not path.is_dir():
         return [path]
     listed: list[Path] = []
     meta = path / "metadata.yaml"
-    if meta.is_file():
-        try:
-            info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information") or {}
-        except (yaml.YAMLError, OSError, UnicodeDecodeError, AttributeError):
-            info = {}
+    if meta.exists():
+        if not meta.is_file():
+            raise BagError(f"{meta}: not a regular file")
+        from ..physics.fin import read_yaml_file  # the bounded safe loader (physics is below bags)
+
+        doc = read_yaml_file(meta, MetadataError, MAX_METADATA_BYTES)
+        info = (doc or {}).get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
         if not isinstance(info, dict):
             info = {}
         storage = str(info.get("storage_identifier", "mcap"))
@@ -114,14 +129,31 @@ def bag_files(path: str | os.PathLike[str]) -> list[Path]:
             raise BagError(f"{path}: a rosbag2 directory in {storage!r} storage; only mcap is read")
         names = info.get("relative_file_paths") or []
         if isinstance(names, list):
-            listed = [path / str(n) for n in names]
-        missing = [p.name for p in listed if not p.is_file()]
+            if len(names) > MAX_SPLITS:
+                raise BagError(f"{path}: metadata.yaml lists {len(names)} files, more than {MAX_SPLITS}")
+            listed = [_inside(path, str(n)) for n in names]
+        missing = [p.name for p in listed if not p.exists()]
         if missing:
             raise BagError(f"{path}: metadata.yaml lists {', '.join(missing)}, which the directory lacks")
-    files = listed or sorted(path.glob("*.mcap"), key=_split_order)
-    if not files:
+    else:
+        listed = sorted(path.glob("*.mcap"), key=_split_order)
+        if len(listed) > MAX_SPLITS:
+            raise BagError(f"{path}: {len(listed)} .mcap files, more than {MAX_SPLITS} splits")
+    for p in listed:
+        if p.exists() and not p.is_file():
+            raise BagError(f"{path}: {p.name} is not a regular file (a FIFO or a device is not a split)")
+    if not listed:
         raise BagError(f"{path}: a directory with no .mcap file (not a rosbag2 bag)")
-    return files
+    return listed
+
+
+def _inside(directory: Path, name: str) -> Path:
+    """``directory / name``, refused when it leads out of the directory (``..``, absolute, a link)."""
+    p = directory / name
+    root = directory.resolve()
+    if not p.resolve().is_relative_to(root):
+        raise BagError(f"{directory}: metadata.yaml names {name!r}, outside the bag's directory: not read")
+    return p
 
 
 def _split_order(p: Path) -> tuple[str, int]:

@@ -317,20 +317,22 @@ def safe_load_yaml(text: str) -> Any:
 MAX_YAML_BYTES = 256 * 1024
 
 
-def read_yaml_file(path: str | os.PathLike[str], error: type[ValueError] = FinConfigError) -> Any:
+def read_yaml_file(
+    path: str | os.PathLike[str], error: type[ValueError] = FinConfigError, max_bytes: int = MAX_YAML_BYTES
+) -> Any:
     """Read and parse a YAML configuration file; any problem raises ``error`` naming the file.
 
-    Bounded by :data:`MAX_YAML_BYTES`; an unsafe tag, an alias, nesting beyond the parser's
+    Bounded by ``max_bytes`` (:data:`MAX_YAML_BYTES`); an unsafe tag, an alias, nesting beyond the parser's
     recursion, an integer beyond Python's digit limit or bytes that are not UTF-8 are one error.
     """
     path = Path(path)
     try:
         with open(path, "rb") as fh:
-            raw = fh.read(MAX_YAML_BYTES + 1)
+            raw = fh.read(max_bytes + 1)
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if len(raw) > MAX_YAML_BYTES:
-        raise error(f"{path}: larger than {MAX_YAML_BYTES // 1024} KiB, not a configuration file")
+    if len(raw) > max_bytes:
+        raise error(f"{path}: larger than {max_bytes // 1024} KiB, not a configuration file")
     try:
         return safe_load_yaml(raw.decode("utf-8"))
     except UnicodeDecodeError:

@@ -140,6 +140,7 @@ def test_a_fixed_sample_of_fuzzed_bags_never_crash_or_hang(tmp_path: Path) -> No
     assert max(o.seconds for o in outcomes) < 10.0
 
 
+@pytest.mark.long  # bash tools/test.sh --long, and CI; the fixed sample above is in every tier
 @pytest.mark.slow
 @pytest.mark.parametrize("shard", range(FUZZ_SHARDS))
 def test_fuzzed_bags_never_crash_or_hang(tmp_path: Path, shard: int) -> None:

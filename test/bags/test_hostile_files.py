@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import io
 import os
-import resource
 import signal
 import struct
 import subprocess
@@ -124,25 +123,36 @@ READERS = {
 }
 
 
+#: Runs argv[1:] and prints its status and peak resident memory (its own children's largest, KiB):
+#: a process of its own, so that no other child of the test process counts.
+_MEASURE = (
+    "import resource, subprocess, sys; "
+    "r = subprocess.run(sys.argv[1:], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL); "
+    "print(r.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
+)
+
+
 def run_measured(argv: list[str], timeout: float = 60.0) -> tuple[int, str, float, float]:
     """Run a command in its own process; returns (status, stderr, wall s, peak RSS in MB)."""
     t0 = time.monotonic()
     proc = subprocess.Popen(
-        argv,
+        [str(BIN / "python"), "-c", _MEASURE, *argv],
         stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         env=clean_env(),
         text=True,
+        start_new_session=True,
     )
     try:
-        _, err = proc.communicate(timeout=timeout)
+        out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
-        proc.kill()
-        _, err = proc.communicate()
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate()
+        return -9, err, time.monotonic() - t0, float("nan")
     wall = time.monotonic() - t0
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)  # the largest child so far (KiB on Linux)
-    return proc.returncode, err, wall, usage.ru_maxrss / 1024
+    status, peak_kib = (int(x) for x in out.split())
+    return status, err, wall, peak_kib / 1024
 
 
 @pytest.fixture(scope="module")
@@ -290,3 +300,90 @@ def test_recover_leaves_nothing_behind_when_it_fails(tmp_path: Path) -> None:
     )
     assert run.returncode == 2, run.stderr
     assert not out.exists() and os.listdir(tmp_path) == ["src.mcap"]
+
+
+# ------------------------------------------------------------------ hostile rosbag2 directories
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_M8528-P1.mcap"
+
+
+def bag_directory(d: Path, kind: str) -> tuple[Path, str]:
+    """A rosbag2 directory built as an attacker would (issue 29), and the words its refusal says."""
+    d.mkdir()
+    split = d / "run_0.mcap"
+    meta = d / "metadata.yaml"
+
+    def listing(names: list[str], extra: str = "") -> None:
+        meta.write_text(
+            "rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: mcap\n"
+            + "  relative_file_paths:\n"
+            + "".join(f"  - {n}\n" for n in names)
+            + extra
+        )
+
+    if kind == "alias bomb in metadata.yaml":  # 1.4 kB, a billion laughs
+        os.symlink(SAMPLE, split)
+        laughs = ["  a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+        laughs += [f"  a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 9)]
+        listing(["run_0.mcap"], "  junk:\n" + "\n".join(laughs) + "\n")
+        return d, "aliases"
+    if kind == "40 MB metadata.yaml":
+        os.symlink(SAMPLE, split)
+        with open(meta, "w") as fh:
+            fh.write("rosbag2_bagfile_information:\n  relative_file_paths: [run_0.mcap]\n  junk:\n")
+            line = "  - " + "x" * 70 + "\n"
+            fh.write(line * (40_000_000 // len(line)))
+        return d, "larger than"
+    if kind == "a FIFO as a split":
+        os.mkfifo(split)
+        return d, "not a regular file"
+    if kind == "a FIFO listed as a split":
+        os.mkfifo(split)
+        listing(["run_0.mcap"])
+        return d, "not a regular file"
+    if kind == "../../../etc/passwd":
+        listing(["../../../../../../../etc/passwd"])
+        return d, "outside the bag's directory"
+    if kind == "/etc/shadow":
+        listing(["/etc/shadow"])
+        return d, "outside the bag's directory"
+    if kind == "a link out of the directory":
+        os.symlink("/etc/passwd", split)
+        listing(["run_0.mcap"])
+        return d, "outside the bag's directory"
+    if kind == "10,000 splits listed":
+        listing([f"run_{i}.mcap" for i in range(10_000)])
+        return d, "more than 4096"
+    if kind == "5,000 splits, no metadata":
+        for i in range(5000):
+            (d / f"run_{i}.mcap").touch()
+        return d, "more than 4096"
+    raise ValueError(kind)
+
+
+DIRECTORY_ATTACKS = [
+    "alias bomb in metadata.yaml",
+    "40 MB metadata.yaml",
+    "a FIFO as a split",
+    "a FIFO listed as a split",
+    "../../../etc/passwd",
+    "/etc/shadow",
+    "a link out of the directory",
+    "10,000 splits listed",
+    "5,000 splits, no metadata",
+]
+
+
+@pytest.mark.fast_cases("alias bomb in metadata.yaml", "../../../etc/passwd")
+@pytest.mark.parametrize("kind", DIRECTORY_ATTACKS)
+def test_a_bag_directory_cannot_make_diagnose_hang_blow_up_or_leave_it(tmp_path: Path, kind: str) -> None:
+    """`piezofin diagnose DIR`, as the attacker of issue 29 ran it: one error line naming the directory
+    and what is wrong, exit 2, within 10 s and 300 MB (before: 1.15 GB and 7.7 GB, hangs on a FIFO,
+    /etc/passwd and /etc/shadow opened)."""
+    d, words = bag_directory(tmp_path / "bag", kind)
+    status, err, wall, peak_mb = run_measured([str(BIN / "piezofin"), "diagnose", str(d)], timeout=60)
+    assert wall < 10.0, (wall, err)
+    assert status == 2, err
+    assert "Traceback" not in err
+    errors = [x for x in err.splitlines() if "error" in x.lower()]
+    assert len(errors) == 1 and str(d) in errors[0] and words in errors[0], err
+    assert peak_mb < 300, peak_mb

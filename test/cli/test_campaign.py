@@ -25,14 +25,15 @@ from piezofin_ros.physics.model import Model
 
 BIN = Path(sys.executable).parent
 TOLERANCE = {"f_sc": 0.005, "zeta": 0.05, "theta": 0.02, "C_eq": 0.02, "c_m": 0.03, "c_d": 0.10}
+#: The README's reduced campaign, as typed there (it is run here, not by test_readme.py: once is enough)
 REDUCED = [
     "--fins",
     "M8528-P1",
     "--frequencies",
     "4",
+    "5.5",
     "9",
     "--voltages",
-    "400",
     "800",
     "--sweep-points",
     "11",

@@ -396,7 +396,10 @@ def test_paper_cli(tmp_path: Path) -> None:
     exe = Path(sys.executable).parent / "piezofin"
     out = tmp_path / "paper.json"
     run = subprocess.run(
-        [exe, "diagnose", "--paper", "--json", str(out)], capture_output=True, text=True, timeout=900
+        [exe, "diagnose", "--paper", "--json", str(out)],  # docs/reference.md's line, as typed there
+        capture_output=True,
+        text=True,
+        timeout=900,
     )
     assert run.returncode == 0, run.stderr
     assert "## Surviving every fact: " in run.stdout

@@ -296,6 +296,7 @@ def test_killing_the_controller_ramps_the_drive_to_zero(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.long  # tools/test.sh --long, and CI (the whole suite has test_no_drops_at_the_default_rate...)
 @pytest.mark.exclusive
 @pytest.mark.slow
 def test_short_soak_has_no_drops_and_flat_memory(tmp_path: Path) -> None:
