@@ -29,10 +29,17 @@ _tier_seconds: dict[str, float] = {}
 _fast_but_slow: dict[str, float] = {}
 
 
+_cpu_by_test: dict[str, float] = {}
+
+
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     """Sums each tier's test time (setup, call and teardown; on the controller under xdist)."""
     tier = "slow" if "slow" in report.keywords else "fast"
     _tier_seconds[tier] = _tier_seconds.get(tier, 0.0) + report.duration
+    cpu = dict(report.user_properties).get("cpu_s")
+    if cpu is not None:
+        _cpu_by_test[report.nodeid] = float(cpu)
+        _tier_seconds[f"{tier} cpu"] = _tier_seconds.get(f"{tier} cpu", 0.0) + float(cpu)
     if tier == "fast":
         _fast_but_slow[report.nodeid] = _fast_but_slow.get(report.nodeid, 0.0) + report.duration
 
@@ -46,7 +53,13 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
     for tier in ("fast", "slow"):
         if tier in _tier_seconds:
             which = "marked slow" if tier == "slow" else "not marked slow"
-            tr.write_line(f"{tier} tier ({which}): {_tier_seconds[tier]:.0f} s")
+            cpu = _tier_seconds.get(f"{tier} cpu", 0.0)
+            tr.write_line(f"{tier} tier ({which}): {_tier_seconds[tier]:.0f} s, {cpu:.0f} s of CPU")
+    top = sorted(_cpu_by_test.items(), key=lambda kv: -kv[1])[:15]
+    if top and len(_cpu_by_test) > 15:
+        tr.write_line("most CPU (the test's processes and their children, s):")
+        for nodeid, cpu in top:
+            tr.write_line(f"  {cpu:7.1f}  {nodeid}")
     over = sorted(((t, n) for n, t in _fast_but_slow.items() if t > FAST_TEST_S), reverse=True)
     for t, n in over:
         tr.write_line(
@@ -74,14 +87,31 @@ def _machine(exclusive: bool) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its children that have ended."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
-    """Under pytest-xdist, each test (its fixtures' setup and teardown too) takes the machine lock."""
+    """Under pytest-xdist, each test (its fixtures' setup and teardown too) takes the machine lock.
+    Each test's CPU time (its processes' too) goes to its report: the terminal summary's table."""
+    item.user_properties.append(("cpu_start_s", _cpu_s()))
     if not os.environ.get("PYTEST_XDIST_WORKER"):
         yield
         return
     with _machine(exclusive=item.get_closest_marker("exclusive") is not None):
         yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    outcome = yield
+    report = outcome.get_result()
+    start = dict(item.user_properties).get("cpu_start_s")
+    if start is not None and report.when == "teardown":
+        report.user_properties.append(("cpu_s", _cpu_s() - float(start)))
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -80,7 +80,7 @@ def test_the_documents_have_commands_to_run() -> None:
     assert all(re.search(r"\(not run by the tests: \S.+\)", line) for line in marked)  # a reason each
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # a test worker may run other modules between a section's lines
 def placeholders(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The files the text names, made once: each section's scratch directory starts as a copy."""
     from piezofin_ros.diagnosis.synthetic import Case, simulate_case
@@ -96,7 +96,7 @@ def placeholders(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return here
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def scratches() -> dict[str, Path]:
     """Each section's scratch directory, by ``"document: section"``."""
     return {}

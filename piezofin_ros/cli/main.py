@@ -516,8 +516,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
         result = paper.paper_gap(progress=say, workers=args.workers, ray_address=args.ray)
         print(paper.paper_text(result))
         if args.json:
-            with open(args.json, "w") as fh:
-                json.dump(paper.summary_json(result), fh, indent=1)
+            try:
+                Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+                with open(args.json, "w") as fh:
+                    json.dump(paper.summary_json(result), fh, indent=1)
+            except OSError as exc:
+                raise UsageError(f"cannot write the output ({exc})") from None
         return 0
     if not args.data:
         raise UsageError("give one or more bags, or one CSV (or --paper)")
@@ -540,6 +544,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     print(text(d))
     try:
         if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)  # as --report makes its directory
             with open(args.json, "w") as fh:
                 json.dump(summary, fh, indent=1, default=float)
             say(f"wrote {args.json}")
