@@ -132,14 +132,14 @@ class Background:
             self.launch = None
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def background() -> Iterator[Background]:
     bg = Background()
     yield bg
     bg.stop()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def plain_env() -> dict[str, str]:
     return clean_env(
         PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}",

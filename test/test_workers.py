@@ -128,16 +128,13 @@ def _bench(*extra: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.mark.slow
 def test_a_benchmark_gives_the_same_table_on_one_two_workers_ray_and_with_a_worker_killed() -> None:
-    """`bench_controller.py` as a user runs it (6 tasks): the table is the same on one worker, on two,
-    on a local Ray instance, and when one of the two workers is SIGKILLed mid-run."""
+    """`bench_controller.py` as a user runs it (6 tasks): the table is the same on one worker, on two
+    with one of them SIGKILLed mid-run, and on a local Ray instance."""
     one = _bench("--workers", "1")
     assert one.returncode == 0, one.stderr
     assert "ours" in one.stdout and "[6/6]" in one.stderr
-    two = _bench("--workers", "2")
-    assert two.returncode == 0, two.stderr
-    assert _table(two.stdout) == _table(one.stdout)
-
-    # a worker killed once the first task is in: the others' tasks and its own are run again
+    # on two workers, one of them killed once the first task is in: its task is run again, and the
+    # table is the one-worker table
     proc = subprocess.Popen(
         [sys.executable, *BENCH, "--workers", "2"],
         cwd=ROOT,

@@ -28,7 +28,7 @@ def piezofin(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([BIN / "piezofin", *args], capture_output=True, text=True, timeout=120)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return base_bag(tmp_path_factory.mktemp("base") / "base.mcap")
 

@@ -155,7 +155,7 @@ def run_measured(argv: list[str], timeout: float = 60.0) -> tuple[int, str, floa
     return status, err, wall, peak_kib / 1024
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def bombs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("bombs")
     return {k: bomb(d / f"{k.replace(' ', '_').replace(',', '')}.mcap", k) for k in KINDS}

@@ -67,7 +67,7 @@ def one_line_error(proc: subprocess.CompletedProcess[str], *words: str) -> None:
 ON_ITS_WORKER = pytest.mark.xdist_group("campaign")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("campaign")
     proc = run("campaign", "paper", "-o", str(out), *REDUCED)

@@ -60,7 +60,7 @@ def _channel(block: Block, name: str, fn: Callable[[np.ndarray, np.ndarray], np.
     return Block(block.names, values)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def clean() -> tuple:
     trials, skipped = from_bags([SAMPLE], FIN)
     assert not skipped and len(trials) == 2

@@ -202,7 +202,7 @@ def test_where_several_amplitudes_are_steady_the_trial_from_rest_takes_the_lowes
     assert_allclose(p.tip_velocity_rms, g.trials.tip_velocity_rms, rtol=0.04)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def clean() -> Case:
     return Case("M8528-P1", {}, 11)
 

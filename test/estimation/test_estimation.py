@@ -39,7 +39,7 @@ def run_protocol(
     return out + est.flush(), rig
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def protocol_run() -> tuple[list[Estimate], SimulatedRig]:
     from piezofin_ros.physics.fin import load_fin
 

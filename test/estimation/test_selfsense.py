@@ -38,7 +38,7 @@ def finals(calibrated: bool) -> list[Estimate]:
     return [e for e in out + est.flush() if e.final]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def both() -> tuple[list[Estimate], list[Estimate]]:
     return finals(False), finals(True)
 

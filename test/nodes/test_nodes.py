@@ -43,7 +43,7 @@ def params(**kw: Any) -> list[Parameter]:
 ON_ITS_WORKER = pytest.mark.xdist_group("the live graph")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def live(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """Two protocol trials (9 and 6 Hz at 800 Vpp), 50x real time, recorded."""
     bag = tmp_path_factory.mktemp("live") / "live.mcap"

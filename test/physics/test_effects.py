@@ -203,7 +203,7 @@ def _balance(model: Model) -> dict[str, np.ndarray]:
 CHANNELS = ("tip", "current", "power", "thrust")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per test worker: under xdist a worker interleaves modules
 def nominal() -> tuple[dict[str, np.ndarray], dict[str, float]]:
     td0, hb0 = _time_domain(Model(FIN)), _balance(Model(FIN))
     own = {ch: float(np.max(np.abs(hb0[ch] / td0[ch] - 1))) for ch in CHANNELS}
