@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The test suite: linter, type check of the ROS-free core, then pytest on one worker per core.
+# The test suite: linter, type check of the ROS-free core, then pytest on parallel workers.
 #
 #   bash tools/test.sh --fast     the fast tier, after each edit: every layer's science and every
 #                                 node's logic at small sizes (the tests not marked `slow`)
@@ -39,13 +39,16 @@ mypy
 t1=$SECONDS
 export PYTHONPYCACHEPREFIX="${PYTHONPYCACHEPREFIX:-$ROOT/.ros/pycache}"  # hundreds of test processes: compile once
 unset PYTHONDONTWRITEBYTECODE
-# Two phases.  1: every test but those marked `exclusive`, on one worker per core (pytest-xdist; each
+# Two phases.  1: every test but those marked `exclusive`, on parallel workers (pytest-xdist; each
 # worker on its own DDS domain).  2: the `exclusive` ones (wall-clock latency bounds: a watchdog
 # within 1 s of a kill, no drop at 1 kHz), two at a time and never beside the CPU-bound tests (each
 # loads under a third of a core: measured by the CPU column of the summary).
 echo "== pytest, $tier tier, phase 1: in parallel (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
 rc1=0
-python -m pytest -n "${PIEZOFIN_TEST_WORKERS:-auto}" --dist loadgroup --durations="$slowest" --durations-min=1.0 \
+# One worker more than the cores: half of a test's time is spent waiting (a node's start-up, a live
+# graph in real time), and the third worker fills it (measured: docs/testing.md).
+workers="${PIEZOFIN_TEST_WORKERS:-$(( $(nproc) + 1 ))}"
+python -m pytest -n "$workers" --dist loadgroup --durations="$slowest" --durations-min=1.0 \
   -m "not exclusive${select:+ and ($select)}" "${args[@]}" </dev/null || rc1=$?
 t2=$SECONDS
 rc2=0
