@@ -185,6 +185,18 @@ def plant_task(task: tuple[str, str, int, int]) -> list[tuple[tuple[str, str, st
     return [((task_name, pname, r.method), r) for r in runs]
 
 
+def tasks_for(fins: list[str], seeds: int, plants: list[str]) -> list[tuple[str, str, int, int]]:
+    """Every (fin, task, seed, plant index) of a run: the workers' tasks, in the table's order."""
+    return [
+        (fin_name, task, seed, index)
+        for fin_name in fins
+        for task in ("demand", "no demand")
+        for seed in range(seeds)
+        for index in range(len(PLANTS))
+        if PLANTS[index] in plants
+    ]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=6)
@@ -195,14 +207,7 @@ def main() -> int:
     workers.add_arguments(ap)
     args = ap.parse_args()
     t0 = time.perf_counter()
-    tasks = [
-        (fin_name, task, seed, index)
-        for fin_name in args.fins
-        for task in ("demand", "no demand")
-        for seed in range(args.seeds)
-        for index in range(len(PLANTS))
-        if PLANTS[index] in args.plants
-    ]
+    tasks = tasks_for(args.fins, args.seeds, args.plants)
     say = progress("bench_controller")
     done = workers.run_tasks(
         plant_task,

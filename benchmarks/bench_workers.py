@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_controller import PLANTS, plant_task
+from bench_controller import PLANTS, plant_task, tasks_for
 
 from piezofin_ros import workers
 
@@ -31,13 +31,7 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=workers.default_workers())
     ap.add_argument("--ray", action="store_true", help="also on a local Ray instance")
     args = ap.parse_args()
-    tasks = [
-        (fin, task, seed, index)
-        for fin in args.fins
-        for task in ("demand", "no demand")
-        for seed in range(args.seeds)
-        for index in range(len(PLANTS))
-    ]
+    tasks = tasks_for(args.fins, args.seeds, list(PLANTS))
     print(f"{len(tasks)} tasks of bench_controller.py; {args.workers} workers", flush=True)
 
     def timed(label: str, **kw: object) -> tuple[float, list]:
