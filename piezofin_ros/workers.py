@@ -136,9 +136,11 @@ def _run_local(
         pool = ProcessPoolExecutor(min(workers, len(todo)))
         futures: dict[Future[R], int] = {pool.submit(fn, items[k]): k for k in todo}
         broken = False
+        running: set[int] = set()  # the tasks in the workers' hands when the last wait began
         try:
             pending = set(futures)
             while pending and not broken:
+                running = {futures[f] for f in pending if f.running()}
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     k = futures[fut]
@@ -158,9 +160,8 @@ def _run_local(
                 for fut, k in futures.items():  # finished before the pool broke: kept
                     if k not in results and fut.done() and not fut.cancelled() and fut.exception() is None:
                         results[k] = fut.result()
-                lost = [k for f, k in futures.items() if k not in results]
-                running = [k for f, k in futures.items() if k not in results and f.running()]
-                for k in running or lost:
+                lost = [k for k in futures.values() if k not in results]
+                for k in [k for k in lost if k in running] or lost:
                     suspect[k] += 1
                 worst = max(lost, key=lambda k: suspect[k])
                 if suspect[worst] > retries:

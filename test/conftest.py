@@ -25,10 +25,8 @@ PAPER_FINS = ("M8507-P1", "M8514-P1", "M8528-P1")
 
 #: A test of the fast tier (not marked ``slow``) should take at most this long; longer ones are named.
 FAST_TEST_S = 5.0
-_tier_seconds: dict[str, float] = {}
-_fast_but_slow: dict[str, float] = {}
-
-
+_tier_seconds: dict[str, float] = {}  # "fast", "slow": summed wall time; "fast cpu", "slow cpu"
+_fast_but_slow: dict[str, float] = {}  # a fast-tier test's wall time (setup, call, teardown)
 _cpu_by_test: dict[str, float] = {}
 
 
@@ -156,7 +154,7 @@ def _sourced(*scripts: Path) -> dict[str, str]:
 
 
 @contextmanager
-def _exclusive(name: str) -> Iterator[None]:
+def _one_at_a_time(name: str) -> Iterator[None]:
     """One test process at a time (pytest-xdist's workers share the project's ``.ros/``)."""
     lock = ROOT / ".ros" / f"{name}.lock"
     lock.parent.mkdir(parents=True, exist_ok=True)
@@ -174,7 +172,7 @@ def ros_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     system's `ros2` on a ROS machine, else the Jazzy overlay built from ../shared/ros2-jazzy;
     skips (one line saying why) when neither is there.  Built once; parallel test workers wait for
     the one building it."""
-    with _exclusive("ros_env"):
+    with _one_at_a_time("ros_env"):
         return _ros_env(tmp_path_factory)
 
 

@@ -136,9 +136,10 @@ def bag_files(path: str | os.PathLike[str]) -> list[Path]:
         if missing:
             raise BagError(f"{path}: metadata.yaml lists {', '.join(missing)}, which the directory lacks")
     else:
-        listed = sorted(path.glob("*.mcap"), key=_split_order)
-        if len(listed) > MAX_SPLITS:
-            raise BagError(f"{path}: {len(listed)} .mcap files, more than {MAX_SPLITS} splits")
+        found = sorted(path.glob("*.mcap"), key=_split_order)
+        if len(found) > MAX_SPLITS:
+            raise BagError(f"{path}: {len(found)} .mcap files, more than {MAX_SPLITS} splits")
+        listed = [_inside(path, p.name) for p in found]
     for p in listed:
         if p.exists() and not p.is_file():
             raise BagError(f"{path}: {p.name} is not a regular file (a FIFO or a device is not a split)")
@@ -150,9 +151,8 @@ def bag_files(path: str | os.PathLike[str]) -> list[Path]:
 def _inside(directory: Path, name: str) -> Path:
     """``directory / name``, refused when it leads out of the directory (``..``, absolute, a link)."""
     p = directory / name
-    root = directory.resolve()
-    if not p.resolve().is_relative_to(root):
-        raise BagError(f"{directory}: metadata.yaml names {name!r}, outside the bag's directory: not read")
+    if not p.resolve().is_relative_to(directory.resolve()):
+        raise BagError(f"{directory}: {name!r} leads outside the bag's directory: not read")
     return p
 
 

@@ -350,6 +350,9 @@ def bag_directory(d: Path, kind: str) -> tuple[Path, str]:
         os.symlink("/etc/passwd", split)
         listing(["run_0.mcap"])
         return d, "outside the bag's directory"
+    if kind == "a link out, no metadata":
+        os.symlink("/etc/passwd", split)
+        return d, "outside the bag's directory"
     if kind == "10,000 splits listed":
         listing([f"run_{i}.mcap" for i in range(10_000)])
         return d, "more than 4096"
@@ -368,6 +371,7 @@ DIRECTORY_ATTACKS = [
     "../../../etc/passwd",
     "/etc/shadow",
     "a link out of the directory",
+    "a link out, no metadata",
     "10,000 splits listed",
     "5,000 splits, no metadata",
 ]
