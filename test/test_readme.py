@@ -125,6 +125,16 @@ class Background:
         if self.launch is None:
             self.launch = Launch(env, cwd, "realtime_factor:=10", log="background-launch.log")
             self.launch.wait_for("trial 1.000 Hz", 60.0)  # estimates flow
+            # ... and the command line sees them: as a user would wait for `ros2 topic list` to show
+            # the topics before echoing one (on a loaded machine the CLI's discovery lags the graph)
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 60.0:
+                listed = subprocess.run(
+                    ["ros2", "topic", "list"], env=env, capture_output=True, text=True, timeout=60
+                ).stdout.split()
+                if "/fin/estimate" in listed and "/fin/cmd" in listed:
+                    break
+                time.sleep(0.5)
 
     def stop(self) -> None:
         if self.launch is not None:
