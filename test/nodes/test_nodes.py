@@ -419,12 +419,15 @@ def test_fin_sim_protocol_mode_one_command_one_trial() -> None:
 
 def test_the_first_trial_waits_for_an_estimator_that_starts_last() -> None:
     """Under ros2 launch the estimator may start last: the controller holds the drive off and starts
-    trial 0 only once an estimator publishes, so trial 0 gets its estimate (CI once lost it)."""
+    trial 0 only once an estimator publishes, so trial 0 gets its estimate (CI once lost it).  In a
+    namespace of its own: an estimator an earlier test destroyed may linger in DDS discovery for a
+    moment, and under parallel tests it was taken for this one's."""
     with graph() as g:
         ctx = g.context
         sim = g.add(
             FinSim(
                 context=ctx,
+                namespace="late",
                 parameter_overrides=params(realtime_factor=20.0, publish_clock=True, start_time_s=T0),
             )
         )
@@ -433,6 +436,7 @@ def test_the_first_trial_waits_for_an_estimator_that_starts_last() -> None:
         ctl = g.add(
             Controller(
                 context=ctx,
+                namespace="late",
                 parameter_overrides=SIM_TIME
                 + params(frequencies=[9.0], voltages=[800.0], off_s=1.0, on_s=4.0, wait_estimator_s=60.0),
             )
@@ -440,7 +444,13 @@ def test_the_first_trial_waits_for_an_estimator_that_starts_last() -> None:
         g.spin_for(3.0)  # 60 s of fin time with no estimator: nothing driven, the plan not begun
         assert ctl.runner.t_begin is None and not ctl.runner.results
         assert sim.rig is not None and sim.rig.drive.amplitude == 0.0 and sim.rig.drive.t > T0 + 30.0
-        g.add(ThrustEstimator(context=ctx, parameter_overrides=SIM_TIME + params(estimator__baseline_s=0.5)))
+        g.add(
+            ThrustEstimator(
+                context=ctx,
+                namespace="late",
+                parameter_overrides=SIM_TIME + params(estimator__baseline_s=0.5),
+            )
+        )
         g.spin_until(lambda: ctl.finished, timeout=30.0, what="the one trial")
     (result,) = ctl.runner.results
     assert result.estimate is not None and result.estimate.frequency_hz == pytest.approx(9.0, rel=1e-3)
