@@ -135,7 +135,7 @@ def bag_files(path: str | os.PathLike[str]) -> list[Path]:
         missing = [p.name for p in listed if not p.exists()]
         if missing:
             raise BagError(f"{path}: metadata.yaml lists {', '.join(missing)}, which the directory lacks")
-    else:
+    if not listed:  # no metadata, or one that lists no file: the directory's splits by name
         found = sorted(path.glob("*.mcap"), key=_split_order)
         if len(found) > MAX_SPLITS:
             raise BagError(f"{path}: {len(found)} .mcap files, more than {MAX_SPLITS} splits")

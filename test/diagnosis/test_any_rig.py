@@ -140,6 +140,8 @@ def test_split_files_are_read_in_rosbag2_order_without_metadata(tmp_path: Path) 
             bag.add_topic("/x", "std_msgs/msg/Float64MultiArray")
             bag.write("/x", k, cdr_block(Block(("a",), np.array([[float(k)]]))))
     assert [m.log_time_ns for m in read_messages(run)] == [1, 2, 10]
+    (run / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9}\n")  # lists no file
+    assert [m.log_time_ns for m in read_messages(run)] == [1, 2, 10]
 
 
 @pytest.mark.slow
