@@ -64,10 +64,41 @@ def graph() -> Iterator[Graph]:
         g.close()
 
 
+def assert_quiet_domain(env: dict[str, str], listen_s: float = 1.5, wait_s: float = 25.0) -> None:
+    """No node runs in ``env``'s DDS domain (hidden ``_`` nodes, such as the ros2 daemon, aside): a
+    suite about to start there would otherwise share its ``/clock`` and topics with a process an
+    earlier test left running.  Nodes that are going away get ``wait_s`` to leave the graph."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(env.get("ROS_DOMAIN_ID", "0")))
+    probe = rclpy.create_node("_quiet_domain_probe", context=context)
+    try:
+        time.sleep(listen_s)  # discovery on loopback
+        t0 = time.monotonic()
+        while True:
+            names = sorted(
+                f"{ns.rstrip('/')}/{n}"
+                for n, ns in probe.get_node_names_and_namespaces()
+                if not n.startswith("_")
+            )
+            if not names:
+                return
+            if time.monotonic() - t0 > wait_s:
+                raise AssertionError(
+                    f"ROS domain {env.get('ROS_DOMAIN_ID', '0')} is not empty before the suite starts: "
+                    f"{names} (a process an earlier test left running?)"
+                )
+            time.sleep(0.5)
+    finally:
+        probe.destroy_node()
+        rclpy.shutdown(context=context)
+
+
 class Launch:
-    """`ros2 launch ...` in its own session (SIGINT reaches it as Ctrl-C would), output to a file."""
+    """`ros2 launch ...` in its own session (SIGINT reaches it as Ctrl-C would), output to a file,
+    in a domain where nothing else runs."""
 
     def __init__(self, env: dict[str, str], cwd: Path, *args: str, log: str = "launch.log") -> None:
+        assert_quiet_domain(env)
         self.log = cwd / log
         self.proc = subprocess.Popen(
             ["ros2", "launch", "piezofin_ros", "piezofin.launch.py", *args],

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from ..rosutil import Launch
+from ..rosutil import Launch, assert_quiet_domain
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
@@ -143,6 +143,7 @@ def test_ros2_run_estimator_with_a_model_file(ros_env: dict[str, str], tmp_path:
 @pytest.mark.parametrize("case", ["two_fins", "without_sim"])
 def test_launch_testing(ros_env: dict[str, str], tmp_path: Path, case: str) -> None:
     """The launch tests in test/launch/, run by launch_testing's own `launch_test`."""
+    assert_quiet_domain(ros_env)
     run = subprocess.run(
         ["launch_test", str(ROOT / "test" / "launch" / f"{case}.py")],
         env=ros_env,
