@@ -129,7 +129,12 @@ def pytest_configure(config: pytest.Config) -> None:
     worker = os.environ.get("PYTEST_XDIST_WORKER", "")
     if worker.startswith("gw"):
         base = int(os.environ.get("ROS_DOMAIN_ID", "0"))
-        os.environ["ROS_DOMAIN_ID"] = str(base + 1 + int(worker[2:]) * 2)
+        k = int(worker[2:])
+        os.environ["ROS_DOMAIN_ID"] = str(base + 1 + k * 2)
+        # a campaign's bringups, each in a domain of its own, draw from a block of the worker's own:
+        # 215-232, above every worker's domain and its ROS CLI domain (`ros_env`)
+        first = 215 + (k % 3) * 6
+        os.environ["PIEZOFIN_ROS_DOMAINS"] = f"{first}-{first + 5}"
 
 
 @pytest.fixture(params=PAPER_FINS)

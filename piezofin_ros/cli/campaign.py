@@ -140,11 +140,28 @@ def _stage_config(cfg: CampaignConfig, stage: str, fin_files: dict[str, str]) ->
     return doc
 
 
+#: Where the stage's ROS domains come from: ``first-last`` (inclusive); 1-100 unless set.
+DOMAINS_VARIABLE = "PIEZOFIN_ROS_DOMAINS"
+
+
 def _domains(n: int) -> list[int]:
     """``n`` ROS domain ids for the stage's processes, none the caller's own: each process has its
-    own ``/clock``, which must not reach the others."""
+    own ``/clock``, which must not reach the others.  They are drawn from ``$PIEZOFIN_ROS_DOMAINS``
+    (``first-last``), so that a machine running other ROS work can keep them apart from it."""
     own = os.environ.get("ROS_DOMAIN_ID", "0")
-    free = [d for d in range(1, 101) if str(d) != own]
+    text = os.environ.get(DOMAINS_VARIABLE, "1-100")
+    try:
+        first, last = (int(x) for x in text.split("-"))
+    except ValueError:
+        raise CampaignError(f"{DOMAINS_VARIABLE}={text!r}: expected first-last, such as 1-100") from None
+    if not 0 <= first <= last <= 232:
+        raise CampaignError(f"{DOMAINS_VARIABLE}={text!r}: ROS domain ids lie within 0-232")
+    free = [d for d in range(first, last + 1) if str(d) != own]
+    if len(free) < n:
+        raise CampaignError(
+            f"{DOMAINS_VARIABLE}={text!r} holds {len(free)} domain(s) besides ROS_DOMAIN_ID, "
+            f"the stage needs {n}"
+        )
     rng = np.random.default_rng()
     return [int(d) for d in rng.choice(free, size=n, replace=False)]
 

@@ -256,3 +256,22 @@ def test_each_fin_is_swept_and_driven_over_its_own_band() -> None:
     doc = _stage_config(cfg, "protocol", {"M8528-P1": "/x/M8528-P1.yaml"})
     assert doc["/m8528_p1/thrust_estimator"]["ros__parameters"]["fin"] == "/x/M8528-P1.yaml"  # identified
     assert doc["/m8528_p1/fin_sim"]["ros__parameters"]["fin"] == "M8528-P1"  # the rig: the truth
+
+
+def test_the_stage_domains_come_from_the_pool_the_machine_grants(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each bringup gets a domain of its own from ``$PIEZOFIN_ROS_DOMAINS``, never the caller's; a pool
+    that is malformed, outside 0-232 or too small is refused in words (under xdist each test worker
+    has a pool of its own, so a campaign's /clock never reaches another worker's tests)."""
+    from piezofin_ros.cli.campaign import CampaignError, _domains
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", "220")
+    monkeypatch.setenv("PIEZOFIN_ROS_DOMAINS", "218-222")
+    for _ in range(20):
+        got = _domains(4)
+        assert len(set(got)) == 4 and set(got) <= {218, 219, 221, 222}
+    for pool, words in [("abc", "first-last"), ("5-300", "0-232"), ("9-3", "0-232"), ("219-220", "needs 2")]:
+        monkeypatch.setenv("PIEZOFIN_ROS_DOMAINS", pool)
+        with pytest.raises(CampaignError, match=words):
+            _domains(2)
+    monkeypatch.delenv("PIEZOFIN_ROS_DOMAINS")
+    assert all(1 <= d <= 100 and d != 220 for d in _domains(50))
