@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, stats
 
+from ..physics.amplifier import LinearAmplifier
 from ..physics.effects import LIBRARY, effect_class
 from ..physics.fin import Fin, load_fin
 from ..physics.model import Model, Prediction
@@ -59,7 +60,7 @@ def _power_apparent(p: Prediction, vpp: FloatArray) -> FloatArray:
 
 def _power_draw(p: Prediction, vpp: FloatArray) -> FloatArray:
     # a class-B stage from +-RAIL_V delivering a sine of peak current I draws (2/pi) RAIL_V I
-    return (2 / math.pi) * RAIL_V * math.sqrt(2) * np.asarray(p.current_rms, float)
+    return LinearAmplifier(rail_v=RAIL_V).steady(p.voltage_pp_drive, p.current_rms, p.power_w)
 
 
 #: What "average power" may have meant: name -> (power of a prediction, description).
