@@ -35,6 +35,8 @@ FloatArray = NDArray[Any]
 DRIVE_CHANNELS = ("t_s", "voltage_V", "current_A")
 TIP_CHANNELS = ("t_s", "tip_velocity_m_s")
 LOADCELL_CHANNELS = ("t_s", "displacement_m")
+#: The amplifier's supply bus as its meter reads it (optional: a rig or a fish without one still works).
+SUPPLY_CHANNELS = ("t_s", "supply_voltage_V", "supply_current_A")
 #: Fields of an actuation command, in wire order (also accepted unlabelled in this order).
 COMMAND_FIELDS = ("frequency_hz", "voltage_pp_V", "on")
 

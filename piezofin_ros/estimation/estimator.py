@@ -67,6 +67,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..config import setting
 from ..errors import EstimationError
+from ..physics.amplifier import POWER_FIELDS, WATTS, Amplifier, LinearAmplifier, check_watt
 from ..physics.fin import Fin
 from .selfsense import NOMINAL, Calibration, self_sensed_tip
 
@@ -101,10 +102,29 @@ class Estimate:
     tip_phase_rad: float = math.nan  # phase of the fundamental tip velocity relative to the voltage's
     admittance_re: float = math.nan  # S, the drive's fundamental I_1 / V_1: conductance
     admittance_im: float = math.nan  # S, and susceptance (what self-sensing is calibrated from)
+    # the other watts (physics/amplifier.py, WATTS): power_w above is the fin's, mean(v i)
+    power_apparent_w: float = math.nan  # W, Vrms x Irms
+    power_supply_w: float = math.nan  # W, the amplifier's draw through its model
+    power_supply_measured_w: float = math.nan  # W, the supply topic's mean(V I) (NaN: none recorded)
+    thrust_per_watt_apparent: float = math.nan  # N/W, vibrometer thrust per apparent watt
+    thrust_per_watt_supply: float = math.nan
+    thrust_per_watt_supply_measured: float = math.nan
+    thrust_per_watt_self_apparent: float = math.nan  # N/W, self-sensed thrust per apparent watt
+    thrust_per_watt_self_supply: float = math.nan
+    thrust_per_watt_self_supply_measured: float = math.nan
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
+
+    def power(self, watt: str) -> float:
+        """The power in ``watt`` (``fin``, ``apparent``, ``supply``, ``supply_measured``), W."""
+        return float(getattr(self, POWER_FIELDS[check_watt(watt)]))
+
+    def thrust_per(self, watt: str, source: str = "vibrometer") -> float:
+        """Thrust per watt in ``watt``, of the ``vibrometer`` or the ``self``-sensed thrust (NaN where the
+        data cannot give it)."""
+        return per_watt_field(self.as_dict(), watt, source)
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
@@ -118,7 +138,35 @@ class Estimate:
 
 
 #: Fields added after the first recordings: older bags lack them, and they read as NaN.
-OPTIONAL_FIELDS = ("tip_phase_rad", "admittance_re", "admittance_im")
+OPTIONAL_FIELDS = (
+    "tip_phase_rad",
+    "admittance_re",
+    "admittance_im",
+    *(f for f in Estimate.field_names() if f.startswith(("power_", "thrust_per_watt_")) and f != "power_w"),
+)
+THRUST_FIELDS = {"vibrometer": "thrust_n", "self": "thrust_self_n"}
+
+
+def tpw_field(watt: str, source: str = "vibrometer") -> str:
+    """The estimate field of thrust per watt in ``watt`` for ``source`` (``thrust_per_watt`` is the
+    vibrometer's in the fin's watt, for the bags recorded before the other watts)."""
+    check_watt(watt)
+    base = "thrust_per_watt" if source == "vibrometer" else "thrust_per_watt_self"
+    return base if watt == "fin" else f"{base}_{watt}"
+
+
+def per_watt_field(record: dict[str, float], watt: str, source: str = "vibrometer") -> float:
+    thrust = record[THRUST_FIELDS[source]]
+    power = record.get(POWER_FIELDS[check_watt(watt)], math.nan)
+    return thrust / power if power > 0 and math.isfinite(thrust) else math.nan
+
+
+def with_watts(record: dict[str, float]) -> dict[str, float]:
+    """``record`` with every thrust per watt filled from its thrusts and powers."""
+    for watt in WATTS:
+        for source in THRUST_FIELDS:
+            record[tpw_field(watt, source)] = per_watt_field(record, watt, source)
+    return record
 
 
 @dataclass(frozen=True)
@@ -159,6 +207,12 @@ class EstimatorConfig:
                 raise EstimationError(f"estimator.{f.name} must be a finite number > 0, got {value!r}")
 
 
+#: The amplifier when none is named: the paper's bench (config/amplifiers/paper-bench.yaml).
+PAPER_BENCH = LinearAmplifier(rail_v=400.0, name="paper-bench")
+#: Points of the period the supply's watt is computed on (from the lock-in's harmonics).
+PERIOD_POINTS = 256
+
+
 def _harmonic_fit(t: FloatArray, t_ref: float, omega: float, orders: FloatArray, x: FloatArray) -> FloatArray:
     """Complex amplitudes ``X_k`` of each column of ``x``: ``x ~ c + sum_k Re(X_k e^{j k w (t - t_ref)})``.
 
@@ -185,12 +239,14 @@ def analyse_window(
     swim_speed_m_s: float = 0.0,
     harmonics: int = 3,
     calibration: Calibration = NOMINAL,
+    amplifier: Amplifier = PAPER_BENCH,
 ) -> dict[str, float]:
     """Estimates over one window of drive samples that spans whole periods of ``frequency_hz``.
 
     ``tip_velocity`` may have its own sample times ``tip_t`` (default: ``t``).  Returns the
     fields of :class:`Estimate` that a window determines (not the window bookkeeping or the
-    load cell).  ``calibration`` corrects the self-sensing and ``c_m`` (:mod:`.selfsense`).
+    load cell).  ``calibration`` corrects the self-sensing and ``c_m`` (:mod:`.selfsense`);
+    ``amplifier`` gives the supply's watt (its law on the lock-in's period of ``v`` and ``i``).
     """
     t = np.asarray(t, dtype=float)
     v = np.asarray(voltage, dtype=float)
@@ -203,6 +259,10 @@ def analyse_window(
     orders = np.arange(1, 2 * harmonics, 2, dtype=float)
     V, I_ = _harmonic_fit(t, t[0], w, orders, np.column_stack([v, i])).T
     power = float(0.5 * np.sum(np.real(V * np.conj(I_))))  # Parseval: mean(v i) over a period
+    v_rms, i_rms = (float(np.sqrt(np.sum(np.abs(X) ** 2) / 2.0)) for X in (V, I_))
+    phases = np.outer(np.arange(PERIOD_POINTS) * 2 * math.pi / PERIOD_POINTS, orders)
+    period = np.real(np.exp(1j * phases) @ np.column_stack([V, I_]))  # one period of v and i, rebuilt
+    supply = amplifier.mean_draw(period[:, 0], period[:, 1])
     slope_ratio = fin.phi_tip_slope / fin.phi_tip
     U2 = swim_speed_m_s**2
 
@@ -223,8 +283,10 @@ def analyse_window(
     out = {
         "frequency_hz": frequency_hz,
         "voltage_pp": 2.0 * float(abs(V[0])),
-        "current_rms": float(np.sqrt(np.sum(np.abs(I_) ** 2) / 2.0)),  # the lock-in's harmonics
+        "current_rms": i_rms,  # the lock-in's harmonics
         "power_w": power,
+        "power_apparent_w": v_rms * i_rms,
+        "power_supply_w": supply,
         "tip_velocity_rms": math.nan,
         "thrust_n": math.nan,
         "thrust_per_watt": math.nan,
@@ -251,7 +313,7 @@ def analyse_window(
                 c_tau=c_tau,
                 tip_phase_rad=float(np.angle(Uk[0] / V[0])) if abs(V[0]) > 0 else math.nan,
             )
-    return out
+    return with_watts(out)
 
 
 def _baseline_at(baselines: list[tuple[float, float]], t: float) -> float:
@@ -337,13 +399,16 @@ class StreamEstimator:
         fin: Fin,
         config: EstimatorConfig | None = None,
         calibrate: Callable[[float, float], Calibration] | None = None,
+        amplifier: Amplifier = PAPER_BENCH,
     ) -> None:
         self.fin = fin
         self.config = config or EstimatorConfig()
         self.calibrate = calibrate  # (frequency Hz, Vpp) -> the self-sensing's calibration there
+        self.amplifier = amplifier
         self.drive = _Channel()
         self.tip = _Channel()
         self.loadcell = _Channel()
+        self.supply = _Channel()  # the supply's meter (voltage, current), where the rig has one
         self._speed: deque[tuple[float, float]] = deque(maxlen=10_000)
         self._on = False
         self._last_above = -math.inf
@@ -383,6 +448,12 @@ class StreamEstimator:
 
     def add_loadcell(self, t: ArrayLike, displacement: ArrayLike) -> list[Estimate]:
         self.loadcell.append(np.asarray(t, dtype=float), np.asarray(displacement, dtype=float))
+        return self._finish_ready()
+
+    def add_supply(self, t: ArrayLike, voltage: ArrayLike, current: ArrayLike) -> list[Estimate]:
+        """The supply bus: its voltage (V) and current (A) as the rig's meter reads them."""
+        v, i = np.asarray(voltage, dtype=float), np.asarray(current, dtype=float)
+        self.supply.append(np.asarray(t, dtype=float), np.column_stack([v, i]))
         return self._finish_ready()
 
     def add_speed(self, t: float, speed_m_s: float) -> None:
@@ -529,8 +600,9 @@ class StreamEstimator:
             return False
         now = self.drive.latest
         timeout = self.config.channel_timeout_s
-        if self.tip.seen and self.tip.latest < p.t_end and now < p.t_end + timeout:
-            return False
+        for lagging in (self.tip, self.supply):
+            if lagging.seen and lagging.latest < p.t_end and now < p.t_end + timeout:
+                return False
         need = p.post[1] if p.post is not None else p.t_end
         if p.post is not None and p.post_open and now < need:
             return False  # the drive may still restart and cut the baseline short
@@ -576,7 +648,13 @@ class StreamEstimator:
             swim_speed_m_s=speed,
             harmonics=self.config.harmonics,
             calibration=cal,
+            amplifier=self.amplifier,
         )
+        ts, vi_s = self.supply.slice(p.t_start, p.t_end)
+        ok = np.all(np.isfinite(vi_s), axis=1) if ts.size else np.zeros(0, bool)
+        if np.count_nonzero(ok) >= 4:
+            r["power_supply_measured_w"] = float(np.mean(vi_s[ok, 0] * vi_s[ok, 1]))
+            r = with_watts(r)
         thrust_lc, n_base = math.nan, 0
         baselines: list[tuple[float, float]] = []  # (mean time, mean deflection)
         for win in (p.pre, p.post):
@@ -610,5 +688,5 @@ class StreamEstimator:
         oldest = self.drive.latest - horizon - 5.0
         for p in self._pending:
             oldest = min(oldest, p.pre[0] if p.pre else p.t_start)
-        for ch in (self.drive, self.tip, self.loadcell):
+        for ch in (self.drive, self.tip, self.loadcell, self.supply):
             ch.prune(oldest)

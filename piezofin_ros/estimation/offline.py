@@ -11,9 +11,17 @@ import os
 from dataclasses import dataclass
 
 from ..bags import BagError, block_of, decode, read_messages
-from ..bags.blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..bags.blocks import (
+    DRIVE_CHANNELS,
+    LOADCELL_CHANNELS,
+    SUPPLY_CHANNELS,
+    TIP_CHANNELS,
+    BlockFormatError,
+    check_samples,
+)
+from ..physics.amplifier import Amplifier
 from ..physics.fin import Fin
-from .estimator import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
+from .estimator import OPTIONAL_FIELDS, PAPER_BENCH, Estimate, EstimatorConfig, StreamEstimator
 
 #: Skipped messages are counted; only this many lines describing them are kept.
 MAX_SKIPPED_LINES = 100
@@ -57,12 +65,17 @@ def topic_prefix(namespace: str) -> str:
 
 
 def replay_estimates(
-    path: str | os.PathLike[str], fin: Fin, namespace: str = "/fin", config: EstimatorConfig | None = None
+    path: str | os.PathLike[str],
+    fin: Fin,
+    namespace: str = "/fin",
+    config: EstimatorConfig | None = None,
+    amplifier: Amplifier = PAPER_BENCH,
 ) -> Replay:
     """Run the estimator over one fin's topics in a bag (raises :class:`BagError` on an unreadable file)."""
     ns = topic_prefix(namespace)
-    topics = {f"{ns}/{t}": t for t in ("drive", "tip_velocity", "loadcell", "swim_speed", "estimate")}
-    est = StreamEstimator(fin, config)
+    names = ("drive", "tip_velocity", "loadcell", "supply", "swim_speed", "estimate")
+    topics = {f"{ns}/{t}": t for t in names}
+    est = StreamEstimator(fin, config, amplifier=amplifier)
     replayed: list[Estimate] = []
     recorded: list[Estimate] = []
     skipped: list[str] = []
@@ -82,6 +95,9 @@ def replay_estimates(
                 b = check_samples(block, DRIVE_CHANNELS)
                 last_t = float(b["t_s"][-1])
                 replayed += est.add_drive(b["t_s"], b["voltage_V"], b["current_A"])
+            elif kind == "supply":
+                b = check_samples(block, SUPPLY_CHANNELS)
+                replayed += est.add_supply(b["t_s"], b["supply_voltage_V"], b["supply_current_A"])
             elif kind == "tip_velocity":
                 b = check_samples(block, TIP_CHANNELS)
                 replayed += est.add_tip(b["t_s"], b["tip_velocity_m_s"])

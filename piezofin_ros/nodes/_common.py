@@ -39,6 +39,7 @@ QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Rel
 TOPIC_DRIVE = "drive"
 TOPIC_TIP = "tip_velocity"
 TOPIC_LOADCELL = "loadcell"
+TOPIC_SUPPLY = "supply"
 TOPIC_CMD = "cmd"
 TOPIC_ESTIMATE = "estimate"
 TOPIC_SPEED = "swim_speed"

@@ -51,6 +51,7 @@ from std_msgs.msg import Float64MultiArray
 
 from ..bags.blocks import COMMAND_FIELDS, Block, BlockFormatError
 from ..config import setting
+from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.effects import ModelError
 from ..physics.fin import MEDIA, Fin, FinConfigError, in_medium, load_fin
 from ..physics.model import load_model
@@ -69,6 +70,7 @@ from ._common import (
     TOPIC_CMD,
     TOPIC_DRIVE,
     TOPIC_LOADCELL,
+    TOPIC_SUPPLY,
     TOPIC_TIP,
     StartupError,
     block_msg,
@@ -106,6 +108,9 @@ class FinSimConfig:
     protocol_off_s: float = setting(ProtocolTiming.off_s, "protocol: time off, s", 0.1, 600.0)
     protocol_on_s: float = setting(ProtocolTiming.on_s, "protocol: time on, s", 0.1, 600.0)
     autostart: bool = setting(True, "configure and activate at start (ros2 run)")
+    amplifier: str = setting(
+        "paper-bench", "the amplifier driving the fin, whose draw the supply topic streams: preset or YAML"
+    )
 
 
 class FinSim(LifecycleNode):
@@ -117,6 +122,10 @@ class FinSim(LifecycleNode):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         c = declare(self, FinSimConfig)
         self._fin_name, self._model_path, self._seed, self._medium = c.fin, c.model, c.seed, c.medium
+        try:
+            self._amplifier = load_amplifier(c.amplifier)
+        except AmplifierError as exc:
+            raise StartupError(f"parameter amplifier: {exc}") from None
         self._block_s, self._factor, self._publish_clock = c.block_s, c.realtime_factor, c.publish_clock
         self._start_time = c.start_time_s
         self._protocol, self._protocol_off, self._protocol_on = c.protocol, c.protocol_off_s, c.protocol_on_s
@@ -139,7 +148,7 @@ class FinSim(LifecycleNode):
         self._running = False  # active: the rig advances (on its own timer, or paced by bringup)
         self.paced = False  # bringup steps every fin from one timer (see step()); no timer of its own
         self._pubs: dict[str, object] = {}
-        self.published = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}  # samples
+        self.published = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # samples
         self.blocks_published = 0  # on each data topic
         self.command_log: list[str] = []
         self.command_counts: collections.Counter[str] = collections.Counter()
@@ -172,6 +181,7 @@ class FinSim(LifecycleNode):
             t0=t0,
             protocol=protocol,
             model=None if model is None else model.knobs_at,
+            amplifier=self._amplifier,
         )
         if model is not None:
             effects = ", ".join(f"{k} {v}" for k, v in model.parameters().items()) or "no effect"
@@ -179,7 +189,7 @@ class FinSim(LifecycleNode):
         self._n_block = max(1, round(self._block_s * self._rig_config.sample_rate_hz))
         self._pubs = {
             name: self.create_lifecycle_publisher(Float64MultiArray, name, QOS_DATA)
-            for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL)
+            for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL, TOPIC_SUPPLY)
         }
         self._clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self._publish_clock else None
         watchdog = self._rig.drive.limits.command_timeout_s
@@ -362,6 +372,9 @@ class FinSim(LifecycleNode):
             TOPIC_DRIVE: Block.from_columns(t_s=b.t, voltage_V=b.voltage, current_A=b.current),
             TOPIC_TIP: Block.from_columns(t_s=b.t, tip_velocity_m_s=b.tip_velocity),
             TOPIC_LOADCELL: Block.from_columns(t_s=b.t, displacement_m=b.displacement),
+            TOPIC_SUPPLY: Block.from_columns(
+                t_s=b.t, supply_voltage_V=b.supply_voltage, supply_current_A=b.supply_current
+            ),
         }
         for topic, block in blocks.items():
             self._pubs[topic].publish(block_msg(block))  # type: ignore[attr-defined]

@@ -8,6 +8,7 @@ estimates recorded live.
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from std_msgs.msg import Float64, Float64MultiArray
 from ..bags.blocks import (
     DRIVE_CHANNELS,
     LOADCELL_CHANNELS,
+    SUPPLY_CHANNELS,
     TIP_CHANNELS,
     Block,
     BlockFormatError,
@@ -28,6 +30,7 @@ from ..config import setting
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
 from ..estimation.selfsense import Calibration
+from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.fin import Fin, load_fin
 from ._common import (
     QOS_COMMAND,
@@ -36,6 +39,7 @@ from ._common import (
     TOPIC_ESTIMATE,
     TOPIC_LOADCELL,
     TOPIC_SPEED,
+    TOPIC_SUPPLY,
     TOPIC_TIP,
     SilenceWatch,
     StartupError,
@@ -57,6 +61,11 @@ class ThrustEstimatorConfig:
         "augmented model YAML (`piezofin diagnose --report`): its capacitance, loss conductance, coupling "
         "and c_m calibrate the self-sensed and Lighthill thrust (replaces fin)",
     )
+    amplifier: str = setting(
+        "paper-bench",
+        "the amplifier driving the fin (preset or YAML): its model gives the supply's watt; a supply "
+        "topic, where the rig or the fish measures its supply, gives the measured one",
+    )
 
 
 class ThrustEstimator(Node):
@@ -74,25 +83,30 @@ class ThrustEstimator(Node):
             else:
                 self.fin = load_fin(own.fin)
             config = declare(self, EstimatorConfig, "estimator")
+            amplifier = load_amplifier(own.amplifier)
+        except AmplifierError as exc:
+            raise StartupError(f"parameter amplifier: {exc}") from None
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         freeze_parameters(self)
-        self.core = StreamEstimator(self.fin, config, calibrate)
+        self.core = StreamEstimator(self.fin, config, calibrate, amplifier)
         self.estimates: list[Estimate] = []
         self.rejected = 0
         self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
         self.create_subscription(Float64MultiArray, TOPIC_DRIVE, self._on_drive, QOS_DATA)
         self.create_subscription(Float64MultiArray, TOPIC_TIP, self._on_tip, QOS_DATA)
         self.create_subscription(Float64MultiArray, TOPIC_LOADCELL, self._on_loadcell, QOS_DATA)
+        self.create_subscription(Float64MultiArray, TOPIC_SUPPLY, self._on_supply, QOS_DATA)
         self.create_subscription(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
         self._last_t = float("nan")
-        self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0}  # blocks
+        self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
         self._silence = SilenceWatch(
             self, f"{self.resolve_topic_name(TOPIC_DRIVE)}", "is fin_sim (or the rig driver) running?"
         )
         self.get_logger().info(
-            f"{self.fin.name} (psi {self.fin.psi:.2f}, c_m {self.fin.c_m:.3f}): estimating from "
-            f"{self.resolve_topic_name(TOPIC_DRIVE)} to {self.resolve_topic_name(TOPIC_ESTIMATE)}"
+            f"{self.fin.name} (psi {self.fin.psi:.2f}, c_m {self.fin.c_m:.3f}), {amplifier.describe()}: "
+            f"estimating from {self.resolve_topic_name(TOPIC_DRIVE)} to "
+            f"{self.resolve_topic_name(TOPIC_ESTIMATE)}"
         )
 
     def _decode(self, msg: Float64MultiArray, channels: tuple[str, ...], topic: str) -> Block | None:
@@ -122,6 +136,11 @@ class ThrustEstimator(Node):
         if b is not None:
             self._emit(self.core.add_loadcell(b["t_s"], b["displacement_m"]))
 
+    def _on_supply(self, msg: Float64MultiArray) -> None:
+        b = self._decode(msg, SUPPLY_CHANNELS, TOPIC_SUPPLY)
+        if b is not None:
+            self._emit(self.core.add_supply(b["t_s"], b["supply_voltage_V"], b["supply_current_A"]))
+
     def _on_speed(self, msg: Float64) -> None:
         # The speed applies from the latest drive sample on (the fish stack's message has no stamp).
         t = self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
@@ -132,10 +151,15 @@ class ThrustEstimator(Node):
             self.estimates.append(e)
             self._pub.publish(block_msg(Block.from_record(e.as_dict())))
             if e.final:
+                measured = e.power_supply_measured_w
+                supply = f"{e.power_supply_w * 1e3:.1f} mW" + (
+                    f" (measured {measured * 1e3:.1f})" if math.isfinite(measured) else ""
+                )
                 self.get_logger().info(
                     f"trial {e.frequency_hz:.3f} Hz {e.voltage_pp:.0f} Vpp: thrust {e.thrust_n * 1e3:.3f} mN "
-                    f"(self {e.thrust_self_n * 1e3:.3f}, load cell {e.thrust_loadcell_n * 1e3:.3f}), "
-                    f"power {e.power_w * 1e3:.3f} mW, {e.thrust_per_watt * 1e3:.1f} mN/W"
+                    f"(self {e.thrust_self_n * 1e3:.3f}, load cell {e.thrust_loadcell_n * 1e3:.3f}); "
+                    f"fin mean(v i) {e.power_w * 1e3:.3f} mW, {e.thrust_per_watt * 1e3:.1f} mN/W; "
+                    f"supply {supply}, {e.thrust_per_watt_supply * 1e3:.1f} mN/W"
                 )
 
     def close(self) -> None:

@@ -36,6 +36,7 @@ from scipy import optimize, signal
 
 from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..errors import RigError
+from ..physics.amplifier import Amplifier, LinearAmplifier
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
 from ..physics.timedomain import default_step, integrate_nodes
@@ -273,6 +274,7 @@ class RigConfig:
     loadcell_zeta: float = setting(0.05, "rig: load cell damping ratio", 1e-4, 2.0)
     loadcell_drift_m_per_s: float = setting(2e-9, "rig: load cell drift, m/s (either sign)", -1e-6, 1e-6)
     swim_speed_m_s: float = setting(0.0, "rig: U of Eq. (19), m/s (0 on the tethered rig)", 0.0, 10.0)
+    supply_noise_a: float = setting(1e-5, "rig: the supply's current meter noise, A RMS", 0.0, 1.0)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -306,6 +308,8 @@ class RigBlock:
     displacement: FloatArray  # m, load-cell deflection
     thrust_true: FloatArray  # N, instantaneous Lighthill thrust (noise free, for tests)
     events: tuple[str, ...] = ()
+    supply_voltage: FloatArray = field(default_factory=lambda: np.empty(0))  # V, the amplifier's bus
+    supply_current: FloatArray = field(default_factory=lambda: np.empty(0))  # A, its meter (with noise)
 
 
 @dataclass
@@ -339,8 +343,10 @@ class SimulatedRig:
         t0: float = 0.0,
         protocol: ProtocolTiming | None = None,
         model: Callable[[float, float], Knobs] | None = None,
+        amplifier: Amplifier | None = None,
     ) -> None:
         self.fin = fin
+        self.amplifier = amplifier or LinearAmplifier(name="paper-bench")  # the supply's law
         self.model = model
         self._knobs = Knobs()
         self._history: dict[str, tuple[FloatArray, FloatArray]] = {}  # recent samples, for the lags
@@ -351,6 +357,7 @@ class SimulatedRig:
         self.config = config or RigConfig()
         self.drive = Drive(limits or DriveLimits(), t=t0)
         self._rng = np.random.default_rng(seed)
+        self._supply_rng = np.random.default_rng([seed, 1])  # its own: the other channels' noise as before
         self._state = np.zeros((1, 2))
         self._t0 = t0
         self._k = 0  # samples emitted so far
@@ -527,4 +534,7 @@ class SimulatedRig:
             displacement=x + cfg.displacement_noise_m * rng.standard_normal(n),
             thrust_true=thrust,
             events=tuple(events),
+            supply_voltage=np.full(n, self.amplifier.supply_v),
+            supply_current=self.amplifier.supply_current(v, current)
+            + cfg.supply_noise_a * self._supply_rng.standard_normal(n),
         )

@@ -155,7 +155,7 @@ def test_replay_reproduces_the_live_estimates(live: dict[str, Any]) -> None:
                 parameter_overrides=params(
                     bag=str(live["bag"]),
                     rate=20.0,
-                    topics=["/fin/drive", "/fin/tip_velocity", "/fin/loadcell"],
+                    topics=["/fin/drive", "/fin/tip_velocity", "/fin/loadcell", "/fin/supply"],
                 ),
             )
         )
