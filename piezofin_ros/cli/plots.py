@@ -9,8 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..estimation.estimator import PAPER_BENCH, tpw_field
 from ..identification.fit import water_mobility
 from ..identification.identify import Identification
+from ..physics.amplifier import POWER_FIELDS, WATTS_SHORT, Amplifier, power_in
 from ..physics.fin import Fin
 from ..physics.steady import harmonic_balance
 
@@ -21,21 +23,43 @@ def _fmt(x: float | None, scale: float, digits: int) -> str:
     return f"{x * scale:.{digits}f}"
 
 
-def trial_table(records: Sequence[dict[str, float]], chosen: dict[str, float] | None) -> str:
-    """A fixed-width table of trial records (the controller's status ``results``)."""
-    head = (
-        f"{'trial':>5} {'f [Hz]':>7} {'Vpp':>5} {'T [mN]':>8} {'T_self':>8} {'T_cell':>8} "
-        f"{'P [mW]':>8} {'T/P [mN/W]':>10}"
-    )
-    lines = [head, "-" * len(head)]
+def _tpw(r: dict[str, float], watt: str, source: str) -> float | None:
+    """A record's thrust per watt in ``watt`` of ``source`` (NaN-safe: records of older bags lack it)."""
+    return r.get(tpw_field(watt, source))
+
+
+def trial_table(
+    records: Sequence[dict[str, float]],
+    chosen: dict[str, float] | None,
+    watt: str = "fin",
+    source: str = "vibrometer",
+) -> str:
+    """A fixed-width table of trial records (the controller's status ``results``): thrusts, then the
+    power and thrust per watt of ``source`` in the fin's watt and, when it is another, in ``watt``."""
+    watts = ["fin"] if watt == "fin" else ["fin", watt]
+    head = f"{'trial':>5} {'f [Hz]':>7} {'Vpp':>5} {'T [mN]':>8} {'T_self':>8} {'T_cell':>8}"
+    for w in watts:
+        head += f" {'P_' + w + ' [mW]':>{max(13, len(w) + 8)}} {'T/P_' + w:>{max(10, len(w) + 4)}}"
+    lines = [
+        f"(T/P in mN/W of the {'vibrometer' if source == 'vibrometer' else 'self-sensed'} thrust; "
+        + "; ".join(f"{w}: {WATTS_SHORT[w]}" for w in watts)
+        + ")",
+        head,
+        "-" * len(head),
+    ]
     for r in records:
         mark = " <- chosen" if chosen is not None and r["trial"] == chosen["trial"] else ""
-        lines.append(
+        row = (
             f"{int(r['trial']):>5} {r['frequency_hz']:>7.2f} {r['voltage_pp']:>5.0f} "
             f"{_fmt(r.get('thrust_n'), 1e3, 3):>8} {_fmt(r.get('thrust_self_n'), 1e3, 3):>8} "
-            f"{_fmt(r.get('thrust_loadcell_n'), 1e3, 3):>8} {_fmt(r.get('power_w'), 1e3, 3):>8} "
-            f"{_fmt(r.get('thrust_per_watt'), 1e3, 1):>10}{mark}"
+            f"{_fmt(r.get('thrust_loadcell_n'), 1e3, 3):>8}"
         )
+        for w in watts:
+            row += (
+                f" {_fmt(r.get(POWER_FIELDS[w]), 1e3, 3):>{max(13, len(w) + 8)}}"
+                f" {_fmt(_tpw(r, w, source), 1e3, 1):>{max(10, len(w) + 4)}}"
+            )
+        lines.append(row + mark)
     return "\n".join(lines)
 
 
@@ -61,8 +85,11 @@ def plot_trials(
     records: Sequence[dict[str, float]],
     chosen: dict[str, float] | None,
     title: str = "",
+    watt: str = "fin",
+    amplifier: Amplifier = PAPER_BENCH,
 ) -> Path:
-    """Measured thrust, power and thrust per watt against frequency, with the model's curves."""
+    """Measured thrust, power and thrust per watt (in ``watt``) against frequency, with the model's
+    curves (its power in ``watt`` through ``amplifier``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -78,24 +105,30 @@ def plot_trials(
     for j, v in enumerate(volts):
         c = colors[j % len(colors)]
         model = harmonic_balance(fin, f_dense, v, harmonics=3)
+        power = power_in(watt, model.voltage_pp, model.current_rms, model.power_w, amplifier)
         rs = [r for r in records if r["voltage_pp"] == v and "thrust_n" in r]
         f = [r["frequency_hz"] for r in rs]
         for ax, key, mkey, scale in (
             (axes[0], "thrust_n", model.thrust_n, 1e3),
-            (axes[1], "power_w", model.power_w, 1e3),
-            (axes[2], "thrust_per_watt", model.thrust_per_watt, 1e3),
+            (axes[1], POWER_FIELDS[watt], power, 1e3),
+            (axes[2], tpw_field(watt), np.asarray(model.thrust_n) / power, 1e3),
         ):
             ax.plot(f_dense, np.asarray(mkey) * scale, color=c, lw=1, alpha=0.6, label=f"model {v:.0f} Vpp")
-            ax.plot(f, [r[key] * scale for r in rs], "o", color=c, label=f"measured {v:.0f} Vpp")
+            ys = [r.get(key, math.nan) * scale for r in rs]
+            ax.plot(f, ys, "o", color=c, label=f"measured {v:.0f} Vpp")
             if key == "thrust_n":
                 ax.plot(f, [r["thrust_loadcell_n"] * scale for r in rs], "x", color=c, label="load cell")
     if chosen is not None and "thrust_n" in chosen:
         axes[2].plot(
-            chosen["frequency_hz"], chosen["thrust_per_watt"] * 1e3, "*", ms=16, color="k", label="chosen"
+            chosen["frequency_hz"],
+            chosen.get(tpw_field(watt), math.nan) * 1e3,
+            "*",
+            ms=16,
+            color="k",
+            label="chosen",
         )
-    for ax, ylabel in zip(
-        axes, ("mean thrust [mN]", "mean power [mW]", "thrust per watt [mN/W]"), strict=True
-    ):
+    labels = ("mean thrust [mN]", f"mean power, {watt} watt [mW]", f"thrust per {watt} watt [mN/W]")
+    for ax, ylabel in zip(axes, labels, strict=True):
         ax.set_xlabel("frequency [Hz]")
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)

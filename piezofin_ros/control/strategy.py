@@ -23,7 +23,7 @@ from typing import Any, Protocol
 
 from ..estimation.estimator import Estimate
 from .driveloop import DriveLoop
-from .trials import SOURCES, Mode, TrialResult, TrialRunner, choose
+from .trials import SOURCES, Mode, TrialResult, TrialRunner, choose, watt_label
 
 Command = tuple[float, float, float]  # (frequency_hz, voltage_pp, on)
 OFF: Command = (0.0, 0.0, 0.0)
@@ -81,6 +81,7 @@ class TrialStrategy:
     min_thrust_n: float = 1e-3
     max_missing: int = 2
     after: str = "stop"  # stop (0 V) or hold (drive the chosen point)
+    watt: str = "fin"  # the watt of the thrust per watt that chooses (physics/amplifier.py, WATTS)
     takes_demand: bool = False
     finished: bool = False
     chosen: TrialResult | None = None
@@ -137,17 +138,17 @@ class TrialStrategy:
     def _finish(self) -> None:
         self.finished = True
         self._changed = True
-        self.chosen = choose(self.runner.results, self.source, self.min_thrust_n)
+        self.chosen = choose(self.runner.results, self.source, self.min_thrust_n, self.watt)
         if self.chosen is not None:
             e = self.chosen.estimate
             assert e is not None
-            tkey, pkey = SOURCES[self.source]
             self.events.append(
                 Event(
                     "info",
                     f"chosen: {self.chosen.frequency_hz:g} Hz, {self.chosen.voltage_pp:g} Vpp: "
-                    f"{getattr(e, tkey) * 1e3:.3f} mN, {e.power_w * 1e3:.3f} mW, "
-                    f"{getattr(e, pkey) * 1e3:.1f} mN/W",
+                    f"{getattr(e, SOURCES[self.source]) * 1e3:.3f} mN, {e.power(self.watt) * 1e3:.3f} mW "
+                    f"({self.watt}), {e.thrust_per(self.watt, self.source) * 1e3:.1f} "
+                    f"{watt_label(self.watt)}",
                 )
             )
 
@@ -171,6 +172,7 @@ class TrialStrategy:
             "trial": min(r.index, len(r.plan.points)),
             "n_trials": len(r.plan.points),
             "source": self.source,
+            "watt": self.watt,
             "results": [x.record() for x in r.results],
             "chosen": self.chosen.record() if self.chosen is not None else None,
         }

@@ -22,14 +22,12 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from ..errors import ControlError
-from ..estimation.estimator import Estimate
+from ..estimation.estimator import THRUST_FIELDS, Estimate
+from ..physics.amplifier import check_watt
 from ..physics.waveforms import ProtocolTiming
 
-#: Which estimate ranks the operating points (a fish has only ``self``).
-SOURCES = {
-    "vibrometer": ("thrust_n", "thrust_per_watt"),
-    "self": ("thrust_self_n", "thrust_per_watt_self"),
-}
+#: Which estimate ranks the operating points (a fish has only ``self``): its thrust field.
+SOURCES = THRUST_FIELDS
 
 
 class Mode(str, Enum):
@@ -93,11 +91,10 @@ class TrialResult:
                 thrust_n=e.thrust_n,
                 thrust_self_n=e.thrust_self_n,
                 thrust_loadcell_n=e.thrust_loadcell_n,
-                power_w=e.power_w,
-                thrust_per_watt=e.thrust_per_watt,
-                thrust_per_watt_self=e.thrust_per_watt_self,
                 tip_velocity_rms=e.tip_velocity_rms,
             )
+            # every watt, by name: power_w (the fin's), power_<watt>_w, thrust_per_watt[_self][_<watt>]
+            rec.update({k: v for k, v in e.as_dict().items() if k.startswith(("power_", "thrust_per_watt"))})
         return rec
 
 
@@ -184,20 +181,27 @@ def _agree(a: Estimate, b: Estimate, tolerance: float) -> bool:
 
 
 def choose(
-    results: Sequence[TrialResult], source: str = "vibrometer", min_thrust_n: float = 0.0
+    results: Sequence[TrialResult], source: str = "vibrometer", min_thrust_n: float = 0.0, watt: str = "fin"
 ) -> TrialResult | None:
-    """The trial with the most thrust per watt among those giving at least ``min_thrust_n``.
+    """The trial with the most thrust per watt (in ``watt``, :data:`~piezofin_ros.physics.amplifier.WATTS`)
+    among those giving at least ``min_thrust_n``.
 
     If none reaches ``min_thrust_n``, the one with the most thrust.  ``None`` without results.
     """
-    thrust_key, tpw_key = SOURCES[source]
+    thrust_key = SOURCES[source]
+    check_watt(watt)
     done = [r for r in results if r.estimate is not None and math.isfinite(getattr(r.estimate, thrust_key))]
     if not done:
         return None
     ok = [r for r in done if getattr(r.estimate, thrust_key) >= min_thrust_n]
     if ok:
-        return max(ok, key=lambda r: _finite(getattr(r.estimate, tpw_key)))
+        return max(ok, key=lambda r: _finite(r.estimate.thrust_per(watt, source) if r.estimate else math.nan))
     return max(done, key=lambda r: getattr(r.estimate, thrust_key))
+
+
+def watt_label(watt: str) -> str:
+    """How a thrust per watt in ``watt`` is printed: ``mN/W (supply)``."""
+    return f"mN/W ({check_watt(watt)})"
 
 
 def _finite(x: float) -> float:

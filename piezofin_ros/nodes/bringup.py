@@ -34,6 +34,7 @@ from rclpy.signals import SignalHandlerOptions
 from ..cli.main import UsageError, parse_frequencies
 from ..cli.plots import frf_table, plot_trials, trial_table
 from ..errors import PiezofinError
+from ..physics.amplifier import Amplifier
 from ..physics.fin import config_dir
 from ._common import StartupError, StopFlag
 from .controller import Controller
@@ -261,7 +262,9 @@ def _spin(suite: Suite, executor: Any, args: argparse.Namespace, stop: StopFlag,
     return 0
 
 
-def _report_fin(ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace, several: bool) -> None:
+def _report_fin(
+    ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace, several: bool, amplifier: Amplifier
+) -> None:
     """One fin's outcome: the optimiser's choice, or the trial table (and its plot)."""
     if st.get("mode") == "optimise":
         demand = st["demand_n"]
@@ -295,20 +298,22 @@ def _report_fin(ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace,
     if st.get("mode") == "frf":  # a sweep for `piezofin identify`: the response, not thrust per watt
         print(frf_table(st["results"]))
         return
-    print(trial_table(st["results"], st["chosen"]))
+    watt = st.get("watt", "fin")
+    print(trial_table(st["results"], st["chosen"], watt))
     if args.plot:
         out = Path(args.plot)
         if several:
             out = out.with_name(f"{out.stem}_{ns.strip('/').replace('/', '_')}{out.suffix}")
-        plot_trials(out, fin, st["results"], st["chosen"], f"{fin.name} ({ns}): trials")
+        title = f"{fin.name} ({ns}): trials, thrust per {watt} watt"
+        plot_trials(out, fin, st["results"], st["chosen"], title, watt, amplifier)
         print(f"plot: {out}")
 
 
 def _report(suite: Suite, statuses: dict[str, dict[str, Any]], args: argparse.Namespace, wall: float) -> int:
     """Every fin's outcome, the bag, the speed; 1 if a fin's run was aborted."""
     sim_s = max((s.rig.elapsed for s in suite.fin_sims if s.rig is not None), default=0.0)
-    for (ns, st), fin in zip(statuses.items(), suite.fins, strict=True):
-        _report_fin(ns, st, fin, args, len(statuses) > 1)
+    for (ns, st), fin, est in zip(statuses.items(), suite.fins, suite.estimators, strict=True):
+        _report_fin(ns, st, fin, args, len(statuses) > 1, est.core.amplifier)
     counts = suite.recorder.counts
     size_mb = suite.bag_path.stat().st_size / 1e6
     print(f"\nbag: {suite.bag_path} ({sum(counts.values())} messages, {size_mb:.1f} MB)")

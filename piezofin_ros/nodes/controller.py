@@ -32,6 +32,7 @@ from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
+from ..physics.amplifier import WATTS
 from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model
@@ -78,7 +79,13 @@ class ControllerConfig:
     frequency_max_hz: float = setting(40.0, "highest frequency, Hz", 0.01, 1000.0)
     heartbeat_hz: float = setting(10.0, "command repetition rate, Hz", 1.0, 1000.0)
     min_thrust_n: float = setting(1e-3, "least thrust of the chosen point, N", 0.0, 10.0)
-    source: str = setting("self", f"estimate that ranks points: {', '.join(SOURCES)}", choices=SOURCES)
+    source: str = setting("self", f"estimate that ranks points: {', '.join(SOURCES)}", choices=tuple(SOURCES))
+    watt: str = setting(
+        "supply",
+        "the watt of the thrust per watt that ranks points: supply (what the battery pays, through the "
+        "estimator's amplifier), supply_measured (the supply topic), fin (mean(v i)) or apparent",
+        choices=tuple(WATTS),
+    )
     after: str = setting(
         "stop", "after the trials: stop (0 V) or hold (drive the chosen point)", choices=("stop", "hold")
     )
@@ -177,10 +184,10 @@ class Controller(Node):
             )
         except PiezofinError as exc:
             raise StartupError(f"trial plan: {exc}") from None
-        strategy = TrialStrategy(TrialRunner(plan), c.source, c.min_thrust_n, c.max_missing, c.after)
+        strategy = TrialStrategy(TrialRunner(plan), c.source, c.min_thrust_n, c.max_missing, c.after, c.watt)
         n = len(plan.points)
         fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
-        return strategy, f"{n} {c.mode} trials{fin_time}"
+        return strategy, f"{n} {c.mode} trials{fin_time}, choosing by thrust per {c.watt} watt"
 
     # what tests, bringup and users look at: the strategy's own state
     @property

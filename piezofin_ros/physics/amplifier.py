@@ -45,6 +45,13 @@ WATTS: dict[str, str] = {
     "supply": "the amplifier's draw from its supply, through the amplifier's model",
     "supply_measured": "the supply's power as the rig or the fish measures it (the supply topic)",
 }
+#: The same, in a few words (table headers).
+WATTS_SHORT: dict[str, str] = {
+    "fin": "mean(v i)",
+    "apparent": "Vrms x Irms",
+    "supply": "the amplifier's draw, modelled",
+    "supply_measured": "the supply's meter",
+}
 #: The watt each estimate field of power holds.
 POWER_FIELDS = {
     "fin": "power_w",
@@ -223,3 +230,15 @@ def load_amplifier(name_or_path: str | os.PathLike[str]) -> Amplifier:
         data = data["amplifier"]
     amp = amplifier_from_mapping(data, str(path))
     return amp if amp.name else type(amp)(**{**asdict(amp), "name": path.stem})
+
+
+def power_in(
+    watt: str, voltage_pp: ArrayLike, current_rms: ArrayLike, power_w: ArrayLike, amplifier: Amplifier
+) -> FloatArray:
+    """The steady state's power in ``watt`` (a model's ``supply_measured`` is its ``supply``)."""
+    check_watt(watt)
+    if watt == "fin":
+        return np.asarray(power_w, float)
+    if watt == "apparent":
+        return np.asarray(voltage_pp, float) / (2 * math.sqrt(2)) * np.asarray(current_rms, float)
+    return amplifier.steady(voltage_pp, current_rms, power_w)

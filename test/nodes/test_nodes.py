@@ -122,7 +122,14 @@ def test_controller_reports_both_trials(live: dict[str, Any]) -> None:
     st = live["status"]
     assert st["state"] == "done"
     assert [r["frequency_hz"] for r in st["results"]] == [9.0, 6.0]
-    assert st["chosen"]["frequency_hz"] == 6.0  # more thrust per watt below resonance
+    # chosen by thrust per supply watt (the controller's default): what the amplifier draws rises less
+    # than the thrust towards resonance, so 9 Hz; per fin watt, mean(v i), 6 Hz would win
+    assert st["watt"] == "supply" and st["chosen"]["frequency_hz"] == 9.0
+    by = {w: max(st["results"], key=lambda r: r[f"thrust_per_watt_self{w}"]) for w in ("_supply", "")}
+    assert by["_supply"]["frequency_hz"] == 9.0 and by[""]["frequency_hz"] == 6.0
+    for r in st["results"]:  # every watt of every trial recorded, measured supply within 1 % of the model
+        assert r["power_supply_measured_w"] == pytest.approx(r["power_supply_w"], rel=0.01)
+        assert r["power_w"] < r["power_apparent_w"] < r["power_supply_w"]
 
 
 @ON_ITS_WORKER
@@ -652,13 +659,14 @@ def test_bringup_summary_before_any_trial_says_so(capsys: pytest.CaptureFixture[
 
     from piezofin_ros.control.optimise import OperatingBox, Optimiser
     from piezofin_ros.nodes.bringup import _report_fin
+    from piezofin_ros.physics.amplifier import LinearAmplifier
     from piezofin_ros.physics.fin import load_fin
 
     fin = load_fin("M8528-P1")
     opt = Optimiser(fin, OperatingBox(), demand_n=4e-3, source="self")
     st = {"mode": "optimise", "state": "driving", "trials": 0, "self_vs_vibrometer": math.nan}
     st |= opt.status()
-    _report_fin("/fin", st, fin, argparse.Namespace(), False)
+    _report_fin("/fin", st, fin, argparse.Namespace(), False, LinearAmplifier())
     out = capsys.readouterr().out
     assert "predicted: no trial meets the task yet" in out
     assert "not fitted yet" in out and "no vibrometer" in out and "nan" not in out
