@@ -275,6 +275,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     camp.add_argument("--force", action="store_true", help="replace a campaign already in --out")
     camp.set_defaults(func=run_campaign_cmd)
+
+    from . import watts as _watts  # (it imports this module)
+
+    watts = sub.add_parser(
+        "watts", help="the best thrust per watt of each fin in each watt (fin, apparent, supply), and Fig. 10"
+    )
+    _watts.add_arguments(watts)
+    watts.set_defaults(func=_watts.run)
     bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
     rec = bag_sub.add_parser(

@@ -1,0 +1,154 @@
+"""``piezofin watts``: the best thrust per watt of each fin in each watt, and T/P against frequency
+(the paper's Fig. 10) with the paper's 60.7 mN/W marked.  The model's steady state, no ROS."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..diagnosis.paper import PAPER_FINS, PAPER_MAX_TPW
+from ..errors import PiezofinError
+from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
+from ..physics.fin import load_fin
+from ..physics.model import Model
+from .main import UsageError, parse_frequencies
+
+
+class WattsError(UsageError):
+    pass
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--fins", nargs="+", default=list(PAPER_FINS), help="fin presets or YAML (default: the paper's)"
+    )
+    p.add_argument(
+        "--amplifiers",
+        nargs="+",
+        default=["paper-bench", "fish-switching"],
+        help="amplifier presets or YAML, one supply watt each (default: paper-bench fish-switching)",
+    )
+    p.add_argument(
+        "--freq", nargs="+", default=["1:16:0.25"], help="frequencies, Hz: values and/or start:stop:step"
+    )
+    p.add_argument("--voltages", nargs="+", type=float, default=[400.0, 600.0, 800.0], help="Vpp searched")
+    p.add_argument("--min-thrust", type=float, default=1e-3, help="least thrust of a best point, N (1 mN)")
+    p.add_argument("--plot", help="T/P against frequency at the highest voltage, per watt (PNG)")
+    p.add_argument("--json", action="store_true", help="the table as JSON on standard output")
+
+
+def _watts(amplifiers: list[Amplifier]) -> list[tuple[str, str, Amplifier | None]]:
+    """(label, watt, amplifier) of every column: the fin's, the apparent, one supply per amplifier."""
+    cols: list[tuple[str, str, Amplifier | None]] = [("fin", "fin", None), ("apparent", "apparent", None)]
+    cols += [(f"supply ({a.name})", "supply", a) for a in amplifiers]
+    return cols
+
+
+def compute(args: argparse.Namespace) -> dict[str, Any]:
+    try:
+        fins = [load_fin(f) for f in args.fins]
+        amps = [load_amplifier(a) for a in args.amplifiers]
+    except PiezofinError as exc:
+        raise WattsError(str(exc)) from None
+    freqs = np.asarray(parse_frequencies(args.freq), float)
+    volts = np.asarray(args.voltages, float)
+    if not (np.all(np.isfinite(volts)) and np.all(volts > 0) and np.all(volts <= 1000)):
+        raise WattsError(f"--voltages {args.voltages}: each must be within (0, 1000] Vpp")
+    f, v = (x.ravel() for x in np.meshgrid(freqs, volts, indexing="ij"))
+    out: dict[str, Any] = {
+        "watts": {},
+        "curves": {},
+        "frequencies_hz": freqs.tolist(),
+        "v_curve": float(volts.max()),
+    }
+    for fin in fins:
+        p = Model(fin).predict(f, v)
+        thrust = np.asarray(p.thrust_n, float)
+        best: dict[str, Any] = {}
+        curves: dict[str, list[float]] = {}
+        for label, watt, amp in _watts(amps):
+            power = power_in(watt, p.voltage_pp_drive, p.current_rms, p.power_w, amp or amps[0])
+            tpw = np.where(
+                (power > 0) & (thrust >= args.min_thrust), thrust / np.maximum(power, 1e-300), -np.inf
+            )
+            j = int(np.argmax(tpw))
+            best[label] = (
+                {"frequency_hz": float(f[j]), "voltage_pp": float(v[j]), "thrust_per_watt": float(tpw[j])}
+                if math.isfinite(tpw[j])
+                else None
+            )
+            top = v == volts.max()
+            curves[label] = (thrust[top] / np.maximum(power[top], 1e-300)).tolist()
+        out["watts"][fin.name] = best
+        out["curves"][fin.name] = curves
+    return out
+
+
+def table(r: dict[str, Any]) -> str:
+    labels = list(next(iter(r["watts"].values())))
+    width = max(22, *(len(x) + 2 for x in labels))
+    lines = [
+        "best thrust per watt, mN/W (at Hz, Vpp), among points of at least the least thrust; the paper: "
+        f"about {PAPER_MAX_TPW * 1e3:.1f} mN/W for every fin",
+        f"{'fin':<10}" + "".join(f"{x:>{width}}" for x in labels),
+    ]
+    for name, best in r["watts"].items():
+        cells = [
+            f"{b['thrust_per_watt'] * 1e3:.1f} ({b['frequency_hz']:g}, {b['voltage_pp']:.0f})" if b else "-"
+            for b in best.values()
+        ]
+        lines.append(f"{name:<10}" + "".join(f"{c:>{width}}" for c in cells))
+    amps = [x[len("supply (") : -1] for x in labels if x.startswith("supply")]
+    lines.append(
+        f"watts: fin: {WATTS_SHORT['fin']}; apparent: {WATTS_SHORT['apparent']}; supply (amplifier): "
+        f"the amplifier's draw from its supply ({', '.join(amps)}: config/amplifiers/)"
+    )
+    return "\n".join(lines)
+
+
+def plot(r: dict[str, Any], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = list(next(iter(r["curves"].values())))
+    fig, axes = plt.subplots(1, len(labels), figsize=(3.6 * len(labels), 3.6), constrained_layout=True)
+    f = np.asarray(r["frequencies_hz"])
+    for ax, label in zip(np.atleast_1d(axes), labels, strict=True):
+        for name, curves in r["curves"].items():
+            ax.plot(f, np.asarray(curves[label]) * 1e3, label=name)
+        ax.axhline(PAPER_MAX_TPW * 1e3, color="k", ls="--", lw=1, label="paper: 60.7 mN/W")
+        ax.set_yscale("log")
+        ax.set_title(f"per {label} watt", fontsize=10)
+        ax.set_xlabel("frequency [Hz]")
+        ax.grid(alpha=0.3, which="both")
+    np.atleast_1d(axes)[0].set_ylabel(f"thrust per watt at {r['v_curve']:.0f} Vpp [mN/W]")
+    np.atleast_1d(axes)[0].legend(fontsize=7)
+    fig.suptitle("Thrust per watt in each watt (the paper's Fig. 10: about 60.7 mN/W)")
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise WattsError(f"--plot {path}: cannot write ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    r = compute(args)
+    if args.json:
+        json.dump({"watts": r["watts"]}, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(table(r))
+    if args.plot:
+        plot(r, args.plot)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    return 0
