@@ -112,7 +112,9 @@ class DriveLoop:
         self._windows = []
         # the point as commanded, which is how the optimiser knows it again (``held`` commands it, its
         # trials group by it): the measured amplitude drifts with the monitor's gain and noise
-        args = (e.t_end, f, self.target[1], thrust, power, admittance)
+        watt = self.optimiser.watt
+        named = e.power(watt) if watt != "fin" else math.nan
+        args = (e.t_end, f, self.target[1], thrust, power, admittance, named)
         if self.background:
             # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
             # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, windows that

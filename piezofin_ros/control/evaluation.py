@@ -28,18 +28,25 @@ def run_trial(opt: Optimiser, plant: Plant, t: float, rng: np.random.Generator) 
     """One simulated trial of ``TRIAL_S_CONTINUOUS``: propose, read ``plant`` as the estimator would
     from the optimiser's source, observe; the new time."""
     f, v = opt.propose()
-    r = read(plant, f, v, t, rng, opt.source, opt.fin)
+    r = read(plant, f, v, t, rng, opt.source, opt.fin, opt.watt, opt.amplifier)
     t += TRIAL_S_CONTINUOUS
-    opt.observe(t, f, v, r.thrust_n, r.power_w, r.admittance)
+    opt.observe(t, f, v, r.thrust_n, r.power_w, r.admittance, r.power_named_w)
     return t
 
 
 def score(
-    plant: Plant, f: float, v: float, demand_n: float | None, min_thrust_n: float = 1e-3, t: float = 0.0
+    plant: Plant,
+    f: float,
+    v: float,
+    demand_n: float | None,
+    min_thrust_n: float = 1e-3,
+    t: float = 0.0,
+    watt: str = "fin",
 ) -> float:
-    """True objective of a point on a plant: thrust per watt, 0 if it misses the demand in truth."""
+    """True objective of a point on a plant: thrust per watt (``watt``: the supply is the plant's true
+    amplifier's draw), 0 if it misses the demand in truth."""
     r = plant.steady(f, v, t)
-    thrust, power = float(r.thrust_n), float(r.power_w)
+    thrust, power = float(r.thrust_n), float(r.power(_true(watt), plant.amplifier))
     need = demand_n if demand_n is not None else min_thrust_n
     if thrust < need or power <= 0:
         return 0.0
@@ -53,6 +60,7 @@ def true_optimum(
     voltage_pp: float = 800.0,
     min_thrust_n: float = 1e-3,
     t: float = 0.0,
+    watt: str = "fin",
 ) -> tuple[float, float, float]:
     """Dense evaluation of the plant: ``(f, V, objective)`` of its optimum (2000 x 600 grid)."""
     f = np.geomspace(limits.frequency_min_hz, limits.frequency_max_hz, 2000)
@@ -63,7 +71,9 @@ def true_optimum(
     r = plant.steady(f, v, t)
     need = demand_n if demand_n is not None else min_thrust_n
     thrust = np.minimum(r.thrust_n, demand_n) if demand_n is not None else r.thrust_n
-    obj = np.where(r.thrust_n >= need, thrust / np.maximum(r.power_w, 1e-300), 0.0)
+    obj = np.where(
+        r.thrust_n >= need, thrust / np.maximum(r.power(_true(watt), plant.amplifier), 1e-300), 0.0
+    )
     i = np.unravel_index(int(np.argmax(obj)), obj.shape)
     return float(f[i]), float(v[i]), float(obj[i])
 
@@ -83,6 +93,13 @@ def campaign(
     for _ in range(n):
         t = run_trial(opt, plant, t, rng)
         f, v = opt.held()
-        top = best if best is not None else true_optimum(plant, opt.limits, opt.demand_n, t=t)[2]
-        fractions.append(score(plant, f, v, opt.demand_n, t=t) / top)
+        top = (
+            best if best is not None else true_optimum(plant, opt.limits, opt.demand_n, t=t, watt=opt.watt)[2]
+        )
+        fractions.append(score(plant, f, v, opt.demand_n, t=t, watt=opt.watt) / top)
     return fractions, t
+
+
+def _true(watt: str) -> str:
+    """The watt in truth: the supply the plant's amplifier truly draws, whichever model estimates it."""
+    return "supply" if watt == "supply_measured" else watt

@@ -63,6 +63,7 @@ from scipy import optimize
 from ..config import HARD_VOLTAGE_PP_MAX
 from ..errors import ControlError
 from ..estimation.selfsense import Calibration, lighthill_thrust, self_sensed_tip
+from ..physics.amplifier import WATTS, Amplifier, LinearAmplifier, power_in
 from ..physics.effects import (
     AddedMassOffset,
     CapacitanceOffset,
@@ -169,7 +170,9 @@ class Correction:
     def response(self, fin: Fin, f: Any, v: Any) -> PlantResponse:
         # (the load-cell effects of a base describe the rig, not the fin: the thrust is Lighthill's)
         p = self.predict(fin, f, v)
-        return PlantResponse(p.thrust_n * self.thrust_gain, p.power_w, p.tip_velocity_rms)
+        return PlantResponse(
+            p.thrust_n * self.thrust_gain, p.power_w, p.tip_velocity_rms, p.current_rms, p.voltage_pp_drive
+        )
 
     def calibration(self, fin: Fin, f: Any, v: Any) -> Calibration:
         """The self-sensing's calibration at these points (:mod:`piezofin_ros.estimation.selfsense`)."""
@@ -228,9 +231,15 @@ class Observation:
     frequency_hz: float
     voltage_pp: float
     thrust_n: float  # the estimate of ``source``
-    power_w: float
+    power_w: float  # the fin's watt, mean(v i): what the fit explains
     source: str = "vibrometer"
     admittance: complex = complex(math.nan, math.nan)  # I_1 / V_1, S
+    power_named_w: float = math.nan  # the optimiser's watt (NaN: the fin's)
+
+    @property
+    def named_w(self) -> float:
+        """The power in the watt the optimiser optimises."""
+        return self.power_named_w if math.isfinite(self.power_named_w) else self.power_w
 
     @property
     def has_admittance(self) -> bool:
@@ -249,6 +258,11 @@ class Surface:
     thrust_low_n: FloatArray
     sigma_thrust: FloatArray
     sigma_power: FloatArray
+    power_fin_w: FloatArray | None = None  # the fin's watt, where ``power_w`` is another (else None)
+
+    @property
+    def fin_w(self) -> FloatArray:
+        return self.power_w if self.power_fin_w is None else self.power_fin_w
 
     def objective(self, demand_n: float | None) -> FloatArray:
         thrust = self.thrust_n if demand_n is None else np.minimum(self.thrust_n, demand_n)
@@ -265,6 +279,10 @@ class Optimiser:
     demand_n: float | None = None
     min_thrust_n: float = 1e-3  # without a demand: the least thrust worth having
     source: str = "vibrometer"  # which estimate ``observe`` receives (see SOURCES)
+    #: the watt of the thrust per watt (physics/amplifier.py): the map's power in it comes through
+    #: ``amplifier`` (supply, and supply_measured, whose trials bring the meter's reading)
+    watt: str = "fin"
+    amplifier: Amplifier = field(default_factory=lambda: LinearAmplifier(name="paper-bench"))
     noise: EstimateNoise = field(default_factory=EstimateNoise)
     z_demand: float = 2.0  # the demand is met with this many standard deviations of margin
     search_chi2: float = 4.0  # the model mispredicts when its residuals exceed this (per datum)
@@ -304,6 +322,8 @@ class Optimiser:
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
             raise ControlError(f"source must be one of {', '.join(SOURCES)}, got {self.source!r}")
+        if self.watt not in WATTS:
+            raise ControlError(f"watt must be one of {', '.join(WATTS)}, got {self.watt!r}")
         if self.model is not None:
             self.fin = self.model.fin
             self.correction = replace(self.correction, base=self.model)
@@ -326,12 +346,17 @@ class Optimiser:
         thrust_n: float,
         power_w: float,
         admittance: complex = complex(math.nan, math.nan),
+        power_named_w: float = math.nan,
     ) -> bool:
-        """Add one trial's estimate (``thrust_n`` from ``source``); False (and ignored) if unusable."""
+        """Add one trial's estimate (``thrust_n`` from ``source``, ``power_w`` the fin's watt and
+        ``power_named_w`` the optimiser's ``watt``); False (and ignored) if unusable."""
         values = (t, frequency_hz, voltage_pp, thrust_n, power_w)
         if not all(math.isfinite(x) for x in values) or thrust_n <= 0 or power_w <= 0 or voltage_pp <= 0:
             return False
-        new = Observation(*values, source=self.source, admittance=complex(admittance))
+        if self.watt != "fin" and not (math.isfinite(power_named_w) and power_named_w > 0):
+            return False  # (no measure of the watt it optimises: a trial it cannot rank)
+        named = power_named_w if self.watt != "fin" else math.nan
+        new = Observation(*values, source=self.source, admittance=complex(admittance), power_named_w=named)
         if self._repeat_disagrees(new) > self.change_sigma or (
             # (against the map only once it has settled: before that, every trial teaches it something)
             self.converged and len(self.observations) >= 3 and self._surprise(new) > self.change_sigma
@@ -533,7 +558,11 @@ class Optimiser:
         truth = self.z_demand * np.sqrt(s_t**2 + np.asarray(model_sigma) ** 2)
         count = self.z_demand * np.hypot(noise_t, bound) + noise_t
         low = thrust * np.exp(-np.maximum(truth, count))
-        return Surface(f, v, thrust, r.power_w * np.exp(m_p), low, s_t, s_p)
+        power = r.power_w * np.exp(m_p)
+        if self.watt != "fin" and r.current_rms is not None and r.voltage_pp is not None:
+            named = power_in(self.watt, r.voltage_pp, r.current_rms, power, self.amplifier)
+            return Surface(f, v, thrust, named, low, s_t, s_p, power)
+        return Surface(f, v, thrust, power, low, s_t, s_p)
 
     def _frontier(self, f: FloatArray) -> tuple[Surface, FloatArray]:
         """At each frequency, the point the task asks for: the configured voltage (no demand), or
@@ -627,9 +656,9 @@ class Optimiser:
             low = t * math.exp(-self.z_demand * math.hypot(noise_t, bound))
             if self.demand_n is not None:
                 if low >= self.demand_n:
-                    out.append((self.demand_n / o.power_w, o, float(t)))
+                    out.append((self.demand_n / o.named_w, o, float(t)))
             elif low >= self.min_thrust_n and abs(o.voltage_pp - self.voltage_pp) <= 0.01 * self.voltage_pp:
-                out.append((float(t) / o.power_w, o, float(t)))
+                out.append((float(t) / o.named_w, o, float(t)))
         return out
 
     def _candidate(self) -> tuple[float, float] | None:
@@ -796,7 +825,7 @@ class Optimiser:
         dt = abs(math.log(t / max(float(s.thrust_n), 1e-300))) / math.hypot(
             noise_t + MODEL_ERROR, float(s.sigma_thrust)
         )
-        dp = abs(math.log(o.power_w / max(float(s.power_w), 1e-300))) / math.hypot(
+        dp = abs(math.log(o.power_w / max(float(s.fin_w), 1e-300))) / math.hypot(
             noise_p + MODEL_ERROR, float(s.sigma_power)
         )
         return max(dt, dp)
@@ -830,7 +859,8 @@ class Optimiser:
                 "frequency_hz": o.frequency_hz,
                 "voltage_pp": o.voltage_pp,
                 "thrust_n": thrust,  # the estimate, re-calibrated
-                "power_w": o.power_w,
+                "power_w": o.named_w,  # in the optimiser's watt
+                "power_fin_w": o.power_w,
             }
         return {
             "converged": self.converged,
@@ -841,7 +871,8 @@ class Optimiser:
             "frequency_hz": c.frequency_hz,
             "voltage_pp": c.voltage_pp,
             "predicted_thrust_n": c.thrust_n,
-            "predicted_power_w": c.power_w,
+            "predicted_power_w": c.power_w,  # in the optimiser's watt
+            "watt": self.watt,
             "held": held,
             "source": self.source,
             "self_sensing_bound": self.self_sensing_bound,

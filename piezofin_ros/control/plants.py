@@ -21,6 +21,7 @@ Everything is vectorised over arrays of frequency and voltage.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..estimation.selfsense import lighthill_thrust, self_sensed_tip
+from ..physics.amplifier import Amplifier, LinearAmplifier, power_in
 from ..physics.effects import DielectricLoss, Effect, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
@@ -43,11 +45,19 @@ class PlantResponse:
     thrust_n: FloatArray
     power_w: FloatArray
     tip_velocity_rms: FloatArray
+    current_rms: FloatArray | None = None  # A (what the other watts need; None: not modelled)
+    voltage_pp: FloatArray | None = None  # V, the drive the fin receives
 
     @property
     def thrust_per_watt(self) -> FloatArray:
         p = self.power_w
         return np.divide(self.thrust_n, p, out=np.zeros(np.shape(p)), where=p > 0)
+
+    def power(self, watt: str, amplifier: Amplifier) -> FloatArray:
+        """The power in ``watt`` (the supply through ``amplifier``)."""
+        if watt == "fin" or self.current_rms is None or self.voltage_pp is None:
+            return np.asarray(self.power_w, float)
+        return power_in(watt, self.voltage_pp, self.current_rms, self.power_w, amplifier)
 
 
 @dataclass(frozen=True)
@@ -72,6 +82,8 @@ class Plant:
     #: any further effects of the library (outside the optimiser's correction: a field-dependent
     #: coupling, extra drag or added mass, an amplifier's sag, ...)
     effects: tuple[Effect, ...] = ()
+    #: the amplifier that truly drives it: the supply the plant's meter reads and its true supply watt
+    amplifier: Amplifier = field(default_factory=lambda: LinearAmplifier(name="paper-bench"))
 
     def _scale(self, t: float) -> float:
         s = self.resonance_scale
@@ -92,7 +104,13 @@ class Plant:
     def steady(self, frequency_hz: ArrayLike, voltage_pp: ArrayLike, t: float = 0.0) -> PlantResponse:
         """Noise-free steady state at time ``t``."""
         p = self.model(t).predict(frequency_hz, voltage_pp)
-        return PlantResponse(np.asarray(p.thrust_n), np.asarray(p.power_w), np.asarray(p.tip_velocity_rms))
+        return PlantResponse(
+            np.asarray(p.thrust_n),
+            np.asarray(p.power_w),
+            np.asarray(p.tip_velocity_rms),
+            np.asarray(p.current_rms),
+            np.asarray(p.voltage_pp_drive),
+        )
 
     def measure(
         self, frequency_hz: float, voltage_pp: float, t: float, rng: np.random.Generator
@@ -119,6 +137,7 @@ class Reading:
     thrust_n: float
     power_w: float
     admittance: complex
+    power_named_w: float = math.nan  # in the watt asked for (``read``'s ``watt``)
 
 
 def read(
@@ -129,6 +148,8 @@ def read(
     rng: np.random.Generator,
     source: str = "vibrometer",
     fin: Fin | None = None,
+    watt: str = "fin",
+    amplifier: Amplifier | None = None,
 ) -> Reading:
     """One trial as ``thrust_estimator`` reports it, with noise: the thrust of ``source`` computed with
     the estimator's fin (``fin``, default the plant's own, i.e. the paper's ``c_m``, ``C_eq`` and
@@ -151,4 +172,16 @@ def read(
             lighthill_thrust(fin, p.tip_velocity_rms) if source == "vibrometer" else p.thrust_loadcell_n
         )
         thrust = thrust * (1 + n.thrust_rel * rng.standard_normal()) + n.thrust_abs_n * rng.standard_normal()
-    return Reading(thrust, power, y)
+    named = math.nan
+    if watt != "fin":
+        # the estimator's watts from the monitors (its own amplifier model for ``supply``); the supply's
+        # meter reads the plant's true amplifier (``supply_measured``)
+        i_rms = abs(y) * v_amp / math.sqrt(2)
+        if watt == "supply_measured":
+            truth = float(
+                power_in("supply", 2 * v_amp, float(p.current_rms), float(p.power_w), plant.amplifier)
+            )
+            named = truth * (1 + n.power_rel * rng.standard_normal())
+        else:
+            named = float(power_in(watt, 2 * v_amp, i_rms, power, amplifier or plant.amplifier))
+    return Reading(thrust, power, y, named)

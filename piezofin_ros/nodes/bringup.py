@@ -278,7 +278,7 @@ def _report_fin(
             f"\n{ns}: {fin.name}, optimiser {st['state']} after {st['trials']} trials, "
             f"{'converged' if st['converged'] else 'not converged'}: {held['frequency_hz']:.2f} Hz, "
             f"{held['voltage_pp']:.0f} Vpp, thrust {held['thrust_n'] * 1e3:.3f} mN, "
-            f"power {held['power_w'] * 1e3:.3f} mW"
+            f"power {held['power_w'] * 1e3:.3f} mW ({st.get('watt', 'fin')} watt)"
             + (f" (demand {demand * 1e3:.2f} mN)" if demand else "")
             + ("" if st["held"] else " (predicted: no trial meets the task yet)")
             + (

@@ -32,7 +32,7 @@ from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
-from ..physics.amplifier import WATTS
+from ..physics.amplifier import WATTS, AmplifierError, load_amplifier
 from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model
@@ -93,6 +93,10 @@ class ControllerConfig:
     wait_estimator_s: float = setting(
         20.0, "wall time to wait for a thrust_estimator before the first trial, s (0: none)", 0.0, 3600.0
     )
+    amplifier: str = setting(
+        "paper-bench",
+        "optimise: the amplifier (preset or YAML) whose draw is the supply watt, as the estimator's",
+    )
     fin: str = setting("M8528-P1", "fin preset name or YAML path (the optimiser's model)")
     model: str = setting(
         "", "optimise: augmented model YAML from `piezofin diagnose --report` (replaces fin)"
@@ -113,6 +117,10 @@ class Controller(Node):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         c = self.config = declare(self, ControllerConfig)
         freeze_parameters(self)
+        try:
+            self.amplifier = load_amplifier(c.amplifier)
+        except AmplifierError as exc:
+            raise StartupError(f"parameter amplifier: {exc}") from None
         self._created = time.monotonic()
         self._waiting_logged = False
         self.strategy: Strategy
@@ -148,6 +156,8 @@ class Controller(Node):
                 c.demand_n or None,
                 min_thrust_n=c.min_thrust_n,
                 source=c.source,
+                watt=c.watt,
+                amplifier=self.amplifier,
                 model=model,
             )
         except PiezofinError as exc:
@@ -160,7 +170,7 @@ class Controller(Node):
         goal = (
             f"demand {c.demand_n * 1e3:.2f} mN" if c.demand_n else f"best frequency at {c.voltage_pp:g} Vpp"
         )
-        summary = f"optimising thrust per watt from {c.source} estimates, {goal}"
+        summary = f"optimising thrust per {c.watt} watt from {c.source} estimates, {goal}"
         return OptimiseStrategy(loop, c.duration_s, c.after), summary
 
     def _trials(self, c: ControllerConfig) -> tuple[Strategy, str]:

@@ -225,3 +225,33 @@ def test_a_diagnosed_model_is_the_optimisers_starting_map(m8528: Fin) -> None:
     _, _, best = true_optimum(plant, LIMITS, None)
     assert score(plant, first.frequency_hz, first.voltage_pp, None) / best > 0.97
     assert score(plant, nominal.frequency_hz, nominal.voltage_pp, None) / best < 0.95  # what it saves
+
+
+@pytest.mark.fast_cases("supply-told")
+@pytest.mark.parametrize(
+    ("watt", "told", "true"),
+    [
+        ("supply", "paper-bench", "paper-bench"),
+        ("supply_measured", "paper-bench", "fish-switching"),
+        ("supply_measured", "fish-switching", "rails-300"),
+    ],
+    ids=["supply-told", "measured-fish-unknown", "measured-rails-unknown"],
+)
+@pytest.mark.parametrize("demand", [None, 4e-3])
+def test_converges_in_the_watt_it_is_told(m8528: Fin, watt: str, told: str, true: str, demand) -> None:
+    """Thrust per supply watt: the amplifier the optimiser is told (``supply``: the estimator's model
+    of it), or the supply's meter reading of an amplifier it was not told (``supply_measured``).  The
+    optimum in truth (the plant's own amplifier) is reached as in the fin's watt, the demand met."""
+    from piezofin_ros.physics.amplifier import LinearAmplifier, load_amplifier
+
+    amps = {"rails-300": LinearAmplifier(rail_v=300.0, quiescent_w=0.05)}
+    amp = amps.get(true) or load_amplifier(true)
+    plant = Plant(m8528, softening=0.4, resonance_scale=0.9, loss_tan_delta=0.1, amplifier=amp)
+    opt = Optimiser(m8528, LIMITS, demand_n=demand, watt=watt, amplifier=load_amplifier(told))
+    f_fin = true_optimum(plant, LIMITS, demand)[0]
+    f_watt = true_optimum(plant, LIMITS, demand, watt=watt)[0]
+    fractions, _ = campaign(opt, plant, 10)
+    assert min(fractions[7:]) >= (0.98 if demand is None else 0.96), fractions  # > 0: the demand is met
+    if demand is None:
+        assert f_watt > 1.5 * f_fin  # (the watt moves the optimum: this is not the fin-watt test again)
+    assert opt.status()["watt"] == watt

@@ -105,6 +105,25 @@ def test_ros2_run_refuses_a_mistyped_parameter(ros_env: dict[str, str]) -> None:
     assert "Traceback" not in run.stderr + run.stdout
 
 
+@pytest.mark.parametrize("node", ["fin_sim", "thrust_estimator", "controller"])
+def test_ros2_run_refuses_an_impossible_amplifier(ros_env: dict[str, str], tmp_path: Path, node: str) -> None:
+    """Every node that takes ``amplifier`` stops on one that cannot exist with one line naming the
+    parameter and the field: negative rails, an efficiency above 1, a kind nobody makes, no preset."""
+    files = {
+        "rail_v": "kind: linear\nrail_v: -400\n",
+        "efficiency": "amplifier:\n  kind: switching\n  efficiency: 1.5\n",
+        "kind": "kind: class-z\n",
+    }
+    cases = [(str(tmp_path / f"{k}.yaml"), k) for k in files] + [("no-such-amp", "unknown amplifier")]
+    for k, text in files.items():
+        (tmp_path / f"{k}.yaml").write_text(text)
+    for value, words in cases:
+        run = ros2(ros_env, "run", "piezofin_ros", node, "--ros-args", "-p", f"amplifier:={value}")
+        out = run.stderr + run.stdout
+        assert run.returncode != 0, out
+        assert "parameter amplifier: " in out and words in out and "Traceback" not in out, out
+
+
 def test_ros2_run_estimator_with_a_model_file(ros_env: dict[str, str], tmp_path: Path) -> None:
     """`ros2 run piezofin_ros thrust_estimator --ros-args -p model:=...`: a file that is no model stops
     it with one line naming the parameter; a diagnosed model starts it on that model's fin."""
