@@ -467,6 +467,12 @@ def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--fin", default="M8528-P1", help="fin preset or YAML (default M8528-P1)")
     p.add_argument("--namespace", default="/fin", help="the fin's namespace in the bags (default /fin)")
+    p.add_argument(
+        "--amplifier",
+        default="paper-bench",
+        help="the amplifier that drove the fin (preset or YAML): bags with a supply meter are checked "
+        "against it (the supply stage)",
+    )
     p.add_argument("--json", metavar="OUT.json", help="write the findings as JSON")
     p.add_argument(
         "--report", metavar="OUT_DIR", help="write report.md, plots, JSON and augmented_model.yaml here"
@@ -505,8 +511,13 @@ def run_diagnose(args: argparse.Namespace) -> int:
     from ..diagnosis.attribute import diagnose, summary_json
     from ..diagnosis.data import DataError, from_bags, from_csv
     from ..diagnosis.report import text, write
+    from ..physics.amplifier import AmplifierError, load_amplifier
 
     fin = _load(args.fin, None)
+    try:
+        amplifier = load_amplifier(args.amplifier)
+    except AmplifierError as exc:
+        raise UsageError(f"--amplifier: {exc}") from None
     t0 = time.perf_counter()
 
     def say(msg: str) -> None:
@@ -541,7 +552,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
             say(f"reading {csvs[0]}")
             trials = from_csv(csvs[0], relative_sigma=args.relative_sigma)
         else:
-            trials, skipped = from_bags(args.data, fin, args.namespace, progress=say)
+            trials, skipped = from_bags(args.data, fin, args.namespace, progress=say, amplifier=amplifier)
             for line in skipped:
                 print(f"skipped {line}", file=sys.stderr)
         say(f"{len(trials)} trials; checking each stage, then fitting the candidate effects")

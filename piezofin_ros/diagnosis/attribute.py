@@ -484,7 +484,16 @@ def choose_explanation(w: Work) -> None:
 def decide(w: Work) -> None:
     """Step 4: the verdict (no gap, explained, unexplained), with the reasons."""
     nominal, best = w.nominal, w.best
-    has_gap = any(s.significant for s in w.stages)
+    has_gap = any(s.significant for s in w.stages if s.stage != "supply")  # (the amplifier, not the fin)
+    for s in w.stages:
+        if s.stage == "supply" and s.significant:
+            gap = float(np.nanmedian(s.relative_gap)) * 100
+            w.notes.append(
+                f"the supply draws {gap:+.1f} % (median) against the amplifier's model at the measured "
+                "drive: "
+                "the amplifier is not the one the estimator was told (piezofin diagnose --amplifier, the "
+                "estimator's amplifier parameter), or its law differs; the fin's stages are judged apart"
+            )
     if not has_gap and float(stats.chi2.sf(nominal.chi2_test, nominal.n_test)) >= 1e-3:
         w.verdict, w.chosen = "no gap", None
     elif w.fitting:

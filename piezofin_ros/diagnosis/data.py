@@ -35,8 +35,9 @@ from ..bags.blocks import (
     check_samples,
 )
 from ..errors import DiagnosisError
-from ..estimation.estimator import Estimate, EstimatorConfig
+from ..estimation.estimator import PAPER_BENCH, Estimate, EstimatorConfig
 from ..estimation.offline import replay_estimates, topic_prefix
+from ..physics.amplifier import Amplifier
 from ..physics.fin import Fin
 
 FloatArray = NDArray[Any]
@@ -92,11 +93,18 @@ class Trials:
     commanded: bool = True
     #: what reading the data found (interference, sample rate, a reversed sensor, ...)
     notes: tuple[str, ...] = ()
+    #: the supply as its meter read it (the ``supply`` topic; NaN without one), the amplifier's model
+    #: of it at the measured drive (the estimator's ``power_supply_w``) and the meter's sigma, W:
+    #: the ``supply`` stage (not fitted: the fin's effects do not act on the amplifier's law)
+    power_supply_w: FloatArray | None = None
+    power_supply_model_w: FloatArray | None = None
+    power_supply_sigma_w: FloatArray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.frequency_hz)
-        if self.time_s is None:
-            object.__setattr__(self, "time_s", np.full(n, np.nan))
+        for name in ("time_s", "power_supply_w", "power_supply_model_w", "power_supply_sigma_w"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, np.nan))
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, np.ndarray) and v.shape != (n,):
@@ -279,6 +287,7 @@ def from_estimates(
         "power_w": np.array([e.power_w for e in rows]),
         "thrust_loadcell_n": np.array([e.thrust_loadcell_n for e in rows]),
     }
+    supply = np.array([e.power_supply_measured_w for e in rows])
     return make_trials(
         cols,
         sig,
@@ -286,6 +295,10 @@ def from_estimates(
         time_s=np.array([e.t_start for e in rows]),
         commanded=bool(cmd),
         notes=tuple(said),
+        power_supply_w=supply,
+        power_supply_model_w=np.array([e.power_supply_w for e in rows]),
+        # the meter's noise averages out over a trial: the sigma is the model floor's 1 %
+        power_supply_sigma_w=0.01 * np.abs(supply),
     )
 
 
@@ -514,16 +527,21 @@ def interference_notes(lines: Sequence[Line], trials: Trials) -> list[str]:
 
 
 def from_bags(
-    paths: Sequence[str | os.PathLike[str]], fin: Fin, namespace: str = "/fin", progress: Any = None
+    paths: Sequence[str | os.PathLike[str]],
+    fin: Fin,
+    namespace: str = "/fin",
+    progress: Any = None,
+    amplifier: Amplifier = PAPER_BENCH,
 ) -> tuple[Trials, list[str]]:
     """Trials of one fin from one or more bags (MCAP files or rosbag2 directories); returns the
-    table and the lines the replay skipped.  Each bag's sample rate comes from its sample times."""
+    table and the lines the replay skipped.  Each bag's sample rate comes from its sample times;
+    ``amplifier`` is the model of the amplifier that drove it (the ``supply`` stage, with a meter)."""
     tables: list[Trials] = []
     skipped: list[str] = []
     for j, path in enumerate(paths):
         if progress:
             progress(f"reading {path} ({j + 1}/{len(paths)})")
-        replay = replay_estimates(path, fin, namespace)
+        replay = replay_estimates(path, fin, namespace, amplifier=amplifier)
         skipped += [f"{path}: {s}" for s in replay.skipped_lines()]
         scan = scan_bag(path, namespace)
         table = from_estimates(

@@ -14,6 +14,9 @@ its phase relative to the voltage and ``U_1 = sqrt(2) u e^{j psi}`` its fundamen
 ``thrust``  tip motion -> thrust, Eqs. (19)-(21): ``(1/2) m_v u^2`` against the load cell.
 ``power budget`` tip motion -> dissipation, Eq. (9): ``(1/2)(c_0 + k A) w A^2`` at the measured
             modal amplitude ``A = |U_1| / (phi(L) w)`` against the measured mean power.
+``supply``  drive -> supply (where a supply meter was recorded): the supply's measured power against
+            the amplifier's model (``physics/amplifier.py``) at the measured drive.  The amplifier is
+            not the fin: this stage is said, never explained by the fin's effects.
 
 Each stage's uncertainty is propagated from the channels' sigmas (first order).  A stage has a
 gap when its residuals are unlikely under the noise alone: ``chi^2`` over its trials has a
@@ -218,6 +221,19 @@ def stage_gaps(trials: Trials, model: Model) -> list[StageGap]:
             np.hypot(sig_mech, s["power_w"]),
         )
     )
+    supply = np.asarray(trials.power_supply_w, float)
+    if np.any(np.isfinite(supply)):
+        out.append(
+            StageGap(
+                "supply",
+                "supply power vs the amplifier's model",
+                "mW",
+                1e3,
+                supply,
+                np.asarray(trials.power_supply_model_w, float),
+                np.asarray(trials.power_supply_sigma_w, float),
+            )
+        )
     return out
 
 

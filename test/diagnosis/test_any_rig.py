@@ -333,3 +333,63 @@ def test_on_a_fish_a_negative_power_names_both_suspects(tmp_path: Path) -> None:
     d = diagnose(trials, FIN)
     assert any("or the voltage channel's: without a vibrometer" in n for n in d.notes), d.notes
     assert np.all(d.trials.power_w > 0)
+
+
+def with_supply(path: Path, amplifier) -> Path:
+    """The sample bag plus the supply's meter of ``amplifier`` (a ``supply`` block beside each drive
+    block, from the drive's own samples), as a rig that records its supply would have written it."""
+    from piezofin_ros.bags.blocks import SUPPLY_CHANNELS
+
+    with BagWriter(path) as bag:
+        bag.add_topic("/fin/supply", "std_msgs/msg/Float64MultiArray")
+        for m in read_messages(SAMPLE):
+            bag.add_topic(m.topic, m.type_name)
+            bag.write(m.topic, m.log_time_ns, m.data)
+            if m.topic == "/fin/drive":
+                b = block_of(m.type_name, m.data)
+                i = amplifier.supply_current(b["voltage_V"], b["current_A"])
+                supply = Block.from_columns(
+                    **dict(
+                        zip(SUPPLY_CHANNELS, (b["t_s"], np.full(i.size, amplifier.supply_v), i), strict=True)
+                    )
+                )
+                bag.write("/fin/supply", m.log_time_ns, cdr_block(supply))
+    return path
+
+
+@pytest.mark.slow
+def test_a_recorded_supply_is_checked_against_the_amplifier_and_kept_apart_from_the_fin(
+    tmp_path: Path, clean: tuple
+) -> None:
+    """A bag with the supply's meter: told the amplifier that drove it, the supply stage is inside
+    the noise; told another, the stage has the gap and says so, and the fin's verdict does not move
+    (the amplifier is not the fin: no effect of the fin is fitted to it).  From the command line too."""
+    from piezofin_ros.physics.amplifier import load_amplifier
+
+    fish, bench = load_amplifier("fish-switching"), load_amplifier("paper-bench")
+    bag = with_supply(tmp_path / "supply.mcap", fish)
+    d0 = diagnose(clean[0], FIN)
+    right, _ = from_bags([bag], FIN, amplifier=fish)
+    wrong, _ = from_bags([bag], FIN, amplifier=bench)
+    assert np.all(np.isfinite(right.power_supply_w)) and np.allclose(right.power_w, clean[0].power_w)
+    d_right, d_wrong = diagnose(right, FIN), diagnose(wrong, FIN)
+    s_right, s_wrong = (next(s for s in d.stages if s.stage == "supply") for d in (d_right, d_wrong))
+    assert not s_right.significant
+    assert s_wrong.significant and np.all(s_wrong.relative_gap < -0.1)  # the bench's model draws more
+    assert d_right.verdict == d_wrong.verdict == d0.verdict and d_wrong.named == d0.named
+    assert any("the supply draws" in n for n in d_wrong.notes)
+    assert not any("the supply draws" in n for n in d_right.notes)
+    run = subprocess.run(
+        [str(EXE), "diagnose", str(bag), "--amplifier", "fish-switching", "--quiet",
+         "--json", str(tmp_path / "d.json")],
+        capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    where = {s["stage"] for s in json.loads((tmp_path / "d.json").read_text())["where"]}
+    assert "supply" in where
+    (tmp_path / "bad.yaml").write_text("kind: linear\nrail_v: 0\n")
+    bad = subprocess.run(
+        [str(EXE), "diagnose", str(bag), "--amplifier", str(tmp_path / "bad.yaml")],
+        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "rail_v" in bad.stderr, bad.stderr
