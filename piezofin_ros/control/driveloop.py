@@ -20,6 +20,12 @@ class DriveLoop:
     The commanded voltage moves at most ``slew_vpp_per_s`` and never leaves the limits.  When
     estimates stop for ``estimate_timeout_s`` the loop holds its point; after twice that it ramps
     the drive down to zero (each with a message in ``events``), and resumes if they come back.
+
+    Stopped for want of estimates, it tries the drive again after ``retry_s`` (doubling each time
+    up to 8 times that, back to ``retry_s`` once an estimate comes): the off-commands it sent while
+    stopped re-arm a rig whose watchdog tripped (a heartbeat that stalled), which would otherwise
+    give no estimate ever again.  ``halted`` (a finished run) never retries.  A flood of demands is
+    coalesced: at most one waits for the fit's thread, and it takes the latest.
     """
 
     optimiser: Optimiser
@@ -44,6 +50,12 @@ class DriveLoop:
     _pending: list[Future[None]] = field(default_factory=list)  # the fit thread's work, in order
     _executor: ThreadPoolExecutor | None = None
     _learnt: dict[str, Any] | None = None
+    retry_s: float = 30.0  # stopped without estimates: drive again after this long (doubling)
+    halted: bool = False  # the run is over: stopped stays stopped
+    _stopped_since: float | None = None
+    _retries: int = 0
+    _demand_wanted: float | None = None
+    _demand_queued: bool = False
 
     def __post_init__(self) -> None:
         self.optimiser.source = self.source  # (it reads the same estimate)
@@ -74,12 +86,25 @@ class DriveLoop:
             self.events.append(
                 f"no estimate for {silence:.1f} s: holding {f:.2f} Hz, {self.command_v:.0f} Vpp"
             )
+        if self.state == "stopped" and not self.halted and self._stopped_since is not None:
+            wait = self.retry_s * 2 ** min(self._retries, 3)
+            if t - self._stopped_since >= wait:
+                self._retries += 1
+                self.state = "driving"
+                self._last_estimate_t = t
+                self._t_settled_from = None
+                self._stopped_since = None
+                self.events.append(
+                    f"no estimate for {wait:.0f} s with the drive off: driving {f:.2f} Hz again "
+                    f"(retry {self._retries}; the off commands re-armed a tripped watchdog)"
+                )
         goal = 0.0 if self.state in ("ramping down", "stopped") else v_target
         step = self.slew_vpp_per_s * dt
         self.command_v += min(max(goal - self.command_v, -step), step)
         self.command_v = min(max(self.command_v, 0.0), self.optimiser.limits.voltage_pp_max)
         if self.state == "ramping down" and self.command_v == 0.0:
             self.state = "stopped"
+            self._stopped_since = t
         if self._t_settled_from is None and self.command_v == v_target and self.state == "driving":
             self._t_settled_from = t
         return (f, self.command_v, 1.0 if self.command_v > 0 else 0.0)
@@ -87,9 +112,11 @@ class DriveLoop:
     def add_estimate(self, t: float, e: Any) -> bool:
         """Use a running-window estimate (an :class:`~piezofin_ros.estimation.estimator.Estimate`)."""
         self._last_estimate_t = t
-        if self.state != "driving":
+        self._retries = 0
+        if self.state != "driving" and not self.halted:
             self.events.append(f"estimates are back: resuming from {self.state}")
             self.state = "driving"
+            self._stopped_since = None
         thrust = e.thrust_self_n if self.source == "self" else e.thrust_n
         if math.isfinite(e.thrust_n) and math.isfinite(e.thrust_self_n) and e.thrust_n > 0:
             self.discrepancy = e.thrust_self_n / e.thrust_n - 1.0
@@ -129,12 +156,20 @@ class DriveLoop:
         return True
 
     def set_demand(self, demand_n: float | None) -> None:
-        """A new demand: taken by the fit's thread after the running fit (never beside it)."""
+        """A new demand: taken by the fit's thread after the running fit (never beside it).  Demands
+        that come faster than the fits are coalesced: the one waiting takes the latest."""
         if self.background:
-            self._pending.append(self._worker().submit(self._demand, demand_n))
+            self._demand_wanted = demand_n
+            if not self._demand_queued:
+                self._demand_queued = True
+                self._pending.append(self._worker().submit(self._latest_demand))
         else:
             self._demand(demand_n)
             self._take_next()
+
+    def _latest_demand(self) -> None:
+        self._demand_queued = False  # (a demand set from now on queues a new fit)
+        self._demand(self._demand_wanted)
 
     def _demand(self, demand_n: float | None) -> None:
         self.optimiser.set_demand(demand_n)

@@ -212,6 +212,7 @@ class OptimiseStrategy:
             self._changed = True
             self.events.append(Event("info", f"done after {self.duration_s:g} s: {loop.optimiser.choice}"))
         if self.finished and self.after == "stop":
+            loop.halted = True
             loop.state = "ramping down" if loop.state != "stopped" else "stopped"
         cmd = loop.tick(t)
         self.events += [Event("warning", text) for text in loop.events]

@@ -274,10 +274,14 @@ class Controller(Node):
     def _on_demand(self, msg: Float64) -> None:
         d = float(msg.data)
         if not (math.isfinite(d) and 0.0 <= d <= 10.0):
-            self.get_logger().warning(f"ignored thrust demand {d!r} N (must be within [0, 10] N)")
+            self.get_logger().warning(
+                f"ignored thrust demand {d!r} N (must be within [0, 10] N)", throttle_duration_sec=2.0
+            )
             return
-        self.strategy.set_demand(d or None)
-        self.get_logger().info(f"thrust demand {d * 1e3:.2f} mN" if d else "no thrust demand")
+        self.strategy.set_demand(d or None)  # (the loop coalesces a flood: one fit at a time)
+        self.get_logger().info(
+            f"thrust demand {d * 1e3:.2f} mN" if d else "no thrust demand", throttle_duration_sec=2.0
+        )
 
     def _on_estimate(self, msg: Float64MultiArray) -> None:
         try:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 import time
@@ -141,6 +142,54 @@ def test_loop_holds_then_ramps_down_when_estimates_stop(m8528: Fin) -> None:
     assert v == 0.0 and on == 0.0 and loop.state == "stopped"
     loop.add_estimate(t, estimate(t, 5.0, 0.0, 1e-3, 1e-3))
     assert loop.state == "driving"  # estimates back: resumes
+
+
+def test_stopped_for_want_of_estimates_the_loop_drives_again_with_a_back_off(m8528: Fin) -> None:
+    """A rig whose watchdog tripped (a stalled heartbeat) gives no estimate until an off re-arms it:
+    the loop's off commands while stopped do, and after ``retry_s`` it drives again (said), then waits
+    twice as long; an estimate resets the back-off, and a finished run (``halted``) never retries."""
+    loop = DriveLoop(Optimiser(m8528, LIMITS), estimate_timeout_s=5.0, slew_vpp_per_s=400.0, retry_s=20.0)
+    t, log = 0.0, []
+    for _ in range(2000):  # 200 s without a single estimate
+        t += 0.1
+        _, v, on = loop.tick(t)
+        log.append((t, v, on, loop.state))
+    on_again = [b for (_, va, *_r), (b, vb, *_s) in itertools.pairwise(log) if va == 0.0 and vb > 0]
+    retries = [e for e in loop.events if "driving" in e and "again" in e]
+    assert len(on_again) == len(retries) + 1 >= 4, (on_again, loop.events)  # the first start, then retries
+    gaps = np.diff(on_again[1:])
+    assert all(g2 > 1.5 * g1 for g1, g2 in itertools.pairwise(gaps)), gaps  # backing off
+    assert all(on == 0.0 for _, v, on, state in log if state == "stopped")  # stopped: off commands
+    loop.add_estimate(t, estimate(t, 5.0, 0.0, 1e-3, 1e-3))
+    assert loop._retries == 0 and loop.state == "driving"
+    loop.halted, loop.state = True, "ramping down"
+    for _ in range(3000):
+        t += 0.1
+        _, v, on = loop.tick(t)
+    assert loop.state == "stopped" and v == 0.0 and "again" not in loop.events[-1]
+
+
+def test_a_flood_of_demands_is_one_fit_at_a_time_and_the_last_one_wins(m8528: Fin) -> None:
+    """1000 demands as fast as an attacker publishes them: the fit's thread sees a handful, the
+    heartbeat never waits, and the loop ends on the last demand."""
+    loop = DriveLoop(Optimiser(m8528, LIMITS), slew_vpp_per_s=4000.0, background=True)
+    calls = []
+    set_demand = loop.optimiser.set_demand
+    loop.optimiser.set_demand = lambda d: (calls.append(d), set_demand(d))[1]  # type: ignore[method-assign]
+    t, longest = 0.0, 0.0
+    for k in range(1000):
+        loop.set_demand(1e-3 if k % 2 else 5e-3)
+        t0 = time.perf_counter()
+        loop.tick(t := t + 0.01)
+        longest = max(longest, time.perf_counter() - t0)
+    loop.set_demand(3e-3)
+    deadline = time.monotonic() + 60.0
+    while loop.status()["demand_n"] != 3e-3 and time.monotonic() < deadline:
+        time.sleep(0.02)
+        loop.tick(t := t + 0.02)
+    assert loop.status()["demand_n"] == 3e-3
+    assert len(calls) < 60, len(calls)  # coalesced (each fit takes tens of ms)
+    assert longest < 0.05, longest  # the heartbeat never waited for a fit
 
 
 def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypatch: Any) -> None:
