@@ -179,25 +179,30 @@ def freeze_parameters(
     live_prefix: str = "",
     live: Callable[[list[Parameter]], str | None] | None = None,
     *,
-    allow_sim_time: bool = True,
+    takes_sim_time: bool = True,
 ) -> None:
-    """Refuse every runtime parameter change (but ``use_sim_time`` if ``allow_sim_time``), with the reason.
+    """Refuse every runtime parameter change, with the reason.
 
     Every value is checked once at start, where it configures the core; changing it under a
-    running simulation, estimator or bag would leave the node half reconfigured.  Parameters
-    under ``live_prefix`` go to ``live`` instead, which applies them and returns ``None``, or
-    returns the reason it refuses them.
+    running simulation, estimator or bag would leave the node half reconfigured.  That holds for
+    ``use_sim_time`` too: switched live, a node's time jumps between the wall clock and ``/clock``
+    under its windows, heartbeat and bag (set it at start, ``-p use_sim_time:=true``); ``fin_sim``
+    (``takes_sim_time=False``) never takes it.  Parameters under ``live_prefix`` go to ``live``
+    instead, which applies them and returns ``None``, or returns the reason it refuses them.
     """
 
     def callback(params: list[Parameter]) -> SetParametersResult:
         taken = [p for p in params if live is not None and live_prefix and p.name.startswith(live_prefix)]
         for p in params:
-            if p.name == "use_sim_time" and not allow_sim_time:
+            if p.name == "use_sim_time":
                 return SetParametersResult(
                     successful=False,
-                    reason="use_sim_time is not taken: this node keeps its own time (the steady clock)",
+                    reason="use_sim_time is not taken: this node keeps its own time (the steady clock)"
+                    if not takes_sim_time
+                    else "use_sim_time is fixed at start (switched live, this node's time would jump); "
+                    "restart the node with -p use_sim_time:=true",
                 )
-            if p.name != "use_sim_time" and all(p.name != q.name for q in taken):
+            if all(p.name != q.name for q in taken):
                 return SetParametersResult(
                     successful=False, reason=f"{p.name} is fixed at start; restart the node to change it"
                 )

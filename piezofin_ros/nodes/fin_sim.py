@@ -139,7 +139,7 @@ class FinSim(LifecycleNode):
                 "use_sim_time is not taken: fin_sim is the time source (its drive, watchdog and ramps "
                 "run on the steady clock)"
             )
-        freeze_parameters(self, "limits.", self._on_limits, allow_sim_time=False)
+        freeze_parameters(self, "limits.", self._on_limits, takes_sim_time=False)
         self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self._guard_change_state()
         self._rig: SimulatedRig | None = None

@@ -33,6 +33,7 @@ from ..rosutil import Graph, graph, start, start_driving_controller, stop
 
 pytestmark = pytest.mark.ros
 QUIET = 8.0  # V: 1 % of the 800 Vpp drive's amplitude (400 V)
+SAMPLE_BAG = __import__("pathlib").Path(__file__).resolve().parents[2] / "bags" / "sample_M8528-P1.mcap"
 
 
 @dataclass
@@ -172,6 +173,43 @@ def test_no_clock_or_time_parameter_silences_the_watchdog(attack: str) -> None:
     assert quiet_after < 1.0 + 0.5, (quiet_after, out)
     if attack == "start with use_sim_time":
         assert "use_sim_time is not taken" in out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["thrust_estimator", "controller", "recorder", "player"])
+def test_no_node_takes_use_sim_time_live(name: str, tmp_path) -> None:
+    """Switched live, ``use_sim_time`` would move a node's time under its windows, heartbeat or bag:
+    every node refuses it from another process, with the reason, and keeps its clock; set at start it
+    is taken (the estimator's windows and the controller's heartbeat run on /clock that way)."""
+    ns = f"st_{name}"
+    extra = {
+        "controller": ("-p", "mode:=continuous", "-p", "frequencies:=[6.0]", "-p", "voltages:=[0.0]"),
+        "recorder": ("-p", f"path:={tmp_path / 'r.mcap'}"),
+        "player": ("-p", "bag:=" + str(SAMPLE_BAG), "-p", "rate:=0.05"),
+    }.get(name, ())
+    proc = start(name, "-r", f"__ns:=/{ns}", *extra)
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("attacker", context=g.context))
+            client = node.create_client(SetParameters, f"/{ns}/{name}/set_parameters")
+            g.spin_until(client.service_is_ready, 60.0, f"{name}'s parameter service")
+            pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True)
+            request = SetParameters.Request(parameters=[ParameterMsg(name="use_sim_time", value=pv)])
+            replies = []
+            for _ in range(3):  # (the first request may be answered into the void: see Witness.warm_up)
+                future = client.call_async(request)
+                t_end = time.monotonic() + 5.0
+                while not future.done() and time.monotonic() < t_end:
+                    g.spin_for(0.05)
+                if future.done():
+                    replies.append(future.result().results[0])
+                    break
+                client.remove_pending_request(future)
+    finally:
+        out = finish(proc)
+    assert replies, out[-2000:]
+    assert not replies[0].successful and "fixed at start" in replies[0].reason, replies[0]
+    assert "Traceback" not in out
 
 
 # ------------------------------------------------------------------------------------- stops
@@ -514,3 +552,58 @@ def test_several_fins_in_bringup_share_one_clock_drop_nothing_and_exit() -> None
     assert r["gaps"] == {"/f0/drive": 0, "/f1/drive": 0, "/f2/drive": 0}  # nothing dropped
     assert r["one_clock"]  # lock-step: identical sample times
     assert min(r["samples"].values()) >= 60_000  # two 30 s protocol trials
+
+
+# ------------------------------------------------------------------------------- input floods
+@pytest.mark.exclusive
+@pytest.mark.slow
+def test_a_flood_of_thrust_demands_neither_stops_the_fin_nor_floods_the_log() -> None:
+    """An attacker publishes ``thrust_demand`` at 100 Hz for 8 s, cycling valid demands that flip
+    faster than any trial and values that are not demands at all (NaN, +-inf, negative, 1e9 N,
+    1e-300).  The optimising controller's heartbeat goes on (fin_sim's watchdog never trips, the
+    drive never goes quiet), what it says about the flood is throttled, and it ends on the last
+    valid demand."""
+    from std_msgs.msg import Float64
+
+    from piezofin_ros.nodes._common import QOS_COMMAND as QOS
+
+    ns = "flood"
+    sim = fin_sim(ns)
+    est = start("thrust_estimator", "-r", f"__ns:=/{ns}", "-p", "estimator.window_s:=2.0")
+    ctl = start(
+        "controller", "-r", f"__ns:=/{ns}", "-p", "mode:=optimise", "-p", "demand_n:=0.004",
+        "-p", "source:=self", "-p", "slew_vpp_per_s:=4000.0",
+    )  # fmt: skip
+    values = [1e-3, 1e9, float("nan"), 5e-3, float("inf"), -1.0, float("-inf"), 0.0, 1e-300, 3e-3]
+    try:
+        with graph() as g:
+            w = Witness(g, ns)
+            pub = w.node.create_publisher(Float64, "thrust_demand", QOS)
+            g.spin_until(lambda: w.peak_since(time.monotonic() - 0.3) > 50.0, 60.0, "the controller driving")
+            t0 = time.monotonic()
+            k = 0
+            while time.monotonic() < t0 + 8.0:
+                pub.publish(Float64(data=values[k % len(values)]))
+                k += 1
+                g.spin_for(0.01)
+            pub.publish(Float64(data=0.004))  # the last word: a valid demand
+            t1 = time.monotonic()
+            g.spin_for(3.0)
+            windows = np.arange(t0, t1 + 2.5, 0.5)
+            quietest = min(
+                max(
+                    (float(np.max(np.abs(b["voltage_V"]))) for t, b in w.blocks if a <= t < a + 0.5),
+                    default=0,
+                )
+                for a in windows
+            )
+    finally:
+        out_ctl, out_est, out_sim = stop(ctl, est, sim)
+    said = [line for line in out_ctl.splitlines() if "thrust demand" in line]
+    print(f"{k} demands in 8 s: controller lines about them {len(said)}; quietest 0.5 s: {quietest:.0f} V")
+    assert k > 500
+    assert "watchdog:" not in out_sim, out_sim[-2000:]
+    assert quietest > QUIET, out_ctl[-2000:]
+    assert len(said) <= 20, said[:5]
+    assert "thrust demand 4.00 mN" in out_ctl or "ignored thrust demand" in out_ctl
+    assert "Traceback" not in out_ctl + out_est + out_sim
