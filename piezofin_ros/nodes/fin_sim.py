@@ -38,6 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
+import numpy as np
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.context import Context
@@ -366,6 +367,16 @@ class FinSim(LifecycleNode):
         b = rig.step(n)
         for event in b.events:
             self.get_logger().warning(event)
+        reading = float(np.max(np.abs(b.voltage))) if b.voltage.size else 0.0
+        if reading > 1.05 * b.applied_peak_v + 5.0 * self._rig_config.voltage_noise_v + 1.0:
+            # a reading above what the drive applies is the monitor's (its gain), never the drive
+            cap = rig.drive.limits.voltage_pp_max
+            self.get_logger().warning(
+                f"the voltage monitor reads {reading:.0f} V where the drive applies {b.applied_peak_v:.0f} V "
+                f"(never more than limits.voltage_pp_max {cap:g} Vpp): the monitor's gain is off (an "
+                "augmented model's voltage_monitor_gain?)",
+                throttle_duration_sec=10.0,
+            )
         if self._clock_pub is not None:
             self._clock_pub.publish(Clock(clock=Time(nanoseconds=round(float(b.t[-1]) * 1e9)).to_msg()))
         blocks = {

@@ -310,6 +310,7 @@ class RigBlock:
     events: tuple[str, ...] = ()
     supply_voltage: FloatArray = field(default_factory=lambda: np.empty(0))  # V, the amplifier's bus
     supply_current: FloatArray = field(default_factory=lambda: np.empty(0))  # A, its meter (with noise)
+    applied_peak_v: float = 0.0  # V, the largest |v| the drive truly applied (the monitor may read more)
 
 
 @dataclass
@@ -534,6 +535,7 @@ class SimulatedRig:
             displacement=x + cfg.displacement_noise_m * rng.standard_normal(n),
             thrust_true=thrust,
             events=tuple(events),
+            applied_peak_v=float(np.max(np.abs(v))) if v.size else 0.0,
             supply_voltage=np.full(n, self.amplifier.supply_v),
             supply_current=self.amplifier.supply_current(v, current)
             + cfg.supply_noise_a * self._supply_rng.standard_normal(n),

@@ -212,6 +212,35 @@ def test_no_node_takes_use_sim_time_live(name: str, tmp_path) -> None:
     assert "Traceback" not in out
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("gain", [3.0, 1.0])
+def test_a_voltage_monitor_reading_above_the_applied_drive_is_said(gain: float, tmp_path) -> None:
+    """An augmented model whose voltage monitor reads 3 times what is applied: ``drive`` reads 600 V
+    while the drive applies the 200 V its 400 Vpp cap allows, and fin_sim says so (once per 10 s);
+    with a true monitor it says nothing."""
+    import yaml
+
+    from piezofin_ros.physics.fin import load_fin
+    from piezofin_ros.physics.model import Model
+
+    model = tmp_path / "monitor.yaml"
+    model.write_text(
+        yaml.safe_dump(Model.of(load_fin("M8528-P1"), {"voltage_monitor_gain": [gain]}).to_mapping())
+    )
+    ns = f"mon{int(gain)}"
+    proc = fin_sim(ns, "-p", f"model:={model}", "-p", "limits.voltage_pp_max:=400.0")
+    try:
+        with graph() as g:
+            w = Witness(g, ns)
+            w.drive(3.0, f=6.0, vpp=400.0)
+            peak = w.peak_since(time.monotonic() - 1.0)
+    finally:
+        out = finish(proc)
+    assert peak == pytest.approx(200.0 * gain, rel=0.02)
+    said = out.count("the voltage monitor reads")
+    assert (said == 1) if gain > 1 else (said == 0), out[-2000:]
+
+
 # ------------------------------------------------------------------------------------- stops
 @pytest.mark.slow
 @pytest.mark.parametrize("stop_kind", ["off", "watchdog", "cap to 0", "deactivate", "shutdown"])
