@@ -24,8 +24,9 @@ class DriveLoop:
     Stopped for want of estimates, it tries the drive again after ``retry_s`` (doubling each time
     up to 8 times that, back to ``retry_s`` once an estimate comes): the off-commands it sent while
     stopped re-arm a rig whose watchdog tripped (a heartbeat that stalled), which would otherwise
-    give no estimate ever again.  ``halted`` (a finished run) never retries.  A flood of demands is
-    coalesced: at most one waits for the fit's thread, and it takes the latest.
+    give no estimate ever again.  ``halted`` (a finished run) never retries.  Demands are taken at
+    most once per ``demand_hold_s``, the latest one, and at most one waits for the fit's thread: a
+    flood of them is a fit a second, not a fit per message.
     """
 
     optimiser: Optimiser
@@ -56,6 +57,11 @@ class DriveLoop:
     _retries: int = 0
     _demand_wanted: float | None = None
     _demand_queued: bool = False
+    #: a demand is taken at most once per this much time (the latest one): a demand that flips
+    #: faster than a trial would move the drive every fit and teach the optimiser nothing
+    demand_hold_s: float = 1.0
+    _demand_due: bool = False
+    _demand_taken_t: float = -math.inf
 
     def __post_init__(self) -> None:
         self.optimiser.source = self.source  # (it reads the same estimate)
@@ -66,6 +72,7 @@ class DriveLoop:
         assert self._last_estimate_t is not None
         dt = max(0.0, t - self._t_last)
         self._t_last = t
+        self._submit_demand(t)
         self._take_next()
         if self.target is None:
             self.target = self.optimiser.propose()
@@ -160,12 +167,16 @@ class DriveLoop:
         that come faster than the fits are coalesced: the one waiting takes the latest."""
         if self.background:
             self._demand_wanted = demand_n
-            if not self._demand_queued:
-                self._demand_queued = True
-                self._pending.append(self._worker().submit(self._latest_demand))
+            self._demand_due = True  # (the heartbeat submits it: _submit_demand)
         else:
             self._demand(demand_n)
             self._take_next()
+
+    def _submit_demand(self, t: float) -> None:
+        """The latest demand to the fit's thread, once ``demand_hold_s`` has passed since the last."""
+        if self._demand_due and not self._demand_queued and t - self._demand_taken_t >= self.demand_hold_s:
+            self._demand_due, self._demand_queued, self._demand_taken_t = False, True, t
+            self._pending.append(self._worker().submit(self._latest_demand))
 
     def _latest_demand(self) -> None:
         self._demand_queued = False  # (a demand set from now on queues a new fit)

@@ -167,6 +167,11 @@ class Controller(Node):
                 f"optimiser starts from the augmented model {c.model} ({', '.join(model.names)})"
             )
         loop = DriveLoop(optimiser, c.source, c.slew_vpp_per_s, c.estimate_timeout_s, background=True)
+        # the fits run in a thread beside the executor's: a CPU-bound thread holds the GIL for the
+        # whole switch interval (5 ms) each time the executor's thread lets go of it, and a callback
+        # lets go of it many times (the convoy effect): under a flood of demands the heartbeat fell
+        # seconds behind and fin_sim's watchdog tripped.  A short interval bounds that wait.
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.0005))
         goal = (
             f"demand {c.demand_n * 1e3:.2f} mN" if c.demand_n else f"best frequency at {c.voltage_pp:g} Vpp"
         )
