@@ -16,6 +16,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/fins", glob("config/fins/*.yaml")),
         (f"share/{PACKAGE}/config/amplifiers", glob("config/amplifiers/*.yaml")),
+        (f"share/{PACKAGE}/config/models", glob("config/models/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         (f"share/{PACKAGE}/bags", ["bags/sample_M8528-P1.mcap"]),  # `player -p bag:=bags/sample_...`
     ],

@@ -13,6 +13,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,9 @@ from .. import workers
 from ..errors import CliError
 from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
 from ..physics.steady import SteadyState, harmonic_balance
+
+if TYPE_CHECKING:
+    from ..diagnosis.paper import Twin
 
 EXIT_USAGE = 2
 
@@ -475,6 +479,11 @@ def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", metavar="OUT.json", help="write the findings as JSON")
     p.add_argument(
+        "--twin",
+        metavar="OUT_DIR",
+        help="with --paper: write the paper's rig as a twin (a model per fin, and twin.md) here",
+    )
+    p.add_argument(
         "--report", metavar="OUT_DIR", help="write report.md, plots, JSON and augmented_model.yaml here"
     )
     p.add_argument(
@@ -490,12 +499,33 @@ def _add_diagnose_args(p: argparse.ArgumentParser) -> None:
     workers.add_arguments(p)  # --workers, --ray: where --paper fits its hypotheses
 
 
+def _write_twin(out: Path, twin: Twin, text: str) -> None:
+    """The twin's files: ``paper-twin-<fin>.yaml`` per fin (any command or node loads them by path;
+    the package ships them as presets, ``model:=paper-twin-M8528-P1``) and ``twin.md``."""
+    import yaml
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for name, model in twin.models().items():
+            (out / f"paper-twin-{name}.yaml").write_text(
+                "# The paper's rig as a twin (piezofin diagnose --paper --twin); its amplifier is\n"
+                "# config/amplifiers/paper-bench.yaml (amplifier:=paper-bench, the nodes' default)\n"
+                + yaml.safe_dump(model.to_mapping(), sort_keys=False)
+            )
+        (out / "twin.md").write_text(text)
+    except OSError as exc:
+        raise UsageError(f"--twin {out}: cannot write ({exc.strerror or exc})") from None
+    print(f"wrote {out}/paper-twin-*.yaml and {out}/twin.md", file=sys.stderr)
+
+
 def _refuse_existing(args: argparse.Namespace) -> None:
     """Outputs are never replaced without ``--force``; checked before the work, not after it."""
     if args.force:
         return
     if args.json and Path(args.json).exists():
         raise UsageError(f"--json {args.json}: exists (give --force to replace it)")
+    if getattr(args, "twin", None) and Path(args.twin).exists() and any(Path(args.twin).glob("paper-twin-*")):
+        raise UsageError(f"--twin {args.twin}: holds a twin already (give --force to replace it)")
     if args.report and Path(args.report).exists():
         report = Path(args.report)
         if not report.is_dir():
@@ -532,6 +562,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
         if args.data:
             raise UsageError("--paper takes no data files")
+    elif args.twin:
+        raise UsageError("--twin goes with --paper (the paper's facts make the twin)")
+    if args.paper:
         result = paper.paper_gap(progress=say, workers=args.workers, ray_address=args.ray)
         print(paper.paper_text(result))
         if args.json:
@@ -541,6 +574,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
                     json.dump(paper.summary_json(result), fh, indent=1)
             except OSError as exc:
                 raise UsageError(f"cannot write the output ({exc})") from None
+        if args.twin:
+            twin = paper.paper_twin(result, progress=say, workers=args.workers, ray_address=args.ray)
+            twin_md = paper.twin_text(twin)
+            print(twin_md)
+            _write_twin(Path(args.twin), twin, twin_md)
         return 0
     if not args.data:
         raise UsageError("give one or more bags, or one CSV (or --paper)")

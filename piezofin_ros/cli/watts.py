@@ -16,7 +16,7 @@ from ..diagnosis.paper import PAPER_FINS, PAPER_MAX_TPW
 from ..errors import PiezofinError
 from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
 from ..physics.fin import load_fin
-from ..physics.model import Model
+from ..physics.model import Model, load_model
 from .main import UsageError, parse_frequencies
 
 
@@ -39,6 +39,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--voltages", nargs="+", type=float, default=[400.0, 600.0, 800.0], help="Vpp searched")
     p.add_argument("--min-thrust", type=float, default=1e-3, help="least thrust of a best point, N (1 mN)")
+    p.add_argument(
+        "--twin",
+        action="store_true",
+        help="each fin as the paper's twin (model preset paper-twin-<fin>: its effects fitted to the paper)",
+    )
     p.add_argument("--plot", help="T/P against frequency at the highest voltage, per watt (PNG)")
     p.add_argument("--json", action="store_true", help="the table as JSON on standard output")
 
@@ -54,6 +59,7 @@ def compute(args: argparse.Namespace) -> dict[str, Any]:
     try:
         fins = [load_fin(f) for f in args.fins]
         amps = [load_amplifier(a) for a in args.amplifiers]
+        models = [load_model(f"paper-twin-{f.name}") if args.twin else Model(f) for f in fins]
     except PiezofinError as exc:
         raise WattsError(str(exc)) from None
     freqs = np.asarray(parse_frequencies(args.freq), float)
@@ -67,19 +73,27 @@ def compute(args: argparse.Namespace) -> dict[str, Any]:
         "frequencies_hz": freqs.tolist(),
         "v_curve": float(volts.max()),
     }
-    for fin in fins:
-        p = Model(fin).predict(f, v)
+    out["twin"] = bool(args.twin)
+    for fin, model in zip(fins, models, strict=True):
+        p = model.predict(f, v)
         thrust = np.asarray(p.thrust_n, float)
         best: dict[str, Any] = {}
         curves: dict[str, list[float]] = {}
         for label, watt, amp in _watts(amps):
             power = power_in(watt, p.voltage_pp_drive, p.current_rms, p.power_w, amp or amps[0])
-            tpw = np.where(
-                (power > 0) & (thrust >= args.min_thrust), thrust / np.maximum(power, 1e-300), -np.inf
-            )
+            ok = (power > 0) & (thrust >= args.min_thrust)
+            if not np.any(ok):  # no point gives the least thrust: the best of all, said
+                ok = power > 0
+            tpw = np.where(ok, thrust / np.maximum(power, 1e-300), -np.inf)
             j = int(np.argmax(tpw))
             best[label] = (
-                {"frequency_hz": float(f[j]), "voltage_pp": float(v[j]), "thrust_per_watt": float(tpw[j])}
+                {
+                    "frequency_hz": float(f[j]),
+                    "voltage_pp": float(v[j]),
+                    "thrust_per_watt": float(tpw[j]),
+                    "thrust_n": float(thrust[j]),
+                    "below_min_thrust": bool(thrust[j] < args.min_thrust),
+                }
                 if math.isfinite(tpw[j])
                 else None
             )
@@ -94,16 +108,22 @@ def table(r: dict[str, Any]) -> str:
     labels = list(next(iter(r["watts"].values())))
     width = max(22, *(len(x) + 2 for x in labels))
     lines = [
-        "best thrust per watt, mN/W (at Hz, Vpp), among points of at least the least thrust; the paper: "
+        ("the paper's twin (config/models/paper-twin-*.yaml): " if r.get("twin") else "the nominal fins: ")
+        + "best thrust per watt, mN/W (at Hz, Vpp), among points of at least the least thrust; the paper: "
         f"about {PAPER_MAX_TPW * 1e3:.1f} mN/W for every fin",
         f"{'fin':<10}" + "".join(f"{x:>{width}}" for x in labels),
     ]
     for name, best in r["watts"].items():
         cells = [
-            f"{b['thrust_per_watt'] * 1e3:.1f} ({b['frequency_hz']:g}, {b['voltage_pp']:.0f})" if b else "-"
+            f"{b['thrust_per_watt'] * 1e3:.1f} ({b['frequency_hz']:g}, {b['voltage_pp']:.0f})"
+            + ("*" if b["below_min_thrust"] else "")
+            if b
+            else "-"
             for b in best.values()
         ]
         lines.append(f"{name:<10}" + "".join(f"{c:>{width}}" for c in cells))
+    if any(b and b["below_min_thrust"] for best in r["watts"].values() for b in best.values()):
+        lines.append("* no point of this fin gives the least thrust: its best point of all")
     amps = [x[len("supply (") : -1] for x in labels if x.startswith("supply")]
     lines.append(
         f"watts: fin: {WATTS_SHORT['fin']}; apparent: {WATTS_SHORT['apparent']}; supply (amplifier): "
@@ -131,7 +151,8 @@ def plot(r: dict[str, Any], path: str) -> None:
         ax.grid(alpha=0.3, which="both")
     np.atleast_1d(axes)[0].set_ylabel(f"thrust per watt at {r['v_curve']:.0f} Vpp [mN/W]")
     np.atleast_1d(axes)[0].legend(fontsize=7)
-    fig.suptitle("Thrust per watt in each watt (the paper's Fig. 10: about 60.7 mN/W)")
+    which = "the paper's twin" if r.get("twin") else "the nominal fins"
+    fig.suptitle(f"Thrust per watt in each watt, {which} (the paper's Fig. 10: about 60.7 mN/W)")
     try:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, stats
 
+from ..errors import DiagnosisError
 from ..physics.amplifier import LinearAmplifier
 from ..physics.effects import LIBRARY, effect_class
 from ..physics.fin import Fin, load_fin
@@ -218,6 +219,9 @@ class Hypothesis:
     parameters: dict[str, dict[str, float]]
     predicted: dict[str, Any]
     residuals: tuple[float, ...]  # per fact, in sigmas
+    #: one standard deviation of each parameter, from the fit's Jacobian (the facts' tolerances as
+    #: sigmas); NaN where the facts do not determine it
+    sigmas: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def k(self) -> int:
@@ -267,11 +271,29 @@ def fit_hypothesis(definition: str, names: tuple[str, ...], fins: Fins | None = 
                 best = sol
         assert best is not None
         z = best.x
+        sigma_z = _sigma_of(np.asarray(best.jac, float))
     else:
-        z = np.empty(0)
+        z = sigma_z = np.empty(0)
     q = evaluate(z)
-    m = next(iter(spaces.values())).model(z)
-    return Hypothesis(definition, names, m.parameters(), q, tuple(float(x) for x in res(z)))
+    space = next(iter(spaces.values()))
+    m = space.model(z)
+    sigma_x = sigma_z * space.scale
+    sigmas: dict[str, dict[str, float]] = {}
+    j = 0
+    for e in m.effects:
+        sigmas[e.name] = {k: float(sigma_x[j + i]) for i, k in enumerate(e.parameters())}
+        j += len(e.parameters())
+    return Hypothesis(definition, names, m.parameters(), q, tuple(float(x) for x in res(z)), sigmas)
+
+
+def _sigma_of(jac: FloatArray) -> FloatArray:
+    """One sigma of each fitted coordinate from the Jacobian of residuals in sigmas (NaN: undetermined)."""
+    try:
+        cov = np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError:
+        return np.full(jac.shape[1], math.nan)
+    d = np.diag(cov)
+    return np.where(d > 0, np.sqrt(np.abs(d)), math.nan)
 
 
 def _fit_job(args: tuple[str, tuple[str, ...]]) -> Hypothesis:
@@ -456,3 +478,126 @@ def summary_json(r: dict[str, Any]) -> dict[str, Any]:
             for h in r["hypotheses"]
         ],
     }
+
+
+# ------------------------------------------------------------------------------------ the twin
+#: The paper's bench: the amplifier of the "amplifier draw" definition (config/amplifiers/paper-bench.yaml).
+def bench_amplifier() -> LinearAmplifier:
+    return LinearAmplifier(rail_v=RAIL_V, name="paper-bench")
+
+
+@dataclass(frozen=True)
+class Twin:
+    """The paper's rig as a twin: the hypothesis that explains its facts best, and its rivals."""
+
+    hypothesis: Hypothesis
+    rivals: tuple[Hypothesis, ...]  # the others that survive every fact, best first
+    tried: int  # hypotheses weighed for it
+
+    def models(self, fins: Fins | None = None) -> dict[str, Model]:
+        """Each paper fin with the twin's effects (shared by the three), their sigmas and provenance."""
+        fins = fins or _fins()
+        h = self.hypothesis
+        notes = {
+            "twin": "the paper's rig as a twin (`piezofin diagnose --paper --twin DIR`)",
+            "hypothesis": h.label,
+            "watt": f"{bench_amplifier().describe()}: config/amplifiers/paper-bench.yaml",
+            "chi2": round(h.chi2, 3),
+            "p_value": round(h.p_value, 4),
+            "fin": "the paper's Tables 1-2 (the preset); the effects fitted to the paper's ten facts",
+        }
+        out = {}
+        for nm, fin in fins.fins.items():
+            m = Model.of(fin, {k: list(v.values()) for k, v in h.parameters.items()})
+            out[nm] = Model(m.fin, m.effects, notes, h.sigmas)
+        return out
+
+
+def paper_twin(
+    result: dict[str, Any],
+    progress: Callable[[str], None] | None = None,
+    workers: int | None = None,
+    candidates: Sequence[str] = CANDIDATES,
+    ray_address: str | None = None,
+) -> Twin:
+    """The twin from :func:`paper_gap`'s hypotheses: the best that survives with the amplifier's draw,
+    and that one with each further candidate effect; the most probable (the p-value of its chi2 on
+    its own degrees of freedom) is the twin, the other survivors its rivals."""
+    say = progress or (lambda _m: None)
+    survivors = [h for h in result["hypotheses"] if h.survives and h.definition == "amplifier draw"]
+    if not survivors:
+        raise DiagnosisError("no hypothesis with the amplifier's draw survives the paper's facts: no twin")
+    base = survivors[0]
+    jobs = [
+        ("amplifier draw", tuple(sorted((*base.effects, c)))) for c in candidates if c not in base.effects
+    ]
+    more = run_tasks(
+        _fit_job,
+        jobs,
+        workers=workers,
+        ray_address=ray_address,
+        say=lambda line: say(f"paper twin, one more effect: {line}"),
+        label=lambda job: " + ".join(job[1]),
+    )
+    every = sorted([*survivors, *more], key=lambda h: (-h.p_value, h.chi2))
+    best = every[0]
+    return Twin(best, tuple(h for h in every[1:] if h.survives), len(result["hypotheses"]) + len(jobs))
+
+
+def twin_text(twin: Twin) -> str:
+    h = twin.hypothesis
+    amp = bench_amplifier()
+    lines = [
+        "# The paper's rig as a twin",
+        "",
+        f"The twin: the paper's three fins (Tables 1-2) with {' and '.join(h.effects) or 'no effect'}, "
+        f"shared by the three, and the watt of {amp.describe()} (config/amplifiers/paper-bench.yaml). "
+        f"Chosen among {twin.tried} hypotheses weighed against the paper's {len(FACTS)} facts: "
+        f"chi2 {h.chi2:.1f} on {len(FACTS) - h.k} degrees of freedom, p = {h.p_value:.2g}.",
+        "",
+        "| parameter | value | 1 sigma | from |",
+        "|---|---:|---:|---|",
+    ]
+    for name, params in h.parameters.items():
+        for k, v in params.items():
+            sd = h.sigmas.get(name, {}).get(k, math.nan)
+            lines.append(
+                f"| {name}.{k} | {v:.4g} | {sd:.2g} | fitted to the facts (the Jacobian, the facts' "
+                "tolerances as sigmas) |"
+            )
+    lines.append(f"| amplifier rail_v | {amp.rail_v:g} V | - | the 800 Vpp drive's peak: the bench's rails |")
+    lines += [
+        "",
+        "| fact (the paper) | paper | twin | residual | within its tolerance |",
+        "|---|---:|---:|---:|---|",
+    ]
+    for fact, r in zip(FACTS, h.residuals, strict=True):
+        within = "yes" if abs(r) <= 1 else ("within 2 sigma" if abs(r) <= 2 else "no")
+        lines.append(
+            f"| {fact.text} | {_fmt(fact.name, fact.value)} +- {_fmt(fact.name, fact.sigma)} | "
+            f"{_fmt(fact.name, h.predicted[fact.name])} | {r:+.2f} sigma | {within} |"
+        )
+    n_in = sum(abs(r) <= 1 for r in h.residuals)
+    lines += [
+        "",
+        f"{n_in} of {len(FACTS)} facts within their tolerance, every one within "
+        f"{max(abs(r) for r in h.residuals):.1f} of it. Max T/P per the supply watt: "
+        + ", ".join(f"{nm} {h.predicted[f'max_tpw_{nm}'] * 1e3:.1f} mN/W" for nm in PAPER_FINS)
+        + f" (the paper: about {PAPER_MAX_TPW * 1e3:.1f}).",
+        "",
+        "## What the facts cannot decide",
+        "",
+    ]
+    if twin.rivals:
+        for other in twin.rivals[:5]:
+            lines.append(
+                f"- {other.label} (p = {other.p_value:.2g}) also survives; what would decide: "
+                f"{deciding_measurement(h, other)}"
+            )
+    else:
+        lines.append("- no other hypothesis survives every fact")
+    lines.append(
+        "- the paper's Figs. 7-9, digitised into a CSV (`piezofin diagnose sweep.csv`), and the amplifier's "
+        "supply current recorded beside v(t) and i(t) would test the twin trial by trial"
+    )
+    return "\n".join(lines) + "\n"

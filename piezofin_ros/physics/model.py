@@ -31,13 +31,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .effects import Effect, Effects, ModelError, OperatingPoint, TimeLaw, effect_class, make
-from .fin import Fin, FinConfigError, read_yaml_file
+from .fin import Fin, FinConfigError, config_dir, read_yaml_file
 from .knobs import Knobs
 from .steady import coefficients, solve_amplitude
 
@@ -203,12 +204,26 @@ def _uncertainties_from_mapping(
     return {str(k): {str(q): float(v) for q, v in ps.items()} for k, ps in sigma.items()}
 
 
+def model_presets() -> list[str]:
+    """Names of the models shipped in ``config/models`` (the paper's twin, ``paper-twin-<fin>``)."""
+    return sorted(p.stem for p in (config_dir() / "models").glob("*.yaml"))
+
+
 def load_model(path: str) -> Model:
-    """Read a model (``augmented_model.yaml`` from ``diagnose --report``) as safe YAML.
+    """Read a model (``augmented_model.yaml`` from ``diagnose --report``) as safe YAML, or a preset by
+    name (:func:`model_presets`: ``paper-twin-M8528-P1``).
 
     Raises :class:`ModelError` naming the file and the problem (missing, unreadable, not YAML,
     unknown effect or parameter, value out of range, bad fin).
     """
+    path = str(path)
+    if not Path(path).suffix and not Path(path).exists():
+        preset = config_dir() / "models" / f"{path}.yaml"
+        if not preset.exists():
+            raise ModelError(
+                f"unknown model '{path}': not a file and not a preset ({', '.join(model_presets())})"
+            )
+        path = str(preset)
     data = read_yaml_file(path, ModelError)
     try:
         return Model.from_mapping(data, source=path)

@@ -1,0 +1,84 @@
+"""The paper's rig as a twin: the shipped presets reproduce what their twin.md claims, the command
+writes them again, and a user loads them by name."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from piezofin_ros.diagnosis.paper import FACTS, PAPER_FINS, Fins, _residuals, quantities
+from piezofin_ros.physics.model import load_model, model_presets
+
+ROOT = Path(__file__).resolve().parents[2]
+EXE = Path(sys.executable).parent / "piezofin"
+
+
+def test_the_shipped_twin_reproduces_the_papers_facts_as_it_says() -> None:
+    """Every fact of the paper recomputed on the presets, with the amplifier's draw: each within 2 of
+    its tolerances, at least 7 of 10 within one, chi2 that the tolerances explain (p >= 0.01); max T/P
+    per the supply watt within 40 % of 60.7 mN/W; and docs/twin.md says the same numbers."""
+    from scipy import stats
+
+    assert {f"paper-twin-{n}" for n in PAPER_FINS} <= set(model_presets())
+    models = {n: load_model(f"paper-twin-{n}") for n in PAPER_FINS}
+    assert len({m.parameters().__repr__() for m in models.values()}) == 1  # one rig: shared effects
+    q = quantities(models, "amplifier draw", Fins())
+    r = _residuals(q)
+    assert max(abs(r)) <= 2.0 and sum(abs(r) <= 1.0) >= 7, dict(zip([f.name for f in FACTS], r, strict=True))
+    k = sum(len(p) for p in next(iter(models.values())).parameters().values())
+    assert stats.chi2.sf(float((r**2).sum()), len(FACTS) - k) >= 0.01
+    for n in PAPER_FINS:
+        assert abs(q[f"max_tpw_{n}"] / 0.0607 - 1) < 0.4, (n, q[f"max_tpw_{n}"])
+    md = (ROOT / "docs" / "twin.md").read_text()
+    for f, x in zip(FACTS, r, strict=True):
+        assert f"{x:+.2f} sigma" in md, (f.name, x)
+    for m in models.values():  # each value with its sigma and where it came from
+        assert set(m.uncertainties) == set(m.names) and "twin" in m.notes
+
+
+@pytest.mark.slow
+def test_the_command_writes_the_twin_the_package_ships(tmp_path: Path) -> None:
+    """``piezofin diagnose --paper --twin DIR``: the same models as config/models/ (to 1e-6), a twin.md,
+    a second run refused without --force, and --twin without --paper refused; each in one line."""
+    out = tmp_path / "twin"
+    run = subprocess.run(
+        [str(EXE), "diagnose", "--paper", "--twin", str(out), "--quiet"],
+        capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "# The paper's rig as a twin" in run.stdout and (out / "twin.md").exists()
+    for n in PAPER_FINS:
+        new = yaml.safe_load((out / f"paper-twin-{n}.yaml").read_text())
+        shipped = yaml.safe_load((ROOT / "config" / "models" / f"paper-twin-{n}.yaml").read_text())
+        assert new["fin"] == shipped["fin"] and new["effects"].keys() == shipped["effects"].keys()
+        for effect, params in shipped["effects"].items():
+            for key, value in params.items():
+                assert new["effects"][effect][key] == pytest.approx(value, rel=1e-6), (effect, key)
+    for args, words in (
+        (["--paper", "--twin", str(out)], "--force"),
+        (["--twin", str(tmp_path / "other"), "x.csv"], "--paper"),
+    ):
+        bad = subprocess.run([str(EXE), "diagnose", *args], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and words in bad.stderr and bad.stderr.count("\n") == 1, bad.stderr
+
+
+def test_a_user_runs_the_twin_by_name(tmp_path: Path) -> None:
+    """``piezofin sweep --model paper-twin-M8528-P1`` and ``piezofin watts --twin``: by name, no path."""
+    run = subprocess.run(
+        [str(EXE), "sweep", "--model", "paper-twin-M8528-P1", "--freq", "4:6:1", "--vpp", "800"],
+        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert run.returncode == 0 and "added_mass_offset" in run.stdout, run.stderr
+    watts = subprocess.run(
+        [str(EXE), "watts", "--twin", "--json"], capture_output=True, text=True, timeout=120,
+        stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert watts.returncode == 0, watts.stderr
+    bad = subprocess.run(
+        [str(EXE), "sweep", "--model", "paper-twin-nope"], capture_output=True, text=True, timeout=60
+    )
+    assert bad.returncode == 2 and "paper-twin-M8528-P1" in bad.stderr and "Traceback" not in bad.stderr
