@@ -41,7 +41,7 @@ NOT_RUN = "(not run by the tests:"
 #: A line another test runs as typed and checks more closely (run once, not twice): ``(run by FILE, ...)``
 RUN_ELSEWHERE = re.compile(r"\(run by (test/[\w/]+\.py)\b[^)]*\)")
 #: Options whose value is the user's own output path (a test writes to its own).
-OUTPUT_OPTIONS = ("-o", "--json", "--report", "--plot")
+OUTPUT_OPTIONS = ("-o", "--json", "--report", "--plot", "--twin")
 RUNS_UNTIL_STOPPED = re.compile(
     r"^(ros2 launch |ros2 run piezofin_ros (fin_sim|fin_sims|thrust_estimator|controller|recorder|player)\b)"
 )

@@ -53,6 +53,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--config", help="ROS 2 parameter file (default: config/bringup.yaml of the package)")
     p.add_argument("--namespaces", nargs="+", default=["fin"], help="one namespace per fin (default: fin)")
     p.add_argument("--fins", nargs="+", help="fin preset or YAML per namespace (default: the config's fin)")
+    p.add_argument(
+        "--models",
+        nargs="+",
+        help="model preset or YAML per namespace (or one for all), simulated by fin_sim and loaded by "
+        "the estimator and controller (e.g. paper-twin-M8528-P1, the paper's rig as a twin); nominal: "
+        "the fin alone",
+    )
     p.add_argument("--bag", help="output .mcap (default: bags/piezofin_<time>.mcap)")
     p.add_argument("--realtime-factor", type=float, default=40.0, help="simulated s per wall s (default 40)")
     p.add_argument(
@@ -98,6 +105,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error("--frequency-max must be within (0, 1000] Hz")
     if args.fins and len(args.fins) != len(args.namespaces):
         p.error(f"--fins gives {len(args.fins)} fins for {len(args.namespaces)} namespaces")
+    if args.models and len(args.models) == 1:
+        args.models = args.models * len(args.namespaces)  # one for every fin
+    if args.models and len(args.models) != len(args.namespaces):
+        p.error(f"--models gives {len(args.models)} models for {len(args.namespaces)} namespaces")
+    if args.models and args.fins and any(m != "nominal" for m in args.models):
+        p.error("--models and --fins: a model holds its fin (give one of them, or --models nominal)")
     if not (math.isfinite(args.realtime_factor) and 0.01 <= args.realtime_factor <= 1000):
         p.error("--realtime-factor must be within [0.01, 1000]")
     if args.timeout is not None and not (math.isfinite(args.timeout) and args.timeout > 0):
@@ -159,6 +172,8 @@ class Suite:
                 merged = {**node_parameters(doc, name, ns), **extra}
                 if args.fins:
                     merged["fin"] = args.fins[k]
+                if args.models and args.models[k] != "nominal":
+                    merged["model"] = args.models[k]  # (fin_sim, thrust_estimator and controller take it)
                 return _overrides(merged)
 
             sim_extra = {"realtime_factor": args.realtime_factor, "publish_clock": k == 0, "start_time_s": t0}

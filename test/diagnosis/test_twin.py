@@ -82,3 +82,34 @@ def test_a_user_runs_the_twin_by_name(tmp_path: Path) -> None:
         [str(EXE), "sweep", "--model", "paper-twin-nope"], capture_output=True, text=True, timeout=60
     )
     assert bad.returncode == 2 and "paper-twin-M8528-P1" in bad.stderr and "Traceback" not in bad.stderr
+
+
+@pytest.mark.ros
+def test_bringup_runs_the_twin_and_refuses_contradictions(tmp_path: Path) -> None:
+    """``bringup --models paper-twin-M8528-P1`` (what the main job runs): fin_sim simulates the twin
+    and the estimator loads it (its thrust agrees with the load cell's); one model for two fins;
+    contradictions end in one line."""
+    import json
+    import os
+
+    from test.rosutil import clean_env
+
+    bringup = str(Path(sys.executable).parent / "bringup")
+    env = clean_env(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", MPLBACKEND="Agg")
+    env["ROS_DOMAIN_ID"] = os.environ.get("ROS_DOMAIN_ID", "0")
+    out = tmp_path / "st.json"
+    run = subprocess.run(
+        [bringup, "--models", "paper-twin-M8528-P1", "--frequencies", "4", "--voltages", "800",
+         "--bag", str(tmp_path / "b.mcap"), "--json", str(out)],
+        capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL, env=env, cwd=tmp_path,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    (r,) = json.loads(out.read_text())["fins"]["/fin"]["results"]
+    assert r["thrust_n"] == pytest.approx(r["thrust_loadcell_n"], rel=0.02)  # the estimator knows the twin
+    assert r["thrust_per_watt_supply"] * 1e3 == pytest.approx(90.0, rel=0.05)  # the README's main job
+    for args, words in (
+        (["--models", "a", "b"], "2 models for 1 namespaces"),
+        (["--models", "paper-twin-M8528-P1", "--fins", "M8514-P1"], "--fins"),
+    ):
+        bad = subprocess.run([bringup, *args], capture_output=True, text=True, timeout=60, env=env)
+        assert bad.returncode == 2 and words in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
