@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -321,6 +322,11 @@ def run_identify(args: argparse.Namespace) -> int:
 
     if args.output and Path(args.output).exists():
         raise UsageError(f"{args.output} exists; choose another --output (it is never overwritten)")
+    if args.plot and Path(args.plot).exists():
+        raise UsageError(f"{args.plot} exists; choose another --plot (it is never overwritten)")
+    for option, path in (("--output", args.output), ("--plot", args.plot)):
+        if path:
+            writable_path(option, path)  # (before the work: no fin file left without its plot)
     try:
         geometry = load_geometry(args.geometry)
         air = read_sweep(args.air, args.namespace)
@@ -339,16 +345,32 @@ def run_identify(args: argparse.Namespace) -> int:
         print(json.dumps(out, indent=2, allow_nan=True))
     else:
         print(ident.table())
-    if args.output:
-        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-        with open(args.output, "x") as fh:
-            fh.write(ident.fin_yaml())
-        load_fin(args.output)  # what was written loads
-        print(f"fin: {args.output}", file=sys.stderr if args.json else sys.stdout)
-    if args.plot:
-        plot_frf(args.plot, ident)
-        print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    try:
+        if args.output:
+            with open(args.output, "x") as fh:
+                fh.write(ident.fin_yaml())
+            load_fin(args.output)  # what was written loads
+            print(f"fin: {args.output}", file=sys.stderr if args.json else sys.stdout)
+        if args.plot:
+            plot_frf(args.plot, ident)
+            print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    except OSError as exc:
+        raise UsageError(f"cannot write {exc.filename or 'the output'} ({exc.strerror or exc})") from None
     return 0
+
+
+def writable_path(option: str, path: str | Path) -> None:
+    """``path`` can be written: its folder exists (made if need be) and takes files, and it is no
+    folder itself; else one line naming ``option``."""
+    path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"{option} {path}: a folder, not a file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{option} {path}: cannot make its folder ({exc.strerror or exc})") from None
+    if not os.access(path.parent, os.W_OK):
+        raise UsageError(f"{option} {path}: its folder {path.parent} is not writable")
 
 
 def run_campaign_cmd(args: argparse.Namespace) -> int:
@@ -387,6 +409,8 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
     if not (np.isfinite(args.realtime_factor) and 1 <= args.realtime_factor <= 1000):
         raise UsageError("--realtime-factor: within [1, 1000]")
     cfg.realtime_factor = args.realtime_factor
+    if cfg.out.exists() and not cfg.out.is_dir():
+        raise UsageError(f"-o {cfg.out}: a file, not a folder")
     if (
         not args.analyse_only
         and not args.force
@@ -396,6 +420,20 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
         raise UsageError(
             f"{cfg.out} holds a campaign already; give --force to replace it (or --analyse-only)"
         )
+    campaign_folder = (cfg.out / "report.json").exists() or (cfg.out / "bags").is_dir()
+    theirs = sorted(x.name for x in cfg.out.iterdir()) if cfg.out.is_dir() else []
+    if theirs and not campaign_folder and not args.force:
+        raise UsageError(
+            f"-o {cfg.out}: a folder that holds other files ({', '.join(theirs[:3])}"
+            f"{', ...' if len(theirs) > 3 else ''}), not a campaign's; choose an empty one (or --force)"
+        )
+    if not args.analyse_only:
+        try:
+            cfg.out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"-o {cfg.out}: cannot make it ({exc.strerror or exc})") from None
+        if not os.access(cfg.out, os.W_OK):
+            raise UsageError(f"-o {cfg.out}: not writable")
     try:
         run_campaign(cfg, say=lambda m: print(m, flush=True), analyse_only=args.analyse_only)
     except KeyboardInterrupt:
@@ -403,6 +441,8 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
         return 130
     except (CampaignError, BagError, IdentificationError, FinConfigError, FileNotFoundError) as exc:
         raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"-o {cfg.out}: cannot write {exc.filename or ''} ({exc.strerror or exc})") from None
     return 0
 
 

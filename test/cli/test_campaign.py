@@ -173,6 +173,22 @@ def test_identify_from_the_two_recorded_sweeps(campaign: Path, tmp_path: Path) -
         run("identify", "--air", str(tmp_path / "none.mcap"), "--geometry", "M8528-P1"), "none.mcap"
     )
     one_line_error(run("identify", *args, "-o", str(tmp_path / "fin.yaml")), "exists")
+    before = (tmp_path / "fig5.png").read_bytes()
+    one_line_error(run("identify", *args, "--plot", str(tmp_path / "fig5.png")), "--plot", "exists")
+    assert (tmp_path / "fig5.png").read_bytes() == before
+    # an output that cannot be written is said before the work, and no fin file is left without its plot
+    for option, path in (("-o", "/proc/x/fin.yaml"), ("--plot", "/proc/x/fig5.png"), ("-o", str(tmp_path))):
+        one_line_error(
+            run(
+                "identify",
+                *args,
+                option,
+                path,
+                *(["-o", str(tmp_path / "f2.yaml")] if option == "--plot" else []),
+            ),
+            option if option != "-o" else "--output",
+        )
+        assert not (tmp_path / "f2.yaml").exists()
     one_line_error(run("identify", *args[:2], "--geometry", "no-such-fin"), "no-such-fin")
     (tmp_path / "bad.yaml").write_text("name: x\nL: 0.09\n")
     one_line_error(run("identify", *args[:2], "--geometry", str(tmp_path / "bad.yaml")), "L_active", "m_s")
@@ -236,6 +252,14 @@ def test_campaign_mistakes_end_in_one_line(tmp_path: Path) -> None:
     (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").write_bytes(b"kept")
     one_line_error(run("campaign", "paper", "-o", str(tmp_path / "done")), "--force")
     assert (tmp_path / "done" / "bags" / "air_M8528-P1.mcap").read_bytes() == b"kept"
+    # a folder of the user's that is no campaign's keeps its files; a file, or a folder nobody can make
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "report.md").write_text("my notes")
+    one_line_error(run("campaign", "paper", "-o", str(tmp_path / "mine")), "not a campaign's")
+    assert (tmp_path / "mine" / "report.md").read_text() == "my notes"
+    (tmp_path / "afile").write_text("x")
+    one_line_error(run("campaign", "paper", "-o", str(tmp_path / "afile")), "a file, not a folder")
+    one_line_error(run("campaign", "paper", "-o", "/proc/no/campaign"), "/proc/no/campaign")
 
 
 def test_each_fin_is_swept_and_driven_over_its_own_band() -> None:
