@@ -68,7 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..config import setting
 from ..errors import EstimationError
 from ..physics.amplifier import POWER_FIELDS, WATTS, Amplifier, LinearAmplifier, check_watt
-from ..physics.fin import Fin
+from ..physics.fin import MEDIA, Fin
 from .selfsense import NOMINAL, Calibration, self_sensed_tip
 
 FloatArray = NDArray[Any]
@@ -400,7 +400,11 @@ class StreamEstimator:
         config: EstimatorConfig | None = None,
         calibrate: Callable[[float, float], Calibration] | None = None,
         amplifier: Amplifier = PAPER_BENCH,
+        medium: str = "water",
     ) -> None:
+        if medium not in MEDIA:
+            raise EstimationError(f"medium must be one of {', '.join(MEDIA)}, got {medium!r}")
+        self.medium = medium  # in air there is no fluid to push: no thrust is estimated
         self.fin = fin
         self.config = config or EstimatorConfig()
         self.calibrate = calibrate  # (frequency Hz, Vpp) -> the self-sensing's calibration there
@@ -650,6 +654,9 @@ class StreamEstimator:
             calibration=cal,
             amplifier=self.amplifier,
         )
+        if self.medium == "air":  # Lighthill's thrust needs a fluid: in air it means nothing
+            r.update(dict.fromkeys(("thrust_n", "thrust_self_n", "c_tau"), math.nan))
+            r = with_watts(r)
         ts, vi_s = self.supply.slice(p.t_start, p.t_end)
         ok = np.all(np.isfinite(vi_s), axis=1) if ts.size else np.zeros(0, bool)
         if np.count_nonzero(ok) >= 4:

@@ -184,8 +184,9 @@ class Suite:
                 sim_extra["limits.frequency_max_hz"] = float(args.frequency_max)
             sim = FinSim(context=context, namespace=ns, parameter_overrides=params("fin_sim", sim_extra))
             sim_time = {"use_sim_time": True}
+            est_extra = {**sim_time, **({"medium": args.medium} if args.medium else {})}
             est = ThrustEstimator(
-                context=context, namespace=ns, parameter_overrides=params("thrust_estimator", sim_time)
+                context=context, namespace=ns, parameter_overrides=params("thrust_estimator", est_extra)
             )
             ctl_extra = {**sim_time, **_controller_options(args)}
             ctl = Controller(

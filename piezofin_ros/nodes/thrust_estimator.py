@@ -31,7 +31,7 @@ from ..errors import PiezofinError
 from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
 from ..estimation.selfsense import Calibration
 from ..physics.amplifier import AmplifierError, load_amplifier
-from ..physics.fin import Fin, load_fin
+from ..physics.fin import MEDIA, Fin, load_fin
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -61,6 +61,11 @@ class ThrustEstimatorConfig:
         "augmented model YAML (`piezofin diagnose --report`): its capacitance, loss conductance, coupling "
         "and c_m calibrate the self-sensed and Lighthill thrust (replaces fin)",
     )
+    medium: str = setting(
+        "water",
+        "water, or air (an in-air sweep: no thrust is estimated, only motion and power)",
+        choices=MEDIA,
+    )
     amplifier: str = setting(
         "paper-bench",
         "the amplifier driving the fin (preset or YAML): its model gives the supply's watt; a supply "
@@ -89,7 +94,7 @@ class ThrustEstimator(Node):
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         freeze_parameters(self)
-        self.core = StreamEstimator(self.fin, config, calibrate, amplifier)
+        self.core = StreamEstimator(self.fin, config, calibrate, amplifier, own.medium)
         self.estimates: list[Estimate] = []
         self.rejected = 0
         self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
@@ -150,7 +155,13 @@ class ThrustEstimator(Node):
         for e in estimates:
             self.estimates.append(e)
             self._pub.publish(block_msg(Block.from_record(e.as_dict())))
-            if e.final:
+            if e.final and self.core.medium == "air":
+                self.get_logger().info(
+                    f"trial {e.frequency_hz:.3f} Hz {e.voltage_pp:.0f} Vpp (in air: no thrust): tip velocity "
+                    f"{e.tip_velocity_rms * 1e3:.2f} mm/s, current {e.current_rms * 1e6:.1f} uA, "
+                    f"fin mean(v i) {e.power_w * 1e3:.3f} mW"
+                )
+            elif e.final:
                 measured = e.power_supply_measured_w
                 supply = f"{e.power_supply_w * 1e3:.1f} mW" + (
                     f" (measured {measured * 1e3:.1f})" if math.isfinite(measured) else ""

@@ -69,3 +69,25 @@ def test_a_wrong_amplifier_model_shows_as_a_supply_gap() -> None:
     assert wrong.power_w == pytest.approx(right.power_w, rel=1e-12)
     assert wrong.power_supply_measured_w == pytest.approx(right.power_supply_measured_w, rel=1e-12)
     assert wrong.power_supply_w > 3 * wrong.power_supply_measured_w
+
+
+def test_in_air_no_thrust_is_estimated_only_motion_and_power() -> None:
+    """An in-air sweep (the paper's identification tests): no fluid, so no Lighthill thrust and no thrust
+    per watt (the estimator had logged 193,787 mN/W there); the motion and every watt still are."""
+    from piezofin_ros.errors import EstimationError
+    from piezofin_ros.physics.fin import in_medium
+
+    fin = load_fin("M8528-P1")
+    rig = SimulatedRig(in_medium(fin, "air"), seed=4)
+    est = StreamEstimator(fin, medium="air")
+    out = []
+    for _ in range(200):
+        rig.command(38.0, 50.0, 1)
+        b = rig.step(50)
+        out += est.add_drive(b.t, b.voltage, b.current) + est.add_tip(b.t, b.tip_velocity)
+    e = out[-1]
+    assert math.isnan(e.thrust_n) and math.isnan(e.thrust_self_n) and math.isnan(e.c_tau)
+    assert all(math.isnan(getattr(e, tpw_field(w, s))) for w in WATTS for s in ("vibrometer", "self"))
+    assert e.tip_velocity_rms > 0 and e.power_w > 0 and e.power_supply_w > 0
+    with pytest.raises(EstimationError, match="medium"):
+        StreamEstimator(fin, medium="vacuum")
