@@ -47,6 +47,7 @@ def test_the_best_point_moves_with_the_watt(tmp_path: Path) -> None:
     assert best["M8528-P1"]["supply (paper-bench)"]["frequency_hz"] == pytest.approx(10.0)
 
 
+@pytest.mark.fast_cases("args0---voltages", "args5-efficiency")
 @pytest.mark.parametrize(
     ("args", "words"),
     [

@@ -66,6 +66,7 @@ def test_the_command_writes_the_twin_the_package_ships(tmp_path: Path) -> None:
         assert bad.returncode == 2 and words in bad.stderr and bad.stderr.count("\n") == 1, bad.stderr
 
 
+@pytest.mark.slow
 def test_a_user_runs_the_twin_by_name(tmp_path: Path) -> None:
     """``piezofin sweep --model paper-twin-M8528-P1`` and ``piezofin watts --twin``: by name, no path."""
     run = subprocess.run(
@@ -85,6 +86,7 @@ def test_a_user_runs_the_twin_by_name(tmp_path: Path) -> None:
 
 
 @pytest.mark.ros
+@pytest.mark.slow
 def test_bringup_runs_the_twin_and_refuses_contradictions(tmp_path: Path) -> None:
     """``bringup --models paper-twin-M8528-P1`` (what the main job runs): fin_sim simulates the twin
     and the estimator loads it (its thrust agrees with the load cell's); one model for two fins;
