@@ -109,7 +109,13 @@ def soak(seconds: float, warmup_s: float, directory: Path, progress: bool = True
     on_s = max(10.0, seconds / 3)
     commands = {
         "fin_sim": ["-p", "seed:=11"],
-        "thrust_estimator": ["-p", "estimator.window_s:=2.0", "-p", "estimator.settle_s:=2.0"],
+        # (the estimator keeps its samples for a bounded horizon, max_window_s + settle_s + 2 baseline_s
+        # + post_delay_s + channel_timeout_s + 5 s: 81 s by default, so its memory grows until then; here
+        # 19 s, within the warm-up, so that what grows after it is a leak)
+        "thrust_estimator": [
+            "-p", "estimator.window_s:=2.0", "-p", "estimator.settle_s:=2.0",
+            "-p", "estimator.max_window_s:=5.0", "-p", "estimator.baseline_s:=2.0",
+        ],
         "controller": [
             "-p", "mode:=continuous", "-p", "frequencies:=[5.0, 6.0, 7.0, 8.0]",
             "-p", "voltages:=[800.0]", "-p", f"on_s:={min(on_s, 600.0)}", "-p", "after:=hold",
