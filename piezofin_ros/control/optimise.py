@@ -63,7 +63,7 @@ from scipy import optimize
 from ..config import HARD_VOLTAGE_PP_MAX
 from ..errors import ControlError
 from ..estimation.selfsense import Calibration, lighthill_thrust, self_sensed_tip
-from ..physics.amplifier import WATTS, Amplifier, LinearAmplifier, power_in
+from ..physics.amplifier import PAPER_BENCH, WATTS, Amplifier, power_in
 from ..physics.effects import (
     AddedMassOffset,
     CapacitanceOffset,
@@ -282,7 +282,7 @@ class Optimiser:
     #: the watt of the thrust per watt (physics/amplifier.py): the map's power in it comes through
     #: ``amplifier`` (supply, and supply_measured, whose trials bring the meter's reading)
     watt: str = "fin"
-    amplifier: Amplifier = field(default_factory=lambda: LinearAmplifier(name="paper-bench"))
+    amplifier: Amplifier = PAPER_BENCH
     noise: EstimateNoise = field(default_factory=EstimateNoise)
     z_demand: float = 2.0  # the demand is met with this many standard deviations of margin
     search_chi2: float = 4.0  # the model mispredicts when its residuals exceed this (per datum)

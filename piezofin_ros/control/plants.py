@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..estimation.selfsense import lighthill_thrust, self_sensed_tip
-from ..physics.amplifier import Amplifier, LinearAmplifier, power_in
+from ..physics.amplifier import PAPER_BENCH, Amplifier, power_in
 from ..physics.effects import DielectricLoss, Effect, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
@@ -83,7 +83,7 @@ class Plant:
     #: coupling, extra drag or added mass, an amplifier's sag, ...)
     effects: tuple[Effect, ...] = ()
     #: the amplifier that truly drives it: the supply the plant's meter reads and its true supply watt
-    amplifier: Amplifier = field(default_factory=lambda: LinearAmplifier(name="paper-bench"))
+    amplifier: Amplifier = PAPER_BENCH
 
     def _scale(self, t: float) -> float:
         s = self.resonance_scale

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from scipy import optimize, stats
 
 from ..errors import DiagnosisError
-from ..physics.amplifier import LinearAmplifier
+from ..physics.amplifier import PAPER_BENCH, LinearAmplifier
 from ..physics.effects import LIBRARY, effect_class
 from ..physics.fin import Fin, load_fin
 from ..physics.model import Model, Prediction
@@ -48,7 +48,7 @@ PAPER_OPERATION_HZ = 5.5
 PAPER_MAX_TPW = 0.0607
 PAPER_POWER_RATIO = {"M8507-P1": 1.0, "M8514-P1": 2.0, "M8528-P1": 5.0}
 #: Class-B rails of the amplifier for the "amplifier draw" definition: the 800 Vpp drive's peak.
-RAIL_V = 400.0
+RAIL_V = PAPER_BENCH.rail_v
 
 
 def _power_real(p: Prediction, vpp: FloatArray) -> FloatArray:
@@ -61,7 +61,7 @@ def _power_apparent(p: Prediction, vpp: FloatArray) -> FloatArray:
 
 def _power_draw(p: Prediction, vpp: FloatArray) -> FloatArray:
     # a class-B stage from +-RAIL_V delivering a sine of peak current I draws (2/pi) RAIL_V I
-    return LinearAmplifier(rail_v=RAIL_V).steady(p.voltage_pp_drive, p.current_rms, p.power_w)
+    return PAPER_BENCH.steady(p.voltage_pp_drive, p.current_rms, p.power_w)
 
 
 #: What "average power" may have meant: name -> (power of a prediction, description).
@@ -483,7 +483,7 @@ def summary_json(r: dict[str, Any]) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------ the twin
 #: The paper's bench: the amplifier of the "amplifier draw" definition (config/amplifiers/paper-bench.yaml).
 def bench_amplifier() -> LinearAmplifier:
-    return LinearAmplifier(rail_v=RAIL_V, name="paper-bench")
+    return PAPER_BENCH
 
 
 @dataclass(frozen=True)

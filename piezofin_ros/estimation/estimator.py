@@ -67,7 +67,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..config import setting
 from ..errors import EstimationError
-from ..physics.amplifier import POWER_FIELDS, WATTS, Amplifier, LinearAmplifier, check_watt
+from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS, Amplifier, check_watt
 from ..physics.fin import MEDIA, Fin
 from .selfsense import NOMINAL, Calibration, self_sensed_tip
 
@@ -207,8 +207,6 @@ class EstimatorConfig:
                 raise EstimationError(f"estimator.{f.name} must be a finite number > 0, got {value!r}")
 
 
-#: The amplifier when none is named: the paper's bench (config/amplifiers/paper-bench.yaml).
-PAPER_BENCH = LinearAmplifier(rail_v=400.0, name="paper-bench")
 #: Points of the period the supply's watt is computed on (from the lock-in's harmonics).
 PERIOD_POINTS = 256
 

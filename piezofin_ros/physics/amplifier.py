@@ -192,6 +192,10 @@ class SwitchingAmplifier(Amplifier):
 
 KINDS: dict[str, type[Amplifier]] = {c.kind: c for c in (LinearAmplifier, SwitchingAmplifier)}
 
+#: The amplifier when none is named: the paper's bench, a class-B stage from the 800 Vpp drive's peak
+#: (config/amplifiers/paper-bench.yaml holds the same; the tests check they agree).
+PAPER_BENCH = LinearAmplifier(rail_v=400.0, name="paper-bench")
+
 
 def amplifier_from_mapping(data: Any, source: str = "amplifier") -> Amplifier:
     """An amplifier from ``{kind: linear|switching, <its parameters>}``; one error naming the key."""

@@ -36,7 +36,7 @@ from scipy import optimize, signal
 
 from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..errors import RigError
-from ..physics.amplifier import Amplifier, LinearAmplifier
+from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
 from ..physics.timedomain import default_step, integrate_nodes
@@ -347,7 +347,7 @@ class SimulatedRig:
         amplifier: Amplifier | None = None,
     ) -> None:
         self.fin = fin
-        self.amplifier = amplifier or LinearAmplifier(name="paper-bench")  # the supply's law
+        self.amplifier = amplifier or PAPER_BENCH  # the supply's law
         self.model = model
         self._knobs = Knobs()
         self._history: dict[str, tuple[FloatArray, FloatArray]] = {}  # recent samples, for the lags

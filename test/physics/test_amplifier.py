@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from piezofin_ros.physics.amplifier import (
+    PAPER_BENCH,
     AmplifierError,
     LinearAmplifier,
     SwitchingAmplifier,
@@ -92,6 +93,7 @@ def test_the_presets_load_by_name_and_a_file_by_path(tmp_path) -> None:
     assert {"paper-bench", "fish-switching"} <= set(amplifier_presets())
     bench = load_amplifier("paper-bench")
     assert isinstance(bench, LinearAmplifier) and bench.rail_v == 400.0 and bench.name == "paper-bench"
+    assert bench == PAPER_BENCH  # the default every node and model takes is the preset
     fish = load_amplifier("fish-switching")
     assert isinstance(fish, SwitchingAmplifier) and 0 < fish.efficiency <= 1
     f = tmp_path / "mine.yaml"
