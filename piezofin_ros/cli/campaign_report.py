@@ -369,25 +369,22 @@ def _operation_row(n: dict[str, Any]) -> Row:
     )
 
 
-def _tpw_row(name: str, n: dict[str, Any]) -> Row:
-    got = n["max_tpw_trials"]
-    return (
-        f"{name} max T/P at 800 Vpp [mN/W per fin watt, mean(v i)]",
-        f"~{PAPER_MAX_TPW * 1e3:.1f}",
-        f"{got * 1e3:.4g} at {n['max_tpw_at_hz']:g} Hz (trials of >= {MIN_THRUST_N * 1e3:g} mN)",
-        "agrees"
-        if abs(got - PAPER_MAX_TPW) <= 0.1 * PAPER_MAX_TPW
-        else f"x{got / PAPER_MAX_TPW:.0f}: the fin keeps a small part of what its amplifier draws",
-    )
+#: The report's watts: (key suffix in the numbers, label, what a fin-watt T/P far off says).
+TPW_ROWS = {
+    "fin": ("", "fin watt, mean(v i)", ": the fin keeps a small part of what its amplifier draws"),
+    "supply": ("_supply", "supply watt, the estimator's amplifier", ""),
+}
 
 
-def _tpw_supply_row(name: str, n: dict[str, Any]) -> Row:
-    got = n["max_tpw_supply_trials"]
+def _tpw_row(name: str, n: dict[str, Any], watt: str = "fin") -> Row:
+    key, label, why = TPW_ROWS[watt]
+    got = n[f"max_tpw{key}_trials"]
+    off = f"x{got / PAPER_MAX_TPW:.0f}{why}" if why else f"x{got / PAPER_MAX_TPW:.2g}"
     return (
-        f"{name} max T/P at 800 Vpp [mN/W per supply watt, the estimator's amplifier]",
+        f"{name} max T/P at 800 Vpp [mN/W per {label}]",
         f"~{PAPER_MAX_TPW * 1e3:.1f}",
-        f"{got * 1e3:.4g} at {n['max_tpw_supply_at_hz']:g} Hz (trials of >= {MIN_THRUST_N * 1e3:g} mN)",
-        "agrees" if abs(got - PAPER_MAX_TPW) <= 0.1 * PAPER_MAX_TPW else f"x{got / PAPER_MAX_TPW:.2g}",
+        f"{got * 1e3:.4g} at {n[f'max_tpw{key}_at_hz']:g} Hz (trials of >= {MIN_THRUST_N * 1e3:g} mN)",
+        "agrees" if abs(got - PAPER_MAX_TPW) <= 0.1 * PAPER_MAX_TPW else off,
     )
 
 
@@ -440,8 +437,8 @@ def facts_table(numbers: dict[str, dict[str, Any]]) -> list[Row]:
     rows = [r for name, n in numbers.items() if name in PAPER for r in _table2_rows(name, n)]
     if "resonance_hz_trials" in numbers.get("M8528-P1", {}):
         rows.append(_operation_row(numbers["M8528-P1"]))
-    rows += [_tpw_row(name, n) for name, n in numbers.items() if "max_tpw_trials" in n]
-    rows += [_tpw_supply_row(name, n) for name, n in numbers.items() if "max_tpw_supply_trials" in n]
+    for watt, (key, _, _) in TPW_ROWS.items():
+        rows += [_tpw_row(name, n, watt) for name, n in numbers.items() if f"max_tpw{key}_trials" in n]
     optional = (
         _ratio_row(
             numbers,

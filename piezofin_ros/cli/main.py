@@ -365,12 +365,18 @@ def writable_path(option: str, path: str | Path) -> None:
     path = Path(path)
     if path.is_dir():
         raise UsageError(f"{option} {path}: a folder, not a file")
+    writable_folder(option, path.parent, f"{option} {path}: its folder")
+
+
+def writable_folder(option: str, folder: Path, what: str = "") -> None:
+    """``folder`` exists (made if need be) and takes files; else one line naming ``option``."""
+    what = what or option
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UsageError(f"{option} {path}: cannot make its folder ({exc.strerror or exc})") from None
-    if not os.access(path.parent, os.W_OK):
-        raise UsageError(f"{option} {path}: its folder {path.parent} is not writable")
+        raise UsageError(f"{what} {folder}: cannot make it ({exc.strerror or exc})") from None
+    if not os.access(folder, os.W_OK):
+        raise UsageError(f"{what} {folder}: not writable")
 
 
 def run_campaign_cmd(args: argparse.Namespace) -> int:
@@ -428,12 +434,7 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
             f"{', ...' if len(theirs) > 3 else ''}), not a campaign's; choose an empty one (or --force)"
         )
     if not args.analyse_only:
-        try:
-            cfg.out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"-o {cfg.out}: cannot make it ({exc.strerror or exc})") from None
-        if not os.access(cfg.out, os.W_OK):
-            raise UsageError(f"-o {cfg.out}: not writable")
+        writable_folder("-o", cfg.out)
     try:
         run_campaign(cfg, say=lambda m: print(m, flush=True), analyse_only=args.analyse_only)
     except KeyboardInterrupt:

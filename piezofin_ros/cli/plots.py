@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimation.estimator import PAPER_BENCH, tpw_field
+from ..estimation.estimator import tpw_field
 from ..identification.fit import water_mobility
 from ..identification.identify import Identification
-from ..physics.amplifier import POWER_FIELDS, WATTS_SHORT, Amplifier, power_in
+from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in
 from ..physics.fin import Fin
 from ..physics.steady import harmonic_balance
 

@@ -35,9 +35,9 @@ from ..bags.blocks import (
     check_samples,
 )
 from ..errors import DiagnosisError
-from ..estimation.estimator import PAPER_BENCH, Estimate, EstimatorConfig
+from ..estimation.estimator import Estimate, EstimatorConfig
 from ..estimation.offline import replay_estimates, topic_prefix
-from ..physics.amplifier import Amplifier
+from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.fin import Fin
 
 FloatArray = NDArray[Any]

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from scipy import optimize, stats
 
 from ..errors import DiagnosisError
-from ..physics.amplifier import PAPER_BENCH, LinearAmplifier
+from ..physics.amplifier import PAPER_BENCH
 from ..physics.effects import LIBRARY, effect_class
 from ..physics.fin import Fin, load_fin
 from ..physics.model import Model, Prediction
@@ -481,11 +481,6 @@ def summary_json(r: dict[str, Any]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------ the twin
-#: The paper's bench: the amplifier of the "amplifier draw" definition (config/amplifiers/paper-bench.yaml).
-def bench_amplifier() -> LinearAmplifier:
-    return PAPER_BENCH
-
-
 @dataclass(frozen=True)
 class Twin:
     """The paper's rig as a twin: the hypothesis that explains its facts best, and its rivals."""
@@ -501,7 +496,7 @@ class Twin:
         notes = {
             "twin": "the paper's rig as a twin (`piezofin diagnose --paper --twin DIR`)",
             "hypothesis": h.label,
-            "watt": f"{bench_amplifier().describe()}: config/amplifiers/paper-bench.yaml",
+            "watt": f"{PAPER_BENCH.describe()}: config/amplifiers/paper-bench.yaml",
             "chi2": round(h.chi2, 3),
             "p_value": round(h.p_value, 4),
             "fin": "the paper's Tables 1-2 (the preset); the effects fitted to the paper's ten facts",
@@ -546,7 +541,7 @@ def paper_twin(
 
 def twin_text(twin: Twin) -> str:
     h = twin.hypothesis
-    amp = bench_amplifier()
+    amp = PAPER_BENCH
     lines = [
         "# The paper's rig as a twin",
         "",

@@ -19,9 +19,9 @@ from ..bags.blocks import (
     BlockFormatError,
     check_samples,
 )
-from ..physics.amplifier import Amplifier
+from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.fin import Fin
-from .estimator import OPTIONAL_FIELDS, PAPER_BENCH, Estimate, EstimatorConfig, StreamEstimator
+from .estimator import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
 
 #: Skipped messages are counted; only this many lines describing them are kept.
 MAX_SKIPPED_LINES = 100

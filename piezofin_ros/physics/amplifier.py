@@ -27,14 +27,13 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
-from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import PhysicsError
-from .fin import config_dir, read_yaml_file
+from .fin import preset_path, presets, read_yaml_file
 
 FloatArray = NDArray[Any]
 
@@ -122,6 +121,10 @@ class Amplifier:
     def describe(self) -> str:
         raise NotImplementedError
 
+    def _quiescent(self) -> str:
+        q = float(getattr(self, "quiescent_w", 0.0))
+        return f", {q:g} W quiescent" if q else ""
+
 
 @dataclass(frozen=True)
 class LinearAmplifier(Amplifier):
@@ -145,8 +148,7 @@ class LinearAmplifier(Amplifier):
         return self.quiescent_w + self.rail_v * (2 * math.sqrt(2) / math.pi) * np.asarray(current_rms, float)
 
     def describe(self) -> str:
-        q = f", {self.quiescent_w:g} W quiescent" if self.quiescent_w else ""
-        return f"a linear (class-B) amplifier from +-{self.rail_v:g} V rails{q}"
+        return f"a linear (class-B) amplifier from +-{self.rail_v:g} V rails{self._quiescent()}"
 
 
 @dataclass(frozen=True)
@@ -183,10 +185,9 @@ class SwitchingAmplifier(Amplifier):
         return self.quiescent_w + above / self.efficiency - self.recovered * below
 
     def describe(self) -> str:
-        q = f", {self.quiescent_w:g} W quiescent" if self.quiescent_w else ""
         return (
             f"a switching amplifier from a {self.bus_v:g} V bus, {self.efficiency:.0%} efficient, "
-            f"{self.recovered:.0%} of the returned energy recovered{q}"
+            f"{self.recovered:.0%} of the returned energy recovered{self._quiescent()}"
         )
 
 
@@ -216,19 +217,12 @@ def amplifier_from_mapping(data: Any, source: str = "amplifier") -> Amplifier:
 
 
 def amplifier_presets() -> list[str]:
-    return sorted(p.stem for p in (config_dir() / "amplifiers").glob("*.yaml"))
+    return presets("amplifiers")
 
 
 def load_amplifier(name_or_path: str | os.PathLike[str]) -> Amplifier:
     """A preset by name (``paper-bench``, ``fish-switching``) or an amplifier YAML by path."""
-    text = str(name_or_path)
-    path = Path(text)
-    if not path.suffix and not path.exists():
-        path = config_dir() / "amplifiers" / f"{text}.yaml"
-        if not path.exists():
-            raise AmplifierError(
-                f"unknown amplifier '{text}': not a file and not a preset ({', '.join(amplifier_presets())})"
-            )
+    path = preset_path(name_or_path, "amplifiers", "amplifier", AmplifierError)
     data = read_yaml_file(path, AmplifierError)
     if isinstance(data, Mapping) and isinstance(data.get("amplifier"), Mapping):
         data = data["amplifier"]

@@ -367,9 +367,28 @@ def config_dir() -> Path:
     )
 
 
+def presets(folder: str) -> list[str]:
+    """Names of the YAML presets shipped in ``config/<folder>``."""
+    return sorted(p.stem for p in (config_dir() / folder).glob("*.yaml"))
+
+
 def preset_names() -> list[str]:
     """Names of the fins shipped in ``config/fins``."""
-    return sorted(p.stem for p in (config_dir() / "fins").glob("*.yaml"))
+    return presets("fins")
+
+
+def preset_path(name_or_path: str | os.PathLike[str], folder: str, kind: str, error: type[Exception]) -> Path:
+    """A file by path, or a preset by name (no suffix, no such file) from ``config/<folder>``;
+    ``error`` naming the ``kind`` and the presets when it is neither."""
+    text = str(name_or_path)
+    path = Path(text)
+    if not path.suffix and not path.exists():
+        path = config_dir() / folder / f"{text}.yaml"
+        if not path.exists():
+            raise error(
+                f"unknown {kind} '{text}': not a file and not a preset ({', '.join(presets(folder))})"
+            )
+    return path
 
 
 def load_fin(name_or_path: str | os.PathLike[str]) -> Fin:
@@ -377,14 +396,7 @@ def load_fin(name_or_path: str | os.PathLike[str]) -> Fin:
 
     Raises :class:`FinConfigError` with the file and the offending key on any problem.
     """
-    text = str(name_or_path)
-    path = Path(text)
-    if not path.suffix and not path.exists():
-        path = config_dir() / "fins" / f"{text}.yaml"
-        if not path.exists():
-            raise FinConfigError(
-                f"unknown fin '{text}': not a file and not a preset ({', '.join(preset_names())})"
-            )
+    path = preset_path(name_or_path, "fins", "fin", FinConfigError)
     data = read_yaml_file(path)
     if isinstance(data, Mapping) and "fin" in data and isinstance(data["fin"], Mapping):
         data = data["fin"]

@@ -31,14 +31,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .effects import Effect, Effects, ModelError, OperatingPoint, TimeLaw, effect_class, make
-from .fin import Fin, FinConfigError, config_dir, read_yaml_file
+from .fin import Fin, FinConfigError, preset_path, presets, read_yaml_file
 from .knobs import Knobs
 from .steady import coefficients, solve_amplitude
 
@@ -206,7 +205,7 @@ def _uncertainties_from_mapping(
 
 def model_presets() -> list[str]:
     """Names of the models shipped in ``config/models`` (the paper's twin, ``paper-twin-<fin>``)."""
-    return sorted(p.stem for p in (config_dir() / "models").glob("*.yaml"))
+    return presets("models")
 
 
 def load_model(path: str) -> Model:
@@ -216,14 +215,7 @@ def load_model(path: str) -> Model:
     Raises :class:`ModelError` naming the file and the problem (missing, unreadable, not YAML,
     unknown effect or parameter, value out of range, bad fin).
     """
-    path = str(path)
-    if not Path(path).suffix and not Path(path).exists():
-        preset = config_dir() / "models" / f"{path}.yaml"
-        if not preset.exists():
-            raise ModelError(
-                f"unknown model '{path}': not a file and not a preset ({', '.join(model_presets())})"
-            )
-        path = str(preset)
+    path = str(preset_path(path, "models", "model", ModelError))
     data = read_yaml_file(path, ModelError)
     try:
         return Model.from_mapping(data, source=path)
