@@ -169,6 +169,7 @@ def test_stopped_for_want_of_estimates_the_loop_drives_again_with_a_back_off(m85
     assert loop.state == "stopped" and v == 0.0 and "again" not in loop.events[-1]
 
 
+@pytest.mark.exclusive  # (a wall-clock bound on the heartbeat: phase 2, no CPU-bound test beside it)
 def test_a_flood_of_demands_is_one_fit_at_a_time_and_the_last_one_wins(m8528: Fin) -> None:
     """1000 demands as fast as an attacker publishes them: the fit's thread sees a handful, the
     heartbeat never waits, and the loop ends on the last demand."""
