@@ -38,10 +38,11 @@ from typing import Any
 import numpy as np
 import yaml
 
+from ..bags.reader import Damage
 from ..errors import CliError
 from ..identification.frf import read_sweep
 from ..identification.identify import Identification, identify
-from ..physics.fin import Fin, config_dir, load_fin, read_yaml_file
+from ..physics.fin import Fin, FinConfigError, config_dir, load_fin, read_yaml_file
 from ..physics.model import load_model
 from .campaign_report import analyse, filename, namespace
 
@@ -253,20 +254,49 @@ def run_stage(
     return statuses
 
 
+def planned(cfg: CampaignConfig, stage: str, name: str) -> int:
+    """The points (``air``, ``water``) or trials (``protocol``) a stage planned for a fin: from the
+    parameter file it ran with (``logs/<stage>.params.yaml``: a campaign analysed again keeps its own
+    plan), else from ``cfg``."""
+    try:
+        doc = read_yaml_file(cfg.out / "logs" / f"{stage}.params.yaml")
+        ctl = doc[f"/{namespace(name)}/controller"]["ros__parameters"]
+        return len(ctl["frequencies"]) * len(ctl["voltages"])
+    except (OSError, KeyError, TypeError, FinConfigError):
+        if stage == "protocol":
+            return len(cfg.protocol_frequencies(name)) * len(cfg.voltages)
+        return cfg.sweep_points
+
+
 def identify_all(
     cfg: CampaignConfig, fin_files: dict[str, str], say: Callable[[str], None]
-) -> dict[str, Identification]:
-    """Each fin from its two sweep bags in ``cfg.out/bags``; writes ``fins/<fin>.yaml`` and notes its path."""
+) -> tuple[dict[str, Identification], list[str]]:
+    """Each fin from its two sweep bags in ``cfg.out/bags``; writes ``fins/<fin>.yaml`` and notes its
+    path.  Returns the identifications and what makes any of them untrustworthy: a damaged bag, a
+    sweep with fewer points than planned (data lost), a fit that does not fit."""
     idents: dict[str, Identification] = {}
+    problems: list[str] = []
     bags = cfg.out / "bags"
     for name in cfg.fins:
         ns = namespace(name)
+        sweeps = {}
+        for stage in ("air", "water"):
+            bag = bags / f"{stage}_{filename(name)}.mcap"
+            damages: list[Damage] = []
+            sweeps[stage] = read_sweep(bag, ns, on_damage=damages.append)
+            problems += [f"{name}: {d}" for d in damages]
+            if len(sweeps[stage]) < (plan := planned(cfg, stage, name)):
+                problems.append(
+                    f"{name}: {bag.name} gives {len(sweeps[stage])} of the {plan} points "
+                    "planned: data lost (a cut bag, steps that did not settle)"
+                )
         ident = identify(
-            read_sweep(bags / f"air_{filename(name)}.mcap", ns),
-            read_sweep(bags / f"water_{filename(name)}.mcap", ns),
+            sweeps["air"],
+            sweeps["water"],
             load_fin(name) if name not in cfg.models else cfg.truth(name),
             name,
         )
+        problems += [f"{name}: {p}" for p in ident.problems]
         path = cfg.out / "fins" / f"{filename(name)}.yaml"
         path.write_text(ident.fin_yaml())
         fin_files[name] = str(path.resolve())
@@ -275,8 +305,9 @@ def identify_all(
             f"   {name}: f_sc {ident.fin.f_sc:.2f} Hz, zeta {ident.fin.zeta * 100:.2f} %, "
             f"theta {ident.fin.theta * 1e3:.2f}e-3, C_eq {ident.fin.C_eq * 1e9:.2f} nF, "
             f"c_m {ident.fin.c_m:.3f}, c_d {ident.fin.c_d:.2f}"
+            + ("" if ident.trusted else " (NOT TRUSTED: see the report)")
         )
-    return idents
+    return idents, problems
 
 
 def _statuses(cfg: CampaignConfig) -> dict[str, dict[str, Any]]:
@@ -316,13 +347,27 @@ def run_campaign(
         )
         run_stage(cfg, "water", fin_files, say)
     say(f"[3/4] identification of {n} fin(s) ({time.monotonic() - t0:.0f} s)")
-    idents = identify_all(cfg, fin_files, say)
+    idents, problems = identify_all(cfg, fin_files, say)
     if not analyse_only:
         trials = "/".join(str(len(cfg.protocol_frequencies(nm)) * len(cfg.voltages)) for nm in cfg.fins)
         say(f"[4/4] thrust protocol, {trials} trials of 30 s ({time.monotonic() - t0:.0f} s)")
         run_stage(cfg, "protocol", fin_files, say)
-    report = analyse(cfg, idents, _statuses(cfg))
+    statuses = _statuses(cfg)
+    for name in cfg.fins:
+        plan = planned(cfg, "protocol", name)
+        done = len(statuses[name]["fins"][f"/{namespace(name)}"]["results"])
+        if done < plan:
+            problems.append(f"{name}: the thrust protocol gives {done} of the {plan} trials planned")
+    report = analyse(cfg, idents, statuses, problems)
     report["wall_s"] = time.monotonic() - t0
     (cfg.out / "report.json").write_text(json.dumps(report, indent=1, default=float))  # with the time
-    say(f"done in {report['wall_s']:.0f} s: {cfg.out / 'report.md'}")
+    if problems:
+        say(
+            f"done in {report['wall_s']:.0f} s, NOT TO BE TRUSTED ({len(problems)} problem(s), listed at the "
+            f"top of {cfg.out / 'report.md'}):"
+        )
+        for p in problems:
+            say(f"   {p}")
+    else:
+        say(f"done in {report['wall_s']:.0f} s: {cfg.out / 'report.md'}")
     return report

@@ -10,6 +10,7 @@ import itertools
 import json
 import math
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -459,10 +460,14 @@ def facts_table(numbers: dict[str, dict[str, Any]]) -> list[Row]:
 
 
 def analyse(
-    cfg: CampaignConfig, idents: dict[str, Identification], status: dict[str, dict[str, Any]]
+    cfg: CampaignConfig,
+    idents: dict[str, Identification],
+    status: dict[str, dict[str, Any]],
+    problems: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Figures, ``report.md`` and ``report.json``, from the identifications and each fin's protocol
-    status (``bringup --json``); returns the report's numbers."""
+    status (``bringup --json``); ``problems`` (lost data, untrusted fits) head the report.  Returns
+    the report's numbers."""
     out = cfg.out
     statuses = {name: status[name]["fins"][f"/{namespace(name)}"] for name in idents}
     top = max(cfg.voltages)
@@ -496,6 +501,17 @@ def analyse(
         "with the simulated rig: in-air and underwater stepped sines, identification, then the thrust "
         "protocol with the identified fin.",
         "",
+    ]
+    if problems:
+        lines += [
+            "## NOT TO BE TRUSTED",
+            "",
+            "This campaign lost data or has fits that do not fit; the numbers below are what remained.",
+            "",
+            *(f"- {p}" for p in problems),
+            "",
+        ]
+    lines += [
         "## Identified parameters (Table 2, c_m, c_d)",
         "",
     ]
@@ -517,6 +533,7 @@ def analyse(
         "fins": numbers,
         "facts": [dict(zip(("fact", "paper", "suite", "verdict"), r, strict=True)) for r in rows],
         "figures": figures,
+        "problems": list(problems),
     }
     (out / "report.json").write_text(json.dumps(report, indent=1, default=float))
     return report

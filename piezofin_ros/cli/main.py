@@ -3,7 +3,9 @@
     piezofin sweep --fin M8528-P1 --vpp 400 600 800 --freq 1:11:0.1 [--json] [--plot F.png]
 
 Errors in the arguments or in a fin file end the command with a one-line message and
-exit status 2, never a traceback.
+exit status 2, never a traceback.  Work that ran but whose result is not to be trusted (an
+identification whose fit does not fit, a campaign that lost data) ends with exit status 3 and says
+why.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ if TYPE_CHECKING:
     from ..diagnosis.paper import Twin
 
 EXIT_USAGE = 2
+#: The work ran, but its result is not to be trusted (said on standard error, with the cause).
+EXIT_UNTRUSTED = 3
 
 
 class UsageError(CliError):
@@ -312,12 +316,21 @@ def _add_identify_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", help="write the fin YAML here (never overwritten)")
     p.add_argument("--plot", help="write Fig. 5 (measured and model velocity FRFs) to this PNG")
     p.add_argument("--json", action="store_true", help="print the identified values and the points as JSON")
+    p.add_argument(
+        "--accept-poor-fit",
+        action="store_true",
+        help="write the fin file (-o) even when the fit is not to be trusted (it is marked so inside)",
+    )
+    p.epilog = (
+        "exit status: 0 identified; 2 bad input (one line); 3 identified, but the fit is not to be "
+        "trusted (each cause said; no fin file written unless --accept-poor-fit)"
+    )
 
 
 def run_identify(args: argparse.Namespace) -> int:
     from ..bags import BagError
     from ..identification.frf import IdentificationError, read_sweep
-    from ..identification.identify import identify, load_geometry
+    from ..identification.identify import identify, known_resonance, load_geometry
     from .plots import plot_frf
 
     if args.output and Path(args.output).exists():
@@ -331,13 +344,16 @@ def run_identify(args: argparse.Namespace) -> int:
         geometry = load_geometry(args.geometry)
         air = read_sweep(args.air, args.namespace)
         water = read_sweep(args.water, args.namespace) if args.water else None
-        ident = identify(air, water, geometry, args.name)
+        ident = identify(air, water, geometry, args.name, known_resonance(args.geometry))
     except (BagError, IdentificationError, FinConfigError, FileNotFoundError) as exc:
         raise UsageError(str(exc)) from None
     if args.json:
         out = {
             "fin": ident.fin.inputs(),
             "identified": ident.values(),
+            "trusted": ident.trusted,
+            "problems": ident.problems,  # why not, each with its likely cause
+            "corrections": list(ident.corrections),  # reversed sensors found and turned back
             "notes": ident.warnings,  # what the data cannot identify, or identify only coarsely
             "air_points": [p.record() for p in ident.air_points],
             "water_points": [p.record() for p in ident.water_points],
@@ -345,18 +361,31 @@ def run_identify(args: argparse.Namespace) -> int:
         print(json.dumps(out, indent=2, allow_nan=True))
     else:
         print(ident.table())
+    said = sys.stderr if args.json else sys.stdout
+    write_fin = args.output and (ident.trusted or args.accept_poor_fit)
     try:
-        if args.output:
+        if write_fin:
             with open(args.output, "x") as fh:
                 fh.write(ident.fin_yaml())
             load_fin(args.output)  # what was written loads
-            print(f"fin: {args.output}", file=sys.stderr if args.json else sys.stdout)
+            print(f"fin: {args.output}{'' if ident.trusted else ' (marked NOT TRUSTED inside)'}", file=said)
         if args.plot:
-            plot_frf(args.plot, ident)
-            print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+            plot_frf(args.plot, ident)  # (the plot is where a misfit shows: written either way)
+            print(f"plot: {args.plot}", file=said)
     except OSError as exc:
         raise UsageError(f"cannot write {exc.filename or 'the output'} ({exc.strerror or exc})") from None
-    return 0
+    if ident.trusted:
+        return 0
+    print(
+        f"identify: the fit is not to be trusted ({len(ident.problems)} problem(s), above); "
+        + (
+            f"no fin file written to {args.output} (--accept-poor-fit writes it, marked)"
+            if args.output and not write_fin
+            else "exit status 3"
+        ),
+        file=sys.stderr,
+    )
+    return EXIT_UNTRUSTED
 
 
 def writable_path(option: str, path: str | Path) -> None:
@@ -436,7 +465,7 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
     if not args.analyse_only:
         writable_folder("-o", cfg.out)
     try:
-        run_campaign(cfg, say=lambda m: print(m, flush=True), analyse_only=args.analyse_only)
+        report = run_campaign(cfg, say=lambda m: print(m, flush=True), analyse_only=args.analyse_only)
     except KeyboardInterrupt:
         print(f"piezofin: interrupted; what was recorded so far is in {cfg.out}", file=sys.stderr)
         return 130
@@ -444,6 +473,12 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     except OSError as exc:
         raise UsageError(f"-o {cfg.out}: cannot write {exc.filename or ''} ({exc.strerror or exc})") from None
+    if report["problems"]:
+        print(
+            f"campaign: not to be trusted: {len(report['problems'])} problem(s) (above, and in the report)",
+            file=sys.stderr,
+        )
+        return EXIT_UNTRUSTED
     return 0
 
 

@@ -316,6 +316,26 @@ class Diagnosis:
     #: when nothing explains the gap but the least bad candidate removes most of it: its family
     #: ("added mass", "current monitor", ...), the probable cause in another form
     family: str = ""
+    #: the share of the held-out gap the family's least-bad candidate removes
+    family_removed: float = math.nan
+    #: reversed sensors found in the data and corrected before the diagnosis, in words
+    corrections: list[str] = field(default_factory=list)
+
+    @property
+    def headline(self) -> str:
+        """The verdict in one sentence, leading with what was found: a sensor corrected, the family."""
+        fixed = "; ".join(c.split(": the fin would")[0] for c in self.corrections)
+        lead = f"found and corrected: {fixed}; after it, " if fixed else ""
+        if self.verdict == "no gap":
+            return lead + "no gap: every stage agrees with the model within the measurement noise"
+        if self.verdict == "explained" and self.chosen is not None:
+            return lead + f"explained by {self.chosen.label}" + (" (ambiguous)" if self.ambiguous else "")
+        if self.family:
+            return lead + (
+                f"the {self.family} family, in another form: {self.family_removed:.0%} of the gap removed "
+                "by its best form in the library, which does not close it"
+            )
+        return lead + "unexplained: no candidate in the library closes the gap"
 
     @property
     def confident(self) -> bool:
@@ -370,6 +390,8 @@ class Work:
     final: Model = field(init=False)
     notes: list[str] = field(default_factory=list)
     family: str = ""
+    family_removed: float = math.nan
+    corrections: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.nominal_model = Model(self.fin)
@@ -405,6 +427,7 @@ def read(w: Work) -> None:
     w.notes += list(w.trials.notes)
     w.trials, said = conventions(w.trials)
     w.notes += said
+    w.corrections = list(said)
 
 
 def where(w: Work) -> None:
@@ -533,6 +556,7 @@ def family_of_the_least_bad(w: Work) -> None:
         if not gone >= FAMILY_SHRINK:
             return
     (w.family,) = families
+    w.family_removed = gone
     titles = " + ".join(effect_class(e).title for e in best.effects)
     w.notes.append(
         f"the gap is most probably in the {w.family} family: {titles} removes {gone:.0%} of it, but its "
@@ -631,6 +655,8 @@ def diagnose(
         w.final,
         w.notes,
         w.family,
+        w.family_removed,
+        w.corrections,
     )
 
 
@@ -654,6 +680,8 @@ def summary_json(d: Diagnosis) -> dict[str, Any]:
         "source": d.trials.source,
         "trials": len(d.trials),
         "verdict": d.verdict,
+        "headline": d.headline,
+        "corrections": d.corrections,
         "confident": d.confident,
         "named": list(d.named),
         "family": d.family or None,

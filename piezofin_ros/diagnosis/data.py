@@ -37,6 +37,7 @@ from ..bags.blocks import (
 from ..errors import DiagnosisError
 from ..estimation.estimator import Estimate, EstimatorConfig
 from ..estimation.offline import replay_estimates, topic_prefix
+from ..identification.signs import Signs
 from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.fin import Fin
 
@@ -623,52 +624,25 @@ __all__ = [
 
 
 def conventions(trials: Trials) -> tuple[Trials, list[str]]:
-    """A reversed sensor, found from physics the sign conventions fix (docs/reference.md), corrected.
+    """A reversed sensor (:mod:`piezofin_ros.identification.signs`), found in the trials, corrected.
 
-    A fin only absorbs power: the mean power ``mean(v i)`` is positive, and so is the power into the
-    motion, ``(1/2) V (theta/phi(L)) |U_1| cos(psi)``, whatever the model.  So
-    * ``cos(psi) < 0`` across the trials (a tip phase off by about 180 deg) with a positive power:
-      the vibrometer's sign is reversed;
-    * a negative power with the phase right: the current monitor's sign is reversed;
-    * both: the voltage channel's sign is reversed (or both other sensors).
-    Each is decided by the trials' weighted majority (``sum u cos(psi) / sum u |cos(psi)| < -0.5``,
-    ``sum P / sum |P| < -0.5``), corrected, and said.
+    The power into the motion is a positive multiple of ``u cos(psi)`` (the tip phase ``psi``
+    against the drive), the drive's is ``mean(v i)``; a reversed vibrometer is corrected by turning
+    the tip phase through 180 deg, a reversed current monitor by turning the power's sign.
     """
     notes: list[str] = []
     u, ph, p = trials.tip_velocity_rms, trials.tip_phase_rad, trials.power_w
-    ok_u = np.isfinite(u) & np.isfinite(ph)
-    tip_flipped = False
-    if np.any(ok_u):
-        c = np.cos(ph[ok_u]) * u[ok_u]
-        tip_flipped = float(np.sum(c) / max(np.sum(np.abs(c)), 1e-300)) < -0.5
-    ok_p = np.isfinite(p)
-    power_flipped = (
-        bool(np.any(ok_p)) and float(np.sum(p[ok_p]) / max(np.sum(np.abs(p[ok_p])), 1e-300)) < -0.5
-    )
-    if not (tip_flipped or power_flipped):
+    signs = Signs.check(u * np.cos(ph), p)
+    if not signs.any:
         return trials, notes
     cols: dict[str, Any] = {}
-    if tip_flipped:
+    if signs.tip:
         cols["tip_phase_rad"] = np.angle(-np.exp(1j * ph))
-    if power_flipped:
+    if signs.power:
         cols["power_w"] = -p
-    if tip_flipped and power_flipped:
-        which = "the voltage channel's sign is reversed (or both the vibrometer's and the current monitor's)"
-    elif tip_flipped:
-        which = "the vibrometer's sign is reversed (it looks at the fin from the other side)"
-    elif np.any(ok_u):
-        which = "the current monitor's sign is reversed"
-    else:  # no vibrometer (a fish): the phase cannot tell the current from the voltage
-        which = (
-            "the current monitor's sign is reversed (or the voltage channel's: without a vibrometer "
-            "they look alike)"
-        )
-    fix = " and ".join(
-        x for x, on in (("tip phase + 180 deg", tip_flipped), ("power x -1", power_flipped)) if on
-    )
+    fix = " and ".join(x for x, on in (("tip phase + 180 deg", signs.tip), ("power x -1", signs.power)) if on)
     notes.append(
-        f"{which}: the fin would be giving power back "
-        f"({'tip phase off by about 180 deg' if tip_flipped else 'mean(v i) < 0'}); corrected ({fix}) "
+        f"{signs.which}: the fin would be giving power back ({signs.symptom}); corrected ({fix}) "
         "before the diagnosis. Sign conventions: docs/reference.md"
     )
     return replace(trials, **cols), notes

@@ -24,6 +24,8 @@ def text(d: Diagnosis) -> str:
     lines = [
         f"# Sim-to-real diagnosis: {d.fin.name}",
         "",
+        f"**Verdict: {d.headline}.**",
+        "",
         f"Data: {t.source} ({len(t)} trials, {', '.join(f'{v:.0f}' for v in t.voltages)} Vpp, "
         f"{t.frequency_hz.min():.2f}-{t.frequency_hz.max():.2f} Hz).",
         "",

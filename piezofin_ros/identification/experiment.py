@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from ..physics import hydro, modeshape
 from ..physics.fin import Fin, in_medium
+from ..physics.model import Model
 from ..rig.simulated import DriveLimits, RigConfig, SimulatedRig
 from .frf import FrfPoint, frf_points
 
@@ -56,11 +57,17 @@ def stepped_sine(
     rig: RigConfig | None = None,
     seed: int = 0,
     block_s: float = 0.5,
+    model: Model | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Samples ``t, voltage, current, tip_velocity`` of ``plan`` on the simulated rig in ``medium``."""
+    """Samples ``t, voltage, current, tip_velocity`` of ``plan`` on the simulated rig in ``medium``
+    (the fin of ``model`` with its effects, when given: ``fin`` is then ignored)."""
     config = rig or RigConfig()
     limits = DriveLimits(frequency_min_hz=0.1, frequency_max_hz=1000.0, voltage_pp_max=1000.0)
-    sim = SimulatedRig(in_medium(fin, medium), config, limits, seed=seed)
+    if model is not None:
+        fin = in_medium(model.fin, medium)
+        model = Model(fin, model.effects)
+    knobs = None if model is None else model.knobs_at
+    sim = SimulatedRig(in_medium(fin, medium), config, limits, seed=seed, model=knobs)
     n_block = max(1, round(block_s * config.sample_rate_hz))
     out: list[tuple[FloatArray, ...]] = []
     for f in plan.frequencies:
@@ -76,10 +83,15 @@ def stepped_sine(
 
 
 def simulate_sweep(
-    fin: Fin, plan: SweepPlan, medium: str = "water", rig: RigConfig | None = None, seed: int = 0
+    fin: Fin,
+    plan: SweepPlan,
+    medium: str = "water",
+    rig: RigConfig | None = None,
+    seed: int = 0,
+    model: Model | None = None,
 ) -> list[FrfPoint]:
     """The FRF points a stepped sine on the simulated rig gives (see :func:`stepped_sine`)."""
-    t, v, i, u = stepped_sine(fin, plan, medium, rig, seed)
+    t, v, i, u = stepped_sine(fin, plan, medium, rig, seed, model=model)
     return frf_points(t, v, i, t, u)
 
 

@@ -69,6 +69,8 @@ class Estimate:
     unit: str
     method: str
     others: dict[str, float] = field(default_factory=dict)
+    #: The bound of the fit this value ended on (then it is no estimate), else ``None``.
+    bound: float | None = None
 
     @property
     def relative(self) -> float:
@@ -83,6 +85,11 @@ class Identified:
     chi2_per_dof: float
     n_points: int
     warnings: list[str]
+    #: Why the values are not to be trusted (a fit that does not fit, a value on a bound), each with
+    #: its likely cause; empty for a fit that can be used.
+    problems: list[str] = field(default_factory=list)
+    #: chi2/n of each channel at the fit (``tip``, ``current``): which one misfits.
+    channel_chi2: dict[str, float] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> Estimate:
         return self.values[name]
@@ -125,8 +132,9 @@ def _fit(
     residual: Callable[[FloatArray], FloatArray],
     x0: FloatArray,
     bounds: tuple[Sequence[float], Sequence[float]],
-) -> tuple[FloatArray, FloatArray, float, int]:
-    """Least squares in parameters scaled by ``x0``; returns value, one-sigma, chi2/dof, dof."""
+) -> tuple[FloatArray, FloatArray, float, NDArray[np.bool_]]:
+    """Least squares in parameters scaled by ``x0``; returns value, one-sigma (NaN on a bound),
+    chi2/dof and which values ended on a bound."""
     scale = np.abs(x0)
 
     def scaled(z: FloatArray) -> FloatArray:
@@ -148,7 +156,7 @@ def _fit(
         sigma = np.full(x0.size, math.nan)
     at_bound = (np.abs(sol.x - lo) < 1e-9) | (np.abs(sol.x - hi) < 1e-9)
     sigma = np.where(at_bound, math.nan, sigma)
-    return sol.x * scale, sigma, chi2, dof
+    return sol.x * scale, sigma, chi2, at_bound
 
 
 def half_power(f: FloatArray, mag: FloatArray) -> tuple[float, float, float] | None:
@@ -236,29 +244,47 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
 
     x0 = np.array([f_peak, zeta0, theta0, c_eq0])
     bounds = ([0.5 * f_peak, 1e-5, 1e-9, 1e-13], [2.0 * f_peak, 0.5, 1.0, 1e-2])
-    x, sx, chi2, _ = _fit(lambda z: model(z, True, True), x0, bounds)
-    others_theta: dict[str, float] = {}
-    others_c: dict[str, float] = {}
+    x, sx, chi2, on_bound = _fit(lambda z: model(z, True, True), x0, bounds)
+    # each channel alone: the paper's separate estimates, and a check of the joint fit's honesty
+    alone: dict[str, tuple[FloatArray, FloatArray]] = {}
     if np.any(has_tip):
-        xu, *_ = _fit(
+        xu, su, *_ = _fit(
             lambda z: model(np.array([z[0], z[1], z[2], x[3]]), True, False),
             x[:3].copy(),
             (bounds[0][:3], bounds[1][:3]),
         )
-        others_theta["FRF amplitude (tip velocity alone)"] = float(xu[2])
-    xi, *_ = _fit(lambda z: model(z, False, True), x.copy(), bounds)
+        alone["tip"] = (np.append(xu, math.nan), np.append(su, math.nan))
+    xi, si, *_ = _fit(lambda z: model(z, False, True), x.copy(), bounds)
+    alone["current"] = (xi, si)
+    channel_chi2 = _channel_chi2(x, has_tip, lambda z, tip, cur: model(z, tip, cur))
+    # the paper's own estimates of the resonance and the damping disagree with the fit as well when
+    # the resonance is bent (a fin that changes with its motion)
+    paper = np.array([f_peak, zeta_hp if math.isfinite(zeta_hp) else math.nan, math.nan, math.nan])
+    sx = _with_disagreement(x, sx, chi2, {**alone, "paper": (paper, paper)})
+    others_theta: dict[str, float] = {}
+    if "tip" in alone:
+        others_theta["FRF amplitude (tip velocity alone)"] = float(alone["tip"][0][2])
     others_theta["motional current (current alone)"] = float(xi[2])
-    others_c["as a capacitance meter reads, Im(I/V)/w at the farthest point"] = float(
-        (I_[far] / V[far]).imag / w_far
-    )
-    others_c["fit of the current alone"] = float(xi[3])
+    meter = float((I_[far] / V[far]).imag / w_far)
+    others_c: dict[str, float] = {
+        "as a capacitance meter reads, Im(I/V)/w at the farthest point": meter,
+        "fit of the current alone": float(xi[3]),
+    }
     m_s, ell = geometry.m_s, geometry.L_active
     d_of = modeshape_d(x[0], m_s, ell)
+
+    def bound(k: int) -> float | None:
+        return _edge(x[k], bounds, k) if on_bound[k] else None
+
     values = {
-        "f_sc": Estimate(float(x[0]), float(sx[0]), "Hz", "fit of Eqs. (10)-(11)", {PEAK: f_peak}),
-        "zeta": Estimate(float(x[1]), float(sx[1]), "-", "fit of Eq. (11)", {"half-power points": zeta_hp}),
-        "theta": Estimate(float(x[2]), float(sx[2]), "C/(m sqrt(kg))", "fit of Eqs. (10)-(11)", others_theta),
-        "C_eq": Estimate(float(x[3]), float(sx[3]), "F", "fit of Eq. (10)", others_c),
+        "f_sc": Estimate(float(x[0]), float(sx[0]), "Hz", "fit of Eqs. (10)-(11)", {PEAK: f_peak}, bound(0)),
+        "zeta": Estimate(
+            float(x[1]), float(sx[1]), "-", "fit of Eq. (11)", {"half-power points": zeta_hp}, bound(1)
+        ),
+        "theta": Estimate(
+            float(x[2]), float(sx[2]), "C/(m sqrt(kg))", "fit of Eqs. (10)-(11)", others_theta, bound(2)
+        ),
+        "C_eq": Estimate(float(x[3]), float(sx[3]), "F", "fit of Eq. (10)", others_c, bound(3)),
         "D": Estimate(
             d_of,
             2.0 * d_of * float(sx[0]) / float(x[0]),
@@ -279,20 +305,119 @@ def identify_air(points: Sequence[FrfPoint], geometry: Fin) -> Identified:
             f"{x[0] * (1 - zeta_fit):.2f}-{x[0] * (1 + zeta_fit):.2f} Hz, so the paper's method is coarse "
             f"({zeta_hp:.4g}); the fit uses the whole curve. Add points there to check it"
         )
+    problems: list[str] = []
     if chi2 > POOR_FIT_CHI2:
-        warnings.append(
-            f"the in-air model does not fit these points (chi2/n {chi2:.3g}): is this a low-voltage stepped "
-            "sine in air, settled at each point?"
+        problems.append(
+            f"the in-air model does not fit these points (chi2/n {chi2:.3g}): "
+            + _air_misfit_cause(channel_chi2, float(np.median(2 * np.abs(V))), x[0], f, has_tip, model, x)
         )
     for name in ("f_sc", "zeta", "theta", "C_eq"):
         e = values[name]
-        if not math.isfinite(e.sigma):
-            warnings.append(f"{name}: not identified (the fit ends on a bound)")
+        if e.bound is not None:
+            problems.append(f"{name} = {_g(e.value)} {e.unit} is the fit's bound, not an estimate")
         elif e.relative > 0.05:
             warnings.append(
                 f"{name}: poorly identified ({e.relative:.0%} uncertainty); add points near the resonance"
             )
-    return Identified(values, chi2, len(points), warnings)
+    return Identified(values, chi2, len(points), warnings, problems, channel_chi2)
+
+
+def _g(x: float) -> str:
+    return f"{x:.4g}"
+
+
+def _channel_chi2(
+    x: FloatArray, has_tip: NDArray[np.bool_], residual: Callable[[FloatArray, bool, bool], FloatArray]
+) -> dict[str, float]:
+    """chi2/n of each channel at the joint fit ``x`` (n: the channel's real numbers)."""
+    out = {}
+    if np.any(has_tip):
+        r = residual(x, True, False)
+        out["tip"] = float(r @ r) / r.size
+    r = residual(x, False, True)
+    out["current"] = float(r @ r) / r.size
+    return out
+
+
+def _with_disagreement(
+    x: FloatArray, sigma: FloatArray, chi2: float, alone: dict[str, tuple[FloatArray, FloatArray]]
+) -> FloatArray:
+    """The joint fit's sigmas, widened by how far each channel alone would put the value, when the
+    model does not describe the data (reduced chi-square above :data:`BIASED_CHI2`).
+
+    The tip velocity alone and the current alone each give ``f_sc``, ``zeta`` and ``theta`` (the
+    current alone also ``C_eq``), and the paper's methods give ``f_sc`` (the peak) and ``zeta`` (the
+    half-power points).  When one channel holds an effect the model lacks (a loss in the current,
+    say), the joint fit sits between them, biased by up to its distance from the one that is right;
+    when the resonance is bent, the peak leaves the fit's ``f_sc``.  Scaling by the reduced
+    chi-square does not cover either (the misfit is systematic, not noise), so each distance is
+    added in quadrature: the stated sigma does not claim more than the bias allows.
+    """
+    if chi2 <= BIASED_CHI2:
+        return sigma
+    out = sigma.copy()
+    for value, _ in alone.values():
+        d = np.where(np.isfinite(value), np.abs(value - x), 0.0)
+        out = np.hypot(out, d)
+    return out
+
+
+#: A reduced chi-square above this: the model misses something, and the values may be biased.
+BIASED_CHI2 = 2.0
+
+
+#: A sweep above this drive is asked to be repeated lower when its resonance misfits (an
+#: amplitude-dependent fin; the paper's in-air sweeps were at low voltage).
+LOW_VOLTAGE_PP = 20.0
+
+
+def _air_misfit_cause(
+    chi2: dict[str, float],
+    vpp: float,
+    f_sc: float,
+    f: FloatArray,
+    has_tip: NDArray[np.bool_],
+    model: Callable[[FloatArray, bool, bool], FloatArray],
+    x: FloatArray,
+) -> str:
+    """The likely cause of an in-air misfit, from which channel misfits and where."""
+    tip, cur = chi2.get("tip", math.nan), chi2["current"]
+    said = "; ".join(f"{k} {v:.3g}" for k, v in chi2.items())
+    if math.isfinite(tip) and cur > 10.0 * max(tip, 1.0):
+        return (
+            f"the current misfits (chi2/n by channel: {said}): a loss the model lacks (a dielectric "
+            "loss, tan delta, or a leakage adds a current in phase with the voltage), or a current "
+            "monitor that lags; `piezofin diagnose` tells them apart"
+        )
+    # where the misfit lies: at the resonance (a fin that changes with its motion), or all along
+    per_point = _per_point(model(x, False, True))
+    if np.any(has_tip):
+        per_point[has_tip] += _per_point(model(x, True, False))
+    near = np.abs(f - f_sc) <= 0.05 * f_sc
+    share = float(per_point[near].sum() / max(per_point.sum(), 1e-300))
+    where = f"{share:.0%} of it within 5 % of the resonance"
+    if share > 0.5 and vpp > 1.2 * LOW_VOLTAGE_PP:
+        return (
+            f"the resonance misfits (chi2/n by channel: {said}; {where}): an amplitude-dependent "
+            f"fin (a stiffness or damping that changes with the motion) bends it at {vpp:.0f} Vpp; "
+            f"repeat the sweep at a lower voltage (at most {LOW_VOLTAGE_PP:.0f} Vpp)"
+        )
+    if share > 0.5:
+        return (
+            f"the resonance misfits (chi2/n by channel: {said}; {where}): steps that had not settled "
+            "there (a longer dwell), or a fin that changes with its motion even at this drive"
+        )
+    return (
+        f"the points misfit all along (chi2/n by channel: {said}; {where}): is this an in-air "
+        "stepped sine, settled at each point? (an underwater sweep has its resonance far lower, and a "
+        "protocol run is no stepped sine)"
+    )
+
+
+def _per_point(r: FloatArray) -> FloatArray:
+    """A complex residual's squared size per point (``r`` is its real parts, then its imaginary)."""
+    n = r.size // 2
+    return r[:n] ** 2 + r[n:] ** 2  # type: ignore[no-any-return]
 
 
 def modeshape_d(f_sc: float, m_s: float, length: float) -> float:
@@ -313,8 +438,27 @@ def water_mobility(fin: Fin, f: FloatArray, vpp: FloatArray) -> NDArray[Any]:
     return 1j * w * fin.phi_tip * eta / (0.5 * vpp)  # type: ignore[no-any-return]
 
 
-def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float = 0.05) -> Identified:
-    """``c_m`` and ``c_d`` from an underwater stepped sine, the in-air parameters of ``air`` fixed."""
+def water_admittance(fin: Fin, f: FloatArray, vpp: FloatArray) -> NDArray[Any]:
+    """``I / V`` under water (Eq. 10: ``i = C_eq dv/dt + theta deta/dt``), the fundamental of the
+    three-harmonic balance, S; in air (``rho_w = 0``) it is :func:`air_admittance`."""
+    s = harmonic_balance(fin, f, vpp, harmonics=3)
+    w = 2 * np.pi * f
+    eta = s.H0 - 1j * s.H1
+    return 1j * w * fin.C_eq + 1j * w * fin.theta * eta / (0.5 * vpp)  # type: ignore[no-any-return]
+
+
+def identify_water(
+    points: Sequence[FrfPoint],
+    air: Fin,
+    min_drag_share: float = 0.05,
+    air_sigma: dict[str, float] | None = None,
+) -> Identified:
+    """``c_m`` and ``c_d`` from an underwater stepped sine, the in-air parameters of ``air`` fixed.
+
+    With ``air_sigma`` (the in-air sigmas of ``f_sc``, ``zeta``, ``theta``), their uncertainty is
+    carried into ``c_m`` and ``c_d``: the fit is repeated with each moved by its sigma, and the
+    shifts are added in quadrature to the fit's own sigmas (the in-air values are held fixed, so the
+    fit alone would not know them)."""
     c = _columns(points)
     has_tip = np.isfinite(c["U"].real)
     if np.count_nonzero(has_tip) < 4:
@@ -358,23 +502,40 @@ def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float =
         fin = air.replace(c_m=float(x[0]), c_d=float(x[1]))
         return _residual(U, water_mobility(fin, f, vpp), c, c["su"])
 
-    x, sx, chi2, _ = _fit(residual, np.array([cm0, cd0]), ([1e-4, 0.0], [5.0, 100.0]))
+    bounds = ([1e-4, 0.0], [5.0, 100.0])
+    x, sx, chi2, on_bound = _fit(residual, np.array([cm0, cd0]), bounds)
+    for name, sigma_air in (air_sigma or {}).items():
+        if not (math.isfinite(sigma_air) and sigma_air > 0) or np.any(on_bound):
+            continue
+        moved = air.replace(**{name: float(getattr(air, name)) + sigma_air})
+
+        def residual_moved(z: FloatArray, moved: Fin = moved) -> FloatArray:
+            model = water_mobility(moved.replace(c_m=float(z[0]), c_d=float(z[1])), f, vpp)
+            return _residual(U, model, c, c["su"])
+
+        xm, *_ = _fit(residual_moved, x.copy(), bounds)
+        sx = np.hypot(sx, xm - x)
     # how much of the damping at resonance is drag: too little and c_d is not identifiable
     fit = air.replace(c_m=float(x[0]), c_d=float(x[1]))
     s = harmonic_balance(fit, f_w, float(np.median(vpp)), harmonics=1)
     wr = 2 * np.pi * f_w
     drag = DRAG_HARMONIC * fit.gamma * wr**2 * float(s.modal_amplitude)
     share = drag / (drag + 2 * air.zeta * air.omega_n * wr)
+    problems: list[str] = []
     if chi2 > POOR_FIT_CHI2:
-        warnings.append(
+        problems.append(
             f"the underwater model does not fit these points (chi2/n {chi2:.3g}): an effect the fin model "
-            "lacks (try `piezofin diagnose`), or steps that had not settled"
+            "lacks (try `piezofin diagnose`), steps that had not settled, or an in-air fit that is off"
         )
+    for k, name in enumerate(("c_m", "c_d")):
+        if on_bound[k]:
+            problems.append(f"{name} = {_g(float(x[k]))} is the fit's bound, not an estimate")
     rel_cd = sx[1] / x[1] if x[1] > 0 else math.inf
     if share < min_drag_share or not rel_cd <= 0.1:
+        how = f"+-{rel_cd:.0%}" if math.isfinite(rel_cd) else "no sigma"
         warnings.append(
             f"c_d: the drag is only {share:.1%} of the damping at resonance at {np.median(vpp):.0f} Vpp; "
-            f"the drive is too small to identify it (+-{rel_cd:.0%}): sweep at a higher voltage"
+            f"the drive is too small to identify it ({how}): sweep at a higher voltage"
         )
     near = np.count_nonzero(np.abs(f - f_w) <= 0.5 * _half_band(fit, f_w, float(np.median(vpp))))
     if near < 3:
@@ -388,13 +549,25 @@ def identify_water(points: Sequence[FrfPoint], air: Fin, min_drag_share: float =
             "-",
             "fit of the harmonic balance",
             {"resonance shift": cm_shift, "Eq. (21)": float(hydro.inertia_coefficient(air.psi))},
+            _edge(x[0], bounds, 0) if on_bound[0] else None,
         ),
         "c_d": Estimate(
-            float(x[1]), float(sx[1]), "-", "fit of the harmonic balance", {"amplitude at resonance": cd_amp}
+            float(x[1]),
+            float(sx[1]),
+            "-",
+            "fit of the harmonic balance",
+            {"amplitude at resonance": cd_amp},
+            _edge(x[1], bounds, 1) if on_bound[1] else None,
         ),
         "f_w": Estimate(f_w, math.nan, "Hz", "phase crossing of U/V", {"drag share of the damping": share}),
     }
-    return Identified(values, chi2, len(points), warnings)
+    return Identified(values, chi2, len(points), warnings, problems, {"tip": chi2})
+
+
+def _edge(value: float, bounds: tuple[Sequence[float], Sequence[float]], k: int) -> float:
+    """The bound ``value`` sits on."""
+    lo, hi = float(bounds[0][k]), float(bounds[1][k])
+    return lo if abs(value - lo) <= abs(value - hi) else hi
 
 
 def _half_band(fin: Fin, f_w: float, vpp: float) -> float:

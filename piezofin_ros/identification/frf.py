@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,7 @@ from scipy import signal
 
 from ..bags import block_of, read_messages
 from ..bags.blocks import DRIVE_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..bags.reader import Damage
 from ..errors import EstimationError
 
 FloatArray = NDArray[np.float64]
@@ -269,11 +271,16 @@ def _concat(chunks: list[tuple[FloatArray, ...]], width: int) -> tuple[FloatArra
 
 
 def read_sweep(
-    path: str | os.PathLike[str], namespace: str = "/fin", tolerance: float = STEP_TOLERANCE
+    path: str | os.PathLike[str],
+    namespace: str = "/fin",
+    tolerance: float = STEP_TOLERANCE,
+    on_damage: Callable[[Damage], None] | None = None,
 ) -> list[FrfPoint]:
     """The FRF points of a recorded stepped sine: one fin's ``drive`` and ``tip_velocity`` in a bag.
 
-    Raises :class:`~piezofin_ros.errors.BagError` on an unreadable bag and :class:`IdentificationError`
+    A damaged bag gives what it still holds; each damage goes to ``on_damage`` (default: a logged
+    warning).  Raises :class:`~piezofin_ros.errors.BagError` on an unreadable bag and
+    :class:`IdentificationError`
     when it holds no drive or no step.
     """
     ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
@@ -281,7 +288,7 @@ def read_sweep(
     drive: list[tuple[FloatArray, ...]] = []
     tips: list[tuple[FloatArray, ...]] = []
     skipped = 0
-    for m in read_messages(path, topics):
+    for m in read_messages(path, topics, **({"on_damage": on_damage} if on_damage else {})):
         channels = topics[m.topic]
         try:
             b = check_samples(block_of(m.type_name, m.data), channels)

@@ -241,7 +241,10 @@ class Suite:
 
 
 def _why_stop(suite: Suite, pacer: Pacer, budget: float | None) -> str | None:
-    """Why the run must stop now (past the fin-time budget, or fin time stalled), or None."""
+    """Why the run must stop now (the recording stopped, past the fin-time budget, or fin time
+    stalled), or None."""
+    if suite.recorder.exit_code is not None:  # (what the run measures would be lost: stop now)
+        return f"stopping: the recorder cannot write {suite.bag_path} (said above); nothing more is kept"
     fin_s = suite.fin_sims[0].rig.elapsed if suite.fin_sims[0].rig is not None else 0.0
     if budget is not None and fin_s > budget:
         late = [c.get_namespace() for c in suite.controllers if not c.finished]
@@ -339,7 +342,9 @@ def _report(suite: Suite, statuses: dict[str, dict[str, Any]], args: argparse.Na
     aborted = [ns for ns, st in statuses.items() if st.get("state") == "aborted"]
     if aborted:
         print(f"aborted: {', '.join(aborted)}", file=sys.stderr)
-    return 1 if aborted else 0
+    if suite.recorder.exit_code is not None:
+        print(f"bringup: {suite.bag_path} is incomplete: the recorder had to stop", file=sys.stderr)
+    return 1 if aborted or suite.recorder.exit_code is not None else 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -218,8 +218,117 @@ def test_the_protocol_bag_is_no_in_air_sweep(campaign: Path) -> None:
         "identify", "--air", str(campaign / "bags" / "protocol_M8528-P1.mcap"), "--namespace", "m8528_p1",
         "--geometry", "M8528-P1",
     )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
-    assert "note: the in-air model does not fit these points" in proc.stdout, proc.stdout
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    assert "NOT TRUSTED: the in-air model does not fit these points" in proc.stdout, proc.stdout
+    assert "Traceback" not in proc.stderr
+
+
+def _rewritten(src: Path, dst: Path, negate: dict[str, str]) -> Path:
+    """``src`` written again by another writer (rosbags' rosbag2 writer, MCAP storage), with the
+    channel ``negate[topic]`` of each block on that topic turned in sign: a rig driver of the other
+    sign convention."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with (
+        AnyReader([src], default_typestore=store) as reader,
+        Writer(dst, version=8, storage_plugin=StoragePlugin.MCAP) as writer,
+    ):
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store) for c in reader.connections}
+        for conn, t, raw in reader.messages():
+            if conn.topic in negate:
+                msg = reader.deserialize(raw, conn.msgtype)
+                labels = msg.layout.dim[0].label.split(",")
+                n = msg.layout.dim[1].size
+                k = labels.index(negate[conn.topic])
+                data = msg.data.copy()
+                data[k * n : (k + 1) * n] *= -1.0
+                msg.data = data
+                raw = store.serialize_cdr(msg, conn.msgtype)
+            writer.write(conns[conn.id], t, raw)
+    return dst
+
+
+@ON_ITS_WORKER
+@pytest.mark.slow
+def test_identify_corrects_a_rig_of_the_other_sign_and_refuses_swapped_sweeps(
+    campaign: Path, tmp_path: Path
+) -> None:
+    """Issue 29, as the user met it: sweeps from a rig driver whose vibrometer looks from the other
+    side (the sign the paper's Eq. (5) prints), written by another writer, are corrected and said,
+    and give the fin the right-signed bags give; the two bags swapped end in exit status 3, the
+    cause named, and no fin file unless asked for (then marked inside)."""
+    bags = campaign / "bags"
+    ns = ["--namespace", "m8528_p1", "--geometry", "M8528-P1"]
+    flipped = {
+        stage: _rewritten(
+            bags / f"{stage}_M8528-P1.mcap",
+            tmp_path / f"{stage}_flipped",
+            {"/m8528_p1/tip_velocity": "tip_velocity_m_s"},
+        )
+        for stage in ("air", "water")
+    }
+    right = run(
+        "identify",
+        "--air",
+        str(bags / "air_M8528-P1.mcap"),
+        "--water",
+        str(bags / "water_M8528-P1.mcap"),
+        *ns,
+        "--json",
+    )
+    proc = run(
+        "identify",
+        "--air",
+        str(flipped["air"]),
+        "--water",
+        str(flipped["water"]),
+        *ns,
+        "--json",
+        "-o",
+        str(tmp_path / "flipped.yaml"),
+    )
+    assert proc.returncode == 0 and right.returncode == 0, proc.stderr + right.stderr
+    got, want = json.loads(proc.stdout), json.loads(right.stdout)
+    assert got["trusted"] and len(got["corrections"]) == 2, got["corrections"]
+    assert all("the vibrometer's sign is reversed" in c for c in got["corrections"])
+    for name, v in want["identified"].items():
+        assert got["identified"][name]["value"] == pytest.approx(v["value"], rel=1e-6), name
+    assert "# corrected: in air: the vibrometer's sign is reversed" in (tmp_path / "flipped.yaml").read_text()
+    # swapped: exit 3, the cause first, no fin file
+    swapped = ["--air", str(bags / "water_M8528-P1.mcap"), "--water", str(bags / "air_M8528-P1.mcap"), *ns]
+    proc = run("identify", *swapped, "-o", str(tmp_path / "swapped.yaml"))
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    untrusted = [line for line in proc.stdout.splitlines() if line.startswith("NOT TRUSTED: ")]
+    assert untrusted and "swapped" in untrusted[0], proc.stdout
+    assert any("is the fit's bound, not an estimate" in line for line in untrusted), untrusted
+    assert "no fin file written" in proc.stderr and not (tmp_path / "swapped.yaml").exists()
+    proc = run("identify", *swapped, "-o", str(tmp_path / "swapped.yaml"), "--accept-poor-fit")
+    assert proc.returncode == 3, proc.stderr
+    assert "# NOT TRUSTED: " in (tmp_path / "swapped.yaml").read_text()
+
+
+@ON_ITS_WORKER
+@pytest.mark.slow
+def test_a_campaign_on_lost_data_says_so_and_exits_3(campaign: Path, tmp_path: Path) -> None:
+    """Issue 29: bags cut short (a file-size limit, a full disk) must not give a campaign that says
+    "done": `--analyse-only` on them identifies from what is left, heads the report with what was
+    lost, and exits 3."""
+    copy = tmp_path / "campaign"
+    shutil.copytree(campaign, copy)
+    for stage in ("air", "water"):
+        bag = copy / "bags" / f"{stage}_M8528-P1.mcap"
+        data = bag.read_bytes()
+        bag.write_bytes(data[: int(len(data) * 0.6)])  # what a writer stopped by EFBIG leaves
+    proc = run("campaign", "paper", "-o", str(copy), "--fins", "M8528-P1", "--analyse-only", timeout=180)
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr and "NOT TO BE TRUSTED" in proc.stdout
+    report = (copy / "report.md").read_text()
+    assert "## NOT TO BE TRUSTED" in report
+    assert "of the 11 points planned" in report and "damaged at byte" in report, report[:2000]
+    assert json.loads((copy / "report.json").read_text())["problems"]
 
 
 @pytest.mark.slow

@@ -25,6 +25,7 @@ from piezofin_ros.bags.blocks import Block
 from piezofin_ros.diagnosis.attribute import diagnose
 from piezofin_ros.diagnosis.blind import BlindCase, named_family, simulate_blind
 from piezofin_ros.diagnosis.data import from_bags, from_csv, scan_bag
+from piezofin_ros.diagnosis.report import text as report_text
 from piezofin_ros.estimation.estimator import EstimatorConfig, StreamEstimator, analyse_window
 from piezofin_ros.physics.fin import load_fin
 from test.bags.test_bagio import cdr_block
@@ -230,6 +231,7 @@ def test_a_reversed_sensor_is_found_and_corrected(
     trials, _ = from_bags([bag], FIN)
     d, d0 = diagnose(trials, FIN), diagnose(clean[0], FIN)
     assert any(n.startswith(said) for n in d.notes), d.notes
+    assert d.headline.startswith(f"found and corrected: {said}"), d.headline  # the lead, not a note
     assert d.verdict == d0.verdict
     assert [s.chi2 for s in d.stages] == pytest.approx([s.chi2 for s in d0.stages], rel=0.05, abs=0.5)
 
@@ -300,6 +302,14 @@ def test_blind_instruments(effect: str, strength: float, family: str | None) -> 
     assert named_family(d) == family, (d.verdict, d.named, d.notes)
     if family is None:
         assert d.verdict == "no gap"
+    # the verdict's line leads with what was found (issue 29): the sensor corrected, the family
+    assert f"**Verdict: {d.headline}.**" in report_text(d)
+    if family == "vibrometer reversed":
+        assert d.headline.startswith("found and corrected: the vibrometer's sign is reversed"), d.headline
+        assert d.headline.endswith("no gap: every stage agrees with the model within the measurement noise")
+    elif family is not None and d.verdict == "unexplained":
+        assert d.headline.startswith(f"the {family} family, in another form: "), d.headline
+        assert f"{d.family_removed:.0%} of the gap removed" in d.headline
 
 
 @pytest.mark.slow

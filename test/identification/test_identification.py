@@ -8,6 +8,7 @@ for random fins unlike them, and that what the data cannot give is said.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -192,3 +193,100 @@ def test_the_drive_alone_identifies_the_fin_in_air() -> None:
         e, truth = got[name], float(getattr(fin, name))
         assert abs(e.value - truth) <= TOLERANCE[name] * truth, (name, e.value, truth)
         assert abs(e.value - truth) <= MAX_Z * e.sigma, (name, e.value, e.sigma, truth)
+
+
+# ----------------------------------------------------- data that lie, and fits that do not fit (issue 29)
+@pytest.fixture(scope="module")
+def sweeps() -> tuple[list, list]:
+    """The M8528-P1's two sweeps as the paper's rig gives them (50 Vpp in air, 100 Vpp under water)."""
+    return _two_sweeps(load_fin("M8528-P1"))
+
+
+def _two_sweeps(fin: Fin, air_vpp: float = 50.0, model=None, seed: int = 0) -> tuple[list, list]:
+    """In air and under water, with a 12 s dwell under water (the drag at 100 Vpp settles a step in
+    about 3 s; the linear estimate of ``SweepPlan.around`` asks for 66 s)."""
+    air = simulate_sweep(fin, SweepPlan.around(fin, "air", air_vpp, n=21), "air", seed=seed, model=model)
+    plan = dataclasses.replace(SweepPlan.around(fin, "water", 100.0, n=15), dwell_s=12.0)
+    return air, simulate_sweep(fin, plan, "water", seed=seed + 1, model=model)
+
+
+def _flipped(points: list, *channels: str) -> list:
+    return [dataclasses.replace(p, **{c: -getattr(p, c) for c in channels}) for p in points]
+
+
+@pytest.mark.fast_cases("vibrometer")
+@pytest.mark.parametrize(
+    ("channels", "sensor"),
+    [
+        (("tip",), "the vibrometer's sign is reversed"),
+        (("current",), "the current monitor's sign is reversed"),
+        (("voltage",), "the voltage channel's sign is reversed"),
+        (("tip", "current"), "the voltage channel's sign is reversed"),
+    ],
+    ids=["vibrometer", "current-monitor", "voltage", "both"],
+)
+def test_a_reversed_sensor_is_found_corrected_and_said(sweeps, channels, sensor) -> None:
+    """A rig of the other sign convention (the vibrometer looking from the other side, the sign the
+    paper's Eq. (5) prints; a current monitor or a voltage channel wired the other way): the fin
+    comes back as from the right-signed rig, and the correction is said for each sweep."""
+    fin = load_fin("M8528-P1")
+    air, water = (_flipped(s, *channels) for s in sweeps)
+    got = identify(air, water, fin)
+    assert got.trusted, got.problems
+    assert len(got.corrections) == 2 and all(sensor in c for c in got.corrections), got.corrections
+    right = identify(*sweeps, fin)
+    assert not right.corrections
+    for name in ("f_sc", "zeta", "theta", "C_eq", "c_m", "c_d"):
+        assert got.values()[name]["value"] == pytest.approx(right.values()[name]["value"], rel=1e-9), name
+    assert "corrected: in air: " + sensor in got.table()
+    assert "# corrected: under water: " + sensor in got.fin_yaml()
+
+
+def test_swapped_sweeps_are_not_trusted_and_the_bounds_are_no_values(sweeps) -> None:
+    """`--air` given the underwater sweep and `--water` the in-air one: the fit ends on its bounds;
+    they are said to be bounds (no sigma, no value in the JSON that looks like one), and the cause
+    is named first."""
+    fin = load_fin("M8528-P1")
+    air, water = sweeps
+    got = identify(water, air, fin, expected_f_sc=fin.f_sc)
+    assert not got.trusted
+    assert "swapped" in got.problems[0], got.problems
+    at_bound = {k: v for k, v in got.values().items() if v["bound"] is not None}
+    assert at_bound, got.values()
+    for name, v in at_bound.items():
+        assert v["value"] == pytest.approx(v["bound"], rel=1e-6) and math.isnan(v["sigma"]), name
+        assert any(f"{name} = " in p and "bound" in p for p in got.problems), (name, got.problems)
+    assert "NOT TRUSTED: " in got.table() and "# NOT TRUSTED: " in got.fin_yaml()
+    # the in-air sweep alone, given as underwater: far from the resonance the fin file states
+    alone = identify(water, None, fin, expected_f_sc=fin.f_sc)
+    assert any("far from the 38.1 Hz" in p and "swapped" in p for p in alone.problems), alone.problems
+
+
+@pytest.mark.fast_cases("dielectric-loss")
+@pytest.mark.parametrize(
+    ("effect", "values", "air_vpp", "cause", "cure"),
+    [
+        ("dielectric_loss", [0.02], 50.0, "the current misfits", "`piezofin diagnose`"),
+        ("stiffness_nonlinearity", [20.0], 50.0, "the resonance misfits", "a lower voltage (at most 20 Vpp)"),
+        ("stiffness_nonlinearity", [20.0], 20.0, "the resonance misfits", "even at this drive"),
+    ],
+    ids=["dielectric-loss", "duffing-50Vpp", "duffing-20Vpp"],
+)
+def test_a_fit_that_does_not_fit_names_the_channel_and_the_cure(effect, values, air_vpp, cause, cure) -> None:
+    """A fin with an effect the identification's model lacks: the fit is not trusted, the sentence
+    names the channel that misfits and what would help, and the stated sigmas cover the bias (each
+    value within 3 of them: scaling by chi2/n alone left theta and c_d 3-4 sigma off for the loss)."""
+    from piezofin_ros.physics.effects import make
+    from piezofin_ros.physics.model import Model
+
+    fin = load_fin("M8528-P1")
+    model = Model(fin, (make(effect, values),))
+    air, water = _two_sweeps(fin, air_vpp, model, seed=2)
+    got = identify(air, water, fin)
+    assert not got.trusted
+    said = got.problems[0]
+    assert said.startswith("the in-air model does not fit") and cause in said and cure in said, said
+    if effect == "dielectric_loss":  # the fin itself is the nominal one: its values are the truth
+        for name in ("f_sc", "zeta", "theta", "C_eq", "c_m", "c_d"):
+            v = got.values()[name]
+            assert abs(v["value"] - _truth(fin, name)) <= 3.0 * v["sigma"], (name, v["value"], v["sigma"])

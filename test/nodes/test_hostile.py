@@ -565,6 +565,36 @@ def test_a_full_disk_stops_the_recorder_with_one_line_and_a_recoverable_bag(tmp_
 
 
 @pytest.mark.slow
+def test_bringup_on_a_full_disk_stops_at_once_and_says_its_bag_is_incomplete(tmp_path) -> None:
+    """Issue 29: under a file-size limit every bag was cut, yet bringup (and the campaign above it)
+    went on to the end and exited 0.  Now the run stops when its recorder cannot write, says so,
+    and exits 1, which the campaign turns into one line naming the log."""
+    import resource
+
+    from ..rosutil import BIN, clean_env
+
+    def small_disk() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, 300_000))
+
+    bag = tmp_path / "cut.mcap"
+    args = ["--frequencies", "5", "9", "--voltages", "800", "--bag", str(bag), "--realtime-factor", "20"]
+    proc = subprocess.run(
+        [str(BIN / "bringup"), *args],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        stdin=subprocess.DEVNULL,
+        env=clean_env(),
+        preexec_fn=small_disk,
+    )
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 1, out
+    assert "Traceback" not in out
+    assert "stopping: the recorder cannot write" in out and "is incomplete" in out, out
+    assert "/fin: M8528-P1, done" not in out  # (the two trials did not run to their end)
+
+
+@pytest.mark.slow
 def test_several_fins_in_bringup_share_one_clock_drop_nothing_and_exit() -> None:
     """Three fins in one bringup (a CPU-bound machine runs them slower than asked: the pacer waits
     for the consumers instead of dropping): every controller done, every drive sample in the bag
