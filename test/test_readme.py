@@ -47,6 +47,9 @@ RUNS_UNTIL_STOPPED = re.compile(
 )
 TALKS_TO_THE_SUITE = re.compile(r"^ros2 (node|topic|param|lifecycle|service) ")
 NEEDS_ROS = re.compile(r"^(ros2|colcon|rosdep) ")
+#: Sections whose lines a user types in the colcon workspace the install block left them in, not in
+#: the repository: the sample bag is reached through the installed package (issue 29).
+FROM_THE_WORKSPACE = {"README.md: On a ROS 2 machine (Jazzy)"}
 #: Seconds a node or launch must survive before it is stopped; the limit for everything else.
 ALIVE_S = 12.0
 UP_S = 120.0  # a loaded machine: the processes may take this long to import and start
@@ -118,6 +121,8 @@ def scratch_for(
     if key not in scratches:
         here = factory.mktemp("readme")
         shutil.copytree(placeholders, here, dirs_exist_ok=True)
+        if key in FROM_THE_WORKSPACE:  # the user stands in ~/ws: the repository's files are not there
+            shutil.rmtree(here / "bags")
         for name in ("tools", "requirements.txt", "requirements-dev.txt", "setup.py"):
             (here / name).symlink_to(ROOT / name)  # tools/main.sh runs here, on the project's venv
         scratches[key] = here

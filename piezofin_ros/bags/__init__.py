@@ -25,6 +25,7 @@ _WHERE = {
     "Damage": ".reader",
     "bag_topics": ".reader",
     "read_messages": ".reader",
+    "resolve_bag": ".reader",
     "Recovery": ".recovery",
     "recover": ".recovery",
     "MessageError": ".types",
@@ -40,7 +41,7 @@ _WHERE = {
 if TYPE_CHECKING:
     from ..errors import BagError
     from .metadata import ROS_DISTRO, ROSBAG2_VERSION, qos_profile, qos_yaml, rosbag2_metadata
-    from .reader import MCAP_MAGIC, BagMessage, Damage, bag_topics, read_messages
+    from .reader import MCAP_MAGIC, BagMessage, Damage, bag_topics, read_messages, resolve_bag
     from .recovery import Recovery, recover
     from .types import MessageError, block_of, decode, message_definition, normalise_type, typestore
     from .writer import BagConfigError, BagWriter
@@ -75,6 +76,7 @@ __all__ = [
     "qos_yaml",
     "read_messages",
     "recover",
+    "resolve_bag",
     "rosbag2_metadata",
     "typestore",
 ]

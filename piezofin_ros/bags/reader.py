@@ -29,6 +29,7 @@ from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader
 
 from ..errors import BagError
+from ..physics.fin import config_dir
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
@@ -95,6 +96,20 @@ MAX_SPLITS = 4096
 
 class MetadataError(BagError, ValueError):
     """A rosbag2 ``metadata.yaml`` that is not read (too large, not YAML, aliases, unsafe tags)."""
+
+
+def resolve_bag(path: str | os.PathLike[str]) -> str:
+    """``path`` itself, or, when it does not exist and is relative, the same path in the package's
+    share directory: ``bags/sample_M8528-P1.mcap`` works from a colcon workspace (where the install
+    puts the sample) as from the repository."""
+    text = str(path)
+    if os.path.exists(text) or os.path.isabs(text):
+        return text
+    try:
+        installed = config_dir().parent / text
+    except FileNotFoundError:
+        return text
+    return str(installed) if installed.exists() else text
 
 
 def bag_files(path: str | os.PathLike[str]) -> list[Path]:

@@ -491,10 +491,10 @@ def identify_main(argv: Sequence[str] | None = None) -> int:
 
 
 def run_bag_recover(args: argparse.Namespace) -> int:
-    from ..bags import BagError, recover
+    from ..bags import BagError, recover, resolve_bag
 
     try:
-        report = recover(args.bag, args.output)
+        report = recover(resolve_bag(args.bag), args.output)
     except BagError as exc:
         raise UsageError(str(exc)) from None
     except OSError as exc:
@@ -504,12 +504,12 @@ def run_bag_recover(args: argparse.Namespace) -> int:
 
 
 def run_estimate(args: argparse.Namespace) -> int:
-    from ..bags import BagError
+    from ..bags import BagError, resolve_bag
     from ..estimation.offline import replay_estimates
 
     fin = _load(args.fin, None)
     try:
-        replay = replay_estimates(args.bag, fin, args.namespace)
+        replay = replay_estimates(resolve_bag(args.bag), fin, args.namespace)
     except BagError as exc:
         raise UsageError(str(exc)) from None
     for line in replay.skipped_lines():

@@ -9,7 +9,6 @@ a file damaged part-way is played up to the damage, which is then reported.
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -22,9 +21,8 @@ from rclpy.node import Node
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from ..bags import BagError, BagMessage, bag_topics, read_messages
+from ..bags import BagError, BagMessage, bag_topics, read_messages, resolve_bag
 from ..config import setting
-from ..physics.fin import config_dir
 from ._common import (
     QOS_CLOCK,
     StartupError,
@@ -134,18 +132,6 @@ class Player(Node):
         self.get_logger().info(
             f"played {total} messages on {len(self.published)} topics from {self.bag_path}"
         )
-
-
-def resolve_bag(path: str) -> str:
-    """``path`` itself, or, when it does not exist and is relative, the same path in the package's
-    share directory (so ``-p bag:=bags/sample_M8528-P1.mcap`` works after ``colcon build`` too)."""
-    if os.path.exists(path) or os.path.isabs(path):
-        return path
-    try:
-        installed = config_dir().parent / path
-    except FileNotFoundError:
-        return path
-    return str(installed) if installed.exists() else path
 
 
 def main(args: list[str] | None = None) -> int:
