@@ -24,6 +24,10 @@ from launch_ros.event_handlers import OnStateTransition
 from launch_ros.events.lifecycle import ChangeState
 from lifecycle_msgs.msg import Transition
 
+#: What reads each fin's data topics here: its thrust_estimator and the recorder.  fin_sim waits for
+#: both before its first sample, so neither misses the first trial's start (nodes start in any order).
+CONSUMERS = 2
+
 
 def _nodes(context, *args, **kwargs):
     default = os.path.join(get_package_share_directory("piezofin_ros"), "config", "bringup.yaml")
@@ -47,6 +51,7 @@ def _nodes(context, *args, **kwargs):
                     *("--namespaces", *namespaces),
                     *("--realtime-factor", str(factor)),
                     *(["--publish-clock"] if use_sim_time else []),
+                    *("--wait-subscribers", str(CONSUMERS)),
                 ],
                 parameters=files,
                 output="screen",
@@ -61,7 +66,12 @@ def _nodes(context, *args, **kwargs):
                 namespace=ns,
                 parameters=[
                     *files,
-                    {"autostart": False, "realtime_factor": factor, "publish_clock": use_sim_time and k == 0},
+                    {
+                        "autostart": False,
+                        "realtime_factor": factor,
+                        "publish_clock": use_sim_time and k == 0,
+                        "wait_subscribers": CONSUMERS,
+                    },
                 ],
                 output="screen",
             )

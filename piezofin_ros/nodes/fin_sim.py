@@ -112,6 +112,16 @@ class FinSimConfig:
     amplifier: str = setting(
         "paper-bench", "the amplifier driving the fin, whose draw the supply topic streams: preset or YAML"
     )
+    wait_subscribers: int = setting(
+        0,
+        "subscribers each data topic must have before the first sample (the launch: 2, the estimator "
+        "and the recorder), so that none misses the first trial's start; 0: start at once",
+        0,
+        100,
+    )
+    wait_subscribers_s: float = setting(
+        20.0, "wall time to wait for them at most, s (then the samples start anyway, said)", 0.0, 600.0
+    )
 
 
 class FinSim(LifecycleNode):
@@ -129,6 +139,9 @@ class FinSim(LifecycleNode):
             raise StartupError(f"parameter amplifier: {exc}") from None
         self._block_s, self._factor, self._publish_clock = c.block_s, c.realtime_factor, c.publish_clock
         self._start_time = c.start_time_s
+        self._wait_subscribers, self._wait_subscribers_s = c.wait_subscribers, c.wait_subscribers_s
+        self._consumers_ok = c.wait_subscribers == 0
+        self._waiting_since_ns: int | None = None
         self._protocol, self._protocol_off, self._protocol_on = c.protocol, c.protocol_off_s, c.protocol_on_s
         self.autostart = c.autostart
         self.finalized = False  # lifecycle shutdown: the process ends (run_node)
@@ -358,7 +371,36 @@ class FinSim(LifecycleNode):
     def _tick(self) -> None:
         if not self._running:
             return  # a tick queued before deactivation: the drive is stopped
+        if not self.consumers_ready():
+            return
         self._publish(self._n_block)
+
+    def consumers_ready(self) -> bool:
+        """True once every data topic has ``wait_subscribers`` subscribers, or ``wait_subscribers_s``
+        of wall time has passed since the first ask (said either way); the rig, and with it the
+        fin's time and ``/clock``, does not advance before."""
+        if self._consumers_ok:
+            return True
+        now = self._steady.now().nanoseconds
+        if self._waiting_since_ns is None:
+            self._waiting_since_ns = now
+            self.get_logger().info(
+                f"waiting for {self._wait_subscribers} subscriber(s) on each data topic (at most "
+                f"{self._wait_subscribers_s:g} s) before the first sample"
+            )
+        have = self.matched()
+        waited = (now - self._waiting_since_ns) * 1e-9
+        if have >= self._wait_subscribers:
+            self.get_logger().info(f"{have} subscriber(s) on each data topic after {waited:.1f} s: starting")
+        elif waited >= self._wait_subscribers_s:
+            self.get_logger().warning(
+                f"only {have} of {self._wait_subscribers} subscriber(s) on the data topics after "
+                f"{waited:.0f} s: starting anyway (a consumer that joins later misses the first samples)"
+            )
+        else:
+            return False
+        self._consumers_ok = True
+        return True
 
     def _publish(self, n: int) -> None:
         rig = self._rig
@@ -443,7 +485,8 @@ class Pacer:
         self._timer = fin_sims[0].create_timer(durations.pop() / factors.pop(), self._tick, clock=self._clock)
 
     def _tick(self) -> None:
-        if self.ready is not None and not self.ready():
+        waiting = [sim for sim in self.fin_sims if sim.active and not sim.consumers_ready()]  # ask each
+        if waiting or (self.ready is not None and not self.ready()):
             self.waits += 1
             return
         for sim in self.fin_sims:
@@ -489,6 +532,9 @@ def fins_main(args: list[str] | None = None) -> int:
     parser.add_argument("--namespaces", nargs="+", required=True, help="one namespace per fin")
     parser.add_argument("--realtime-factor", type=float, help="simulated s per wall s (every fin)")
     parser.add_argument("--publish-clock", action="store_true", help="the first fin publishes /clock")
+    parser.add_argument(
+        "--wait-subscribers", type=int, help="subscribers each fin's data topics need before the first sample"
+    )
     opts = parser.parse_args(remove_ros_args(argv)[1:])
     t0 = time.time()  # one time origin for every fin
 
@@ -499,6 +545,8 @@ def fins_main(args: list[str] | None = None) -> int:
             extra.append(Parameter("publish_clock", value=opts.publish_clock and k == 0))  # one /clock
             if opts.realtime_factor is not None:
                 extra.append(Parameter("realtime_factor", value=float(opts.realtime_factor)))
+            if opts.wait_subscribers is not None:
+                extra.append(Parameter("wait_subscribers", value=int(opts.wait_subscribers)))
             fins.append(FinSim(context=context, namespace=ns, parameter_overrides=extra))
         for sim in fins:
             sim.share_time_origin(t0)
