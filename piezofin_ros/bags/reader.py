@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import io
 import logging
+import math
 import mmap
 import os
 import re
 import struct
+import time
 import zlib
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -92,6 +94,8 @@ def _warn(damage: Damage) -> None:
 #: (rosbag2 writes a few kB, plus about 60 bytes per split), and it may list at most this many splits.
 MAX_METADATA_BYTES = 4 * 1024 * 1024
 MAX_SPLITS = 4096
+#: A directory's reading says which split it is at no more often than this, s.
+PROGRESS_S = 2.0
 
 
 class MetadataError(BagError, ValueError):
@@ -181,10 +185,19 @@ def read_messages(
     path: str | os.PathLike[str],
     topics: Iterable[str] | None = None,
     on_damage: Callable[[Damage], None] | None = _warn,
+    progress: Callable[[str], None] | None = None,
 ) -> Iterator[BagMessage]:
     """Serialised messages of a bag, optionally only ``topics``: an MCAP file, or a rosbag2
-    directory (its files in recording order, :func:`bag_files`), each as :func:`read_file` reads it."""
-    for file in bag_files(path):
+    directory (its files in recording order, :func:`bag_files`), each as :func:`read_file` reads it.
+    ``progress`` hears which split of a directory is being read (the first, then at most one line
+    every :data:`PROGRESS_S` seconds, and the last)."""
+    files = bag_files(path)
+    said = -math.inf
+    for k, file in enumerate(files, 1):
+        now = time.monotonic()
+        if progress is not None and len(files) > 1 and (now - said >= PROGRESS_S or k in (1, len(files))):
+            progress(f"reading {path}: split {k}/{len(files)} ({file.name})")
+            said = now
         yield from read_file(file, topics, on_damage)
 
 

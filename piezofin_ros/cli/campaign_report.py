@@ -16,8 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..bags import block_of, read_messages
-from ..bags.blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..bags.fin import SAMPLED, TOPIC_DRIVE, TOPIC_LOADCELL, TOPIC_TIP, read_fin
 from ..diagnosis.paper import PAPER_MAX_TPW, PAPER_OPERATION_HZ, PAPER_POWER_RATIO, half_max_band
 from ..identification.identify import Identification
 from ..physics import hydro
@@ -283,26 +282,19 @@ def _plot_fig10_11(
 
 def read_trace(bag: Path, ns: str, t0: float, t1: float) -> dict[str, np.ndarray]:
     """Voltage, tip velocity and load-cell displacement of one fin between ``t0`` and ``t1`` (s)."""
-    topics = {
-        f"/{ns}/drive": DRIVE_CHANNELS,
-        f"/{ns}/tip_velocity": TIP_CHANNELS,
-        f"/{ns}/loadcell": LOADCELL_CHANNELS,
-    }
-    parts: dict[str, list[np.ndarray]] = {c: [] for chans in topics.values() for c in chans}
+    times = {TOPIC_DRIVE: "t_s", TOPIC_TIP: "t_tip", TOPIC_LOADCELL: "t_cell"}
+    parts: dict[str, list[np.ndarray]] = {c: [] for k in times for c in SAMPLED[k]}
     parts.update({"t_tip": [], "t_cell": []})
-    for m in read_messages(bag, topics):
-        try:
-            b = check_samples(block_of(m.type_name, m.data), topics[m.topic])
-        except (BlockFormatError, KeyError, ValueError):
-            continue
+    for m in read_fin(bag, ns, times):
+        b = m.block
+        assert b is not None
         t = np.asarray(b["t_s"], float)
         sel = (t >= t0) & (t < t1)
         if not np.any(sel):
             continue
-        for c in topics[m.topic][1:]:
+        for c in b.names[1:]:
             parts[c].append(np.asarray(b[c], float)[sel])
-        key = {"drive": "t_s", "tip_velocity": "t_tip", "loadcell": "t_cell"}[m.topic.rsplit("/", 1)[1]]
-        parts[key].append(t[sel])
+        parts[times[m.kind]].append(t[sel])
     return {k: np.concatenate(v) if v else np.empty(0) for k, v in parts.items()}
 
 

@@ -25,18 +25,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..bags import block_of, read_messages
 from ..bags.blocks import (
     COMMAND_FIELDS,
-    DRIVE_CHANNELS,
-    LOADCELL_CHANNELS,
-    TIP_CHANNELS,
-    BlockFormatError,
-    check_samples,
 )
+from ..bags.fin import TOPIC_CMD, TOPIC_DRIVE, TOPIC_LOADCELL, TOPIC_TIP, FinMessage, read_fin, topic_prefix
 from ..errors import DiagnosisError
 from ..estimation.estimator import Estimate, EstimatorConfig
-from ..estimation.offline import replay_estimates, topic_prefix
+from ..estimation.offline import Replayer
 from ..identification.signs import Signs
 from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.fin import Fin
@@ -398,38 +393,52 @@ def _without_lines(x: FloatArray, t: FloatArray, lines: Sequence[Line]) -> Float
     return np.asarray(x - basis @ coef)
 
 
+class Scanner:
+    """The raw samples and commands a noise scan needs, gathered message by message
+    (:func:`~piezofin_ros.bags.fin.read_fin`'s); :func:`scan_bag` reads a bag through it."""
+
+    KINDS = (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL, TOPIC_CMD)
+
+    def __init__(self) -> None:
+        self.parts: dict[str, list[FloatArray]] = {k: [] for k in ("t", "v", "i", "tt", "u", "tl", "d")}
+        self.commands: list[tuple[float, float, float]] = []
+
+    def add(self, m: FinMessage) -> None:
+        b, parts = m.block, self.parts
+        if b is None:
+            return
+        if m.kind == TOPIC_CMD:
+            freq, vpp, on = (b.scalar(name) for name in COMMAND_FIELDS)
+            if math.isfinite(freq) and math.isfinite(vpp) and on > 0:
+                self.commands.append((m.time_ns * 1e-9, freq, vpp))
+        elif m.kind == TOPIC_DRIVE:
+            parts["t"].append(b["t_s"])
+            parts["v"].append(b["voltage_V"])
+            parts["i"].append(b["current_A"])
+        elif m.kind == TOPIC_TIP:
+            parts["tt"].append(b["t_s"])
+            parts["u"].append(b["tip_velocity_m_s"])
+        elif m.kind == TOPIC_LOADCELL:
+            parts["tl"].append(b["t_s"])
+            parts["d"].append(b["displacement_m"])
+
+
 def scan_bag(path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0) -> Scan:
     """One pass over a fin's raw topics: the noise of each signal where the drive is off (more than
     2 s after and 0.5 s before any ``|v| >= threshold``), net of any interference line found there,
     the commands ``(t, f, Vpp)`` that switched the drive on, and the drive's sample rate."""
+    scanner = Scanner()
+    for m in read_fin(path, namespace, Scanner.KINDS):  # (malformed data: the replay reports it)
+        scanner.add(m)
+    return scanned(scanner, path, namespace, threshold_v)
+
+
+def scanned(
+    scanner: Scanner, path: str | os.PathLike[str], namespace: str, threshold_v: float = 10.0
+) -> Scan:
+    """The :class:`Scan` of what ``scanner`` gathered from ``path`` (see :func:`scan_bag`)."""
     ns = topic_prefix(namespace)
-    kinds = {"drive": "drive", "tip_velocity": "tip", "loadcell": "loadcell", "cmd": "cmd"}
-    topics = {f"{ns}/{topic}": kind for topic, kind in kinds.items()}
-    parts: dict[str, list[FloatArray]] = {k: [] for k in ("t", "v", "i", "tt", "u", "tl", "d")}
-    commands = []
-    for m in read_messages(path, topics):
-        kind = topics[m.topic]
-        try:
-            if kind == "cmd":
-                cmd = block_of(m.type_name, m.data, expect=COMMAND_FIELDS)
-                freq, vpp, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
-                if math.isfinite(freq) and math.isfinite(vpp) and on > 0:
-                    commands.append((m.log_time_ns * 1e-9, freq, vpp))
-            elif kind == "drive":
-                s = check_samples(block_of(m.type_name, m.data), DRIVE_CHANNELS)
-                parts["t"].append(s["t_s"])
-                parts["v"].append(s["voltage_V"])
-                parts["i"].append(s["current_A"])
-            elif kind == "tip":
-                s = check_samples(block_of(m.type_name, m.data), TIP_CHANNELS)
-                parts["tt"].append(s["t_s"])
-                parts["u"].append(s["tip_velocity_m_s"])
-            else:
-                s = check_samples(block_of(m.type_name, m.data), LOADCELL_CHANNELS)
-                parts["tl"].append(s["t_s"])
-                parts["d"].append(s["displacement_m"])
-        except (BlockFormatError, KeyError, ValueError, IndexError):
-            continue  # the estimator's replay reports malformed data; fin_sim rejects such commands too
+    parts, commands = scanner.parts, scanner.commands
     cat = {k: np.concatenate(v) if v else np.empty(0) for k, v in parts.items()}
     t, v = cat["t"], cat["v"]
     if t.size < 100:
@@ -542,9 +551,17 @@ def from_bags(
     for j, path in enumerate(paths):
         if progress:
             progress(f"reading {path} ({j + 1}/{len(paths)})")
-        replay = replay_estimates(path, fin, namespace, amplifier=amplifier)
+        # one pass: the estimator's replay and the noise scan take each message as it is read
+        replayer, scanner = Replayer(fin, amplifier=amplifier), Scanner()
+        wanted = {*Replayer.KINDS, *Scanner.KINDS}
+        for m in read_fin(path, namespace, wanted, skipped=replayer.skipped, progress=progress):
+            if m.kind in Replayer.KINDS:
+                replayer.add(m)
+            if m.kind in Scanner.KINDS:
+                scanner.add(m)
+        replay = replayer.result(path, namespace, sorted(wanted))
         skipped += [f"{path}: {s}" for s in replay.skipped_lines()]
-        scan = scan_bag(path, namespace)
+        scan = scanned(scanner, path, namespace)
         table = from_estimates(
             replay.replayed,
             scan.noise,

@@ -8,23 +8,26 @@ log-time order, and returns its estimates with those the live ``thrust_estimator
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 
-from ..bags import BagError, block_of, decode, read_messages
-from ..bags.blocks import (
-    DRIVE_CHANNELS,
-    LOADCELL_CHANNELS,
-    SUPPLY_CHANNELS,
-    TIP_CHANNELS,
-    BlockFormatError,
-    check_samples,
+from ..bags import BagError
+from ..bags.blocks import BlockFormatError
+from ..bags.fin import (
+    TOPIC_DRIVE,
+    TOPIC_ESTIMATE,
+    TOPIC_LOADCELL,
+    TOPIC_SPEED,
+    TOPIC_SUPPLY,
+    TOPIC_TIP,
+    FinMessage,
+    Skipped,
+    read_fin,
+    topic_prefix,
 )
 from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.fin import Fin
 from .estimator import OPTIONAL_FIELDS, Estimate, EstimatorConfig, StreamEstimator
-
-#: Skipped messages are counted; only this many lines describing them are kept.
-MAX_SKIPPED_LINES = 100
 
 
 @dataclass(frozen=True)
@@ -32,7 +35,7 @@ class Replay:
     replayed: list[Estimate]
     recorded: list[Estimate]
     messages: int
-    skipped: list[str]  # one line per message that could not be used (the first MAX_SKIPPED_LINES)
+    skipped: list[str]  # one line per message that could not be used (the first bags.fin.MAX_SKIPPED_LINES)
     n_skipped: int = 0  # all of them
 
     def skipped_lines(self, most: int = 20) -> list[str]:
@@ -59,9 +62,52 @@ class Replay:
         return worst
 
 
-def topic_prefix(namespace: str) -> str:
-    """``"/fin"`` for ``"fin"``, ``"/fin/"`` or ``"/fin"``; ``""`` for the root namespace."""
-    return "/" + namespace.strip("/") if namespace.strip("/") else ""
+class Replayer:
+    """The estimator fed message by message (:func:`~piezofin_ros.bags.fin.read_fin`'s), keeping
+    the live estimates recorded beside; :meth:`result` gives the :class:`Replay`."""
+
+    KINDS = (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL, TOPIC_SUPPLY, TOPIC_SPEED, TOPIC_ESTIMATE)
+
+    def __init__(self, fin: Fin, config: EstimatorConfig | None = None, amplifier: Amplifier = PAPER_BENCH):
+        self.estimator = StreamEstimator(fin, config, amplifier=amplifier)
+        self.replayed: list[Estimate] = []
+        self.recorded: list[Estimate] = []
+        self.skipped = Skipped()
+        self.messages = 0  # usable ones (read_fin's); those it skipped are in ``skipped`` too
+        self._errors = 0  # of the usable ones, those the estimator refused
+        self._last_t = float("nan")
+
+    def add(self, m: FinMessage, topic: str = "") -> None:
+        self.messages += 1
+        est, b = self.estimator, m.block
+        try:
+            if m.kind == TOPIC_SPEED:
+                est.add_speed(self._last_t, m.value)
+                return
+            assert b is not None
+            if m.kind == TOPIC_ESTIMATE:
+                self.recorded.append(Estimate.from_dict(b.as_dict()))
+            elif m.kind == TOPIC_DRIVE:
+                self._last_t = float(b["t_s"][-1])
+                self.replayed += est.add_drive(b["t_s"], b["voltage_V"], b["current_A"])
+            elif m.kind == TOPIC_SUPPLY:
+                self.replayed += est.add_supply(b["t_s"], b["supply_voltage_V"], b["supply_current_A"])
+            elif m.kind == TOPIC_TIP:
+                self.replayed += est.add_tip(b["t_s"], b["tip_velocity_m_s"])
+            else:
+                self.replayed += est.add_loadcell(b["t_s"], b["displacement_m"])
+        except (BlockFormatError, KeyError, ValueError, AssertionError) as exc:
+            self._errors += 1
+            self.skipped.add(topic or m.kind, m.time_ns, exc)
+
+    def result(self, path: str | os.PathLike[str], namespace: str, kinds: Iterable[str] = KINDS) -> Replay:
+        """The replay of ``path``; :class:`BagError` if it held no message of the fin's ``kinds``."""
+        s = self.skipped
+        read = self.messages + s.count - self._errors  # every message of the fin's topics
+        if read == 0:
+            topics = ", ".join(f"{topic_prefix(namespace)}/{k}" for k in kinds)
+            raise BagError(f"{path}: no message on {topics} (is the namespace right?)")
+        return Replay(self.replayed + self.estimator.flush(), self.recorded, read, s.lines, s.count)
 
 
 def replay_estimates(
@@ -71,43 +117,9 @@ def replay_estimates(
     config: EstimatorConfig | None = None,
     amplifier: Amplifier = PAPER_BENCH,
 ) -> Replay:
-    """Run the estimator over one fin's topics in a bag (raises :class:`BagError` on an unreadable file)."""
-    ns = topic_prefix(namespace)
-    names = ("drive", "tip_velocity", "loadcell", "supply", "swim_speed", "estimate")
-    topics = {f"{ns}/{t}": t for t in names}
-    est = StreamEstimator(fin, config, amplifier=amplifier)
-    replayed: list[Estimate] = []
-    recorded: list[Estimate] = []
-    skipped: list[str] = []
-    n = n_skipped = 0
-    last_t = float("nan")
-    for m in read_messages(path, topics):
-        n += 1
-        kind = topics[m.topic]
-        try:
-            if kind == "swim_speed":
-                est.add_speed(last_t, float(decode(m.type_name, m.data).data))
-                continue
-            block = block_of(m.type_name, m.data)
-            if kind == "estimate":
-                recorded.append(Estimate.from_dict(block.as_dict()))
-            elif kind == "drive":
-                b = check_samples(block, DRIVE_CHANNELS)
-                last_t = float(b["t_s"][-1])
-                replayed += est.add_drive(b["t_s"], b["voltage_V"], b["current_A"])
-            elif kind == "supply":
-                b = check_samples(block, SUPPLY_CHANNELS)
-                replayed += est.add_supply(b["t_s"], b["supply_voltage_V"], b["supply_current_A"])
-            elif kind == "tip_velocity":
-                b = check_samples(block, TIP_CHANNELS)
-                replayed += est.add_tip(b["t_s"], b["tip_velocity_m_s"])
-            else:
-                b = check_samples(block, LOADCELL_CHANNELS)
-                replayed += est.add_loadcell(b["t_s"], b["displacement_m"])
-        except (BlockFormatError, KeyError, ValueError, AssertionError) as exc:
-            n_skipped += 1
-            if len(skipped) < MAX_SKIPPED_LINES:  # memory bounded by what is kept, whatever the file
-                skipped.append(f"{m.topic} at {m.log_time_ns * 1e-9:.3f} s: {exc}")
-    if n == 0:
-        raise BagError(f"{path}: no message on {', '.join(topics)} (is the namespace right?)")
-    return Replay(replayed + est.flush(), recorded, n, skipped, n_skipped)
+    """Run the estimator over one fin's topics in a bag (raises :class:`BagError` on an unreadable
+    file, or one without any of the fin's messages)."""
+    replayer = Replayer(fin, config, amplifier)
+    for m in read_fin(path, namespace, Replayer.KINDS, skipped=replayer.skipped):
+        replayer.add(m)
+    return replayer.result(path, namespace)

@@ -35,8 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
-from ..bags import block_of, read_messages
-from ..bags.blocks import DRIVE_CHANNELS, TIP_CHANNELS, BlockFormatError, check_samples
+from ..bags.fin import TOPIC_DRIVE, TOPIC_TIP, Skipped, read_fin, topic_prefix
 from ..bags.reader import Damage
 from ..errors import EstimationError
 
@@ -280,26 +279,25 @@ def read_sweep(
 
     A damaged bag gives what it still holds; each damage goes to ``on_damage`` (default: a logged
     warning).  Raises :class:`~piezofin_ros.errors.BagError` on an unreadable bag and
-    :class:`IdentificationError`
-    when it holds no drive or no step.
+    :class:`IdentificationError` when it holds no drive or no step.
     """
-    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
-    topics = {f"{ns}/drive": DRIVE_CHANNELS, f"{ns}/tip_velocity": TIP_CHANNELS}
     drive: list[tuple[FloatArray, ...]] = []
     tips: list[tuple[FloatArray, ...]] = []
-    skipped = 0
-    for m in read_messages(path, topics, **({"on_damage": on_damage} if on_damage else {})):
-        channels = topics[m.topic]
-        try:
-            b = check_samples(block_of(m.type_name, m.data), channels)
-        except (BlockFormatError, KeyError, ValueError):
-            skipped += 1
-            continue
-        (drive if channels is DRIVE_CHANNELS else tips).append(
-            tuple(np.asarray(b[c], float) for c in channels)
+    skipped = Skipped()
+    for m in read_fin(path, namespace, (TOPIC_DRIVE, TOPIC_TIP), skipped=skipped, on_damage=on_damage):
+        assert m.block is not None
+        rows = tuple(np.asarray(row, float) for row in m.block.values)
+        (drive if m.kind == TOPIC_DRIVE else tips).append(rows)
+    ns = topic_prefix(namespace)
+    if skipped.count:  # a damaged or foreign message is said, not dropped silently
+        _log.warning(
+            "%s: %d message(s) on %s/drive, %s/tip_velocity skipped: %s",
+            path,
+            skipped.count,
+            ns,
+            ns,
+            skipped.lines[0],
         )
-    if skipped:  # a damaged or foreign message is said, not dropped silently
-        _log.warning("%s: %d message(s) on %s skipped (not sample blocks)", path, skipped, ", ".join(topics))
     if not drive:
         raise IdentificationError(f"{path}: no drive samples on {ns}/drive (is the namespace right?)")
     t, v, i = _concat(drive, 3)

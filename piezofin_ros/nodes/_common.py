@@ -35,16 +35,18 @@ QOS_COMMAND = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 #: /clock as rosbag2 and the ROS time source expect it.
 QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
-#: Topic names (relative: a node's namespace puts them under one fin).
-TOPIC_DRIVE = "drive"
-TOPIC_TIP = "tip_velocity"
-TOPIC_LOADCELL = "loadcell"
-TOPIC_SUPPLY = "supply"
-TOPIC_CMD = "cmd"
-TOPIC_ESTIMATE = "estimate"
-TOPIC_SPEED = "swim_speed"
-TOPIC_STATUS = "controller/status"
-TOPIC_DEMAND = "thrust_demand"
+# Topic names (relative: a node's namespace puts them under one fin), defined with the bags' reader.
+from ..bags.fin import (  # noqa: E402, F401 (re-exported: the nodes' contract)
+    TOPIC_CMD,
+    TOPIC_DEMAND,
+    TOPIC_DRIVE,
+    TOPIC_ESTIMATE,
+    TOPIC_LOADCELL,
+    TOPIC_SPEED,
+    TOPIC_STATUS,
+    TOPIC_SUPPLY,
+    TOPIC_TIP,
+)
 
 
 def block_msg(block: Block) -> Float64MultiArray:

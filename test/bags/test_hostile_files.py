@@ -8,6 +8,7 @@ with no traceback, within 30 s.  The files are built here, for a class of attack
 from __future__ import annotations
 
 import io
+import json
 import os
 import signal
 import struct
@@ -391,3 +392,61 @@ def test_a_bag_directory_cannot_make_diagnose_hang_blow_up_or_leave_it(tmp_path:
     errors = [x for x in err.splitlines() if "error" in x.lower()]
     assert len(errors) == 1 and str(d) in errors[0] and words in errors[0], err
     assert peak_mb < 300, peak_mb
+
+
+def _in_splits(d: Path, n: int) -> Path:
+    """The sample bag written again as a rosbag2 directory of ``n`` splits (no metadata.yaml)."""
+    from piezofin_ros.bags import BagWriter, read_messages
+
+    d.mkdir()
+    messages = list(read_messages(SAMPLE))
+    per = -(-len(messages) // n)
+    for k in range(n):
+        with BagWriter(d / f"run_{k}.mcap") as bag:
+            for m in messages[k * per : (k + 1) * per]:
+                if m.topic not in bag.counts:
+                    bag.add_topic(m.topic, m.type_name, strict=False)
+                bag.write(m.topic, m.log_time_ns, m.data)
+    return d
+
+
+def test_diagnose_reads_each_file_of_a_bag_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 29: `diagnose` opened and decoded every bag twice (the estimator's replay, then the noise
+    scan); one pass now feeds both."""
+    from piezofin_ros.bags import reader
+    from piezofin_ros.diagnosis.data import from_bags
+    from piezofin_ros.physics.fin import load_fin
+
+    opened: list[str] = []
+    real = reader.read_file
+
+    def counting(path, *args, **kwargs):  # type: ignore[no-untyped-def]
+        opened.append(Path(path).name)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(reader, "read_file", counting)
+    d = _in_splits(tmp_path / "bag", 3)
+    opened.clear()
+    trials, _ = from_bags([d], load_fin("M8528-P1"))
+    assert sorted(opened) == ["run_0.mcap", "run_1.mcap", "run_2.mcap"], opened
+    assert len(trials) == 2  # the sample bag: two trials
+
+
+@pytest.mark.slow
+def test_diagnose_says_which_split_it_reads(tmp_path: Path) -> None:
+    """Issue 29: 10,000 splits ran past 90 s with nothing said.  A directory of many splits is read
+    with its progress on standard error (the first split, the last, and one line every 2 s between),
+    and gives the diagnosis the single file gives."""
+    d = _in_splits(tmp_path / "bag", 300)
+    runs = {}
+    for name, bag in (("many", d), ("one", SAMPLE)):
+        cmd = [str(BIN / "piezofin"), "diagnose", str(bag), "--json", str(tmp_path / f"{name}.json")]
+        runs[name] = subprocess.run(
+            cmd, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL
+        )
+    many, one = runs["many"], runs["one"]
+    assert many.returncode == 0 and one.returncode == 0, many.stderr[-2000:] + one.stderr[-2000:]
+    assert f"{d}: split 1/300 (run_0.mcap)" in many.stderr, many.stderr[-2000:]
+    assert f"{d}: split 300/300 (run_299.mcap)" in many.stderr, many.stderr[-2000:]
+    a, b = (json.loads((tmp_path / f"{name}.json").read_text()) for name in ("many", "one"))
+    assert a["trials"] == b["trials"] and a["verdict"] == b["verdict"]

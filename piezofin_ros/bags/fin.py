@@ -1,0 +1,117 @@
+"""One fin's topics in a bag, read in one place: the topic names of the nodes' contract, and one
+pass that decodes and checks each message, counting (and describing, up to a bound) what it skips.
+
+Every reader of a fin's recording goes through :func:`read_fin`: the estimator's offline replay,
+the diagnosis' noise scan (both in one pass, :func:`read_fin` feeding several consumers), the
+identification's stepped sine and the campaign's time trace.  A sampled topic's block is checked
+(:func:`~.blocks.check_samples`) and holds its channels only; a command keeps its fields; a
+``std_msgs/Float64`` topic (``swim_speed``) gives its value.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+
+from .blocks import (
+    COMMAND_FIELDS,
+    DRIVE_CHANNELS,
+    LOADCELL_CHANNELS,
+    SUPPLY_CHANNELS,
+    TIP_CHANNELS,
+    Block,
+    BlockFormatError,
+    check_samples,
+)
+from .reader import Damage, read_messages
+from .types import MessageError, block_of, decode
+
+# The topics of one fin, relative to its namespace (the nodes' contract, docs/reference.md).
+TOPIC_DRIVE = "drive"
+TOPIC_TIP = "tip_velocity"
+TOPIC_LOADCELL = "loadcell"
+TOPIC_SUPPLY = "supply"
+TOPIC_CMD = "cmd"
+TOPIC_ESTIMATE = "estimate"
+TOPIC_SPEED = "swim_speed"
+TOPIC_STATUS = "controller/status"
+TOPIC_DEMAND = "thrust_demand"
+
+#: The sample channels of each sampled topic, in wire order.
+SAMPLED = {
+    TOPIC_DRIVE: DRIVE_CHANNELS,
+    TOPIC_TIP: TIP_CHANNELS,
+    TOPIC_LOADCELL: LOADCELL_CHANNELS,
+    TOPIC_SUPPLY: SUPPLY_CHANNELS,
+}
+#: Skipped messages are counted; only this many lines describing them are kept.
+MAX_SKIPPED_LINES = 100
+
+
+def topic_prefix(namespace: str) -> str:
+    """``"/fin"`` for ``"fin"``, ``"/fin/"`` or ``"/fin"``; ``""`` for the root namespace."""
+    return "/" + namespace.strip("/") if namespace.strip("/") else ""
+
+
+@dataclass(frozen=True)
+class FinMessage:
+    """One usable message of a fin: its topic ``kind`` (relative to the namespace, e.g. ``"drive"``),
+    its log time, and its content: a :class:`~.blocks.Block` or, for ``swim_speed``, a value."""
+
+    kind: str
+    time_ns: int
+    block: Block | None = None
+    value: float = float("nan")
+
+
+@dataclass
+class Skipped:
+    """What a read could not use: counted, and the first :data:`MAX_SKIPPED_LINES` described."""
+
+    count: int = 0
+    lines: list[str] = field(default_factory=list)
+
+    def add(self, topic: str, time_ns: int, why: object) -> None:
+        self.count += 1
+        if len(self.lines) < MAX_SKIPPED_LINES:  # memory bounded by what is kept, whatever the file
+            self.lines.append(f"{topic} at {time_ns * 1e-9:.3f} s: {why}")
+
+
+def read_fin(
+    path: str | os.PathLike[str],
+    namespace: str,
+    kinds: Iterable[str],
+    *,
+    skipped: Skipped | None = None,
+    on_damage: Callable[[Damage], None] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Iterator[FinMessage]:
+    """The usable messages of ``kinds`` (topics relative to ``namespace``) in recording order.
+
+    A message that does not decode or fails its check is left out and added to ``skipped``; each
+    damage of the file goes to ``on_damage`` (default: a logged warning); ``progress`` hears which
+    split of a rosbag2 directory is being read.
+    """
+    ns = topic_prefix(namespace)
+    topics = {f"{ns}/{k}": k for k in kinds}
+    extra: dict[str, object] = {"progress": progress}
+    if on_damage is not None:
+        extra["on_damage"] = on_damage
+    for m in read_messages(path, topics, **extra):  # type: ignore[arg-type]
+        kind = topics[m.topic]
+        try:
+            if kind == TOPIC_SPEED:
+                yield FinMessage(kind, m.log_time_ns, value=float(decode(m.type_name, m.data).data))
+                continue
+            if kind == TOPIC_CMD:
+                block = block_of(m.type_name, m.data, expect=COMMAND_FIELDS)
+            elif kind in SAMPLED:
+                block = check_samples(block_of(m.type_name, m.data), SAMPLED[kind])
+            else:
+                block = block_of(m.type_name, m.data)
+        except (BlockFormatError, MessageError, KeyError, ValueError, IndexError, AttributeError) as exc:
+            if skipped is not None:
+                skipped.add(m.topic, m.log_time_ns, exc)
+            continue
+        yield FinMessage(kind, m.log_time_ns, block)
