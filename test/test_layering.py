@@ -112,6 +112,41 @@ def test_nothing_imports_from_a_layer_above_it() -> None:
     assert bad == []
 
 
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = list(rel.parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_no_two_modules_import_each_other_and_the_nodes_share_nothing_with_the_cli() -> None:
+    """Issue 29's house: `cli/campaign` and `cli/campaign_report` imported each other, and
+    `nodes/bringup` imported `cli/` for its tables, plots and frequency parsing.  No cycle among the
+    package's modules (imports for type checking count), and the nodes import nothing from `cli/`:
+    what both use lies below both."""
+    names = {_module_name(p): p for p in _modules()}
+    graph: dict[str, set[str]] = {}
+    for name, path in names.items():
+        targets = set()
+        for _, imported in _imports(path):
+            while imported and imported not in names:  # `from .x import y`: y may be a name in x
+                imported = imported.rpartition(".")[0]
+            if imported and imported != name and names[imported].name != "__init__.py":
+                targets.add(imported)
+        graph[name] = targets
+    cycles = []
+    for a, targets in graph.items():
+        cycles += [f"{a} <-> {b}" for b in targets if a < b and a in graph.get(b, set())]
+    assert cycles == []
+    from_cli = [
+        f"{p.relative_to(PACKAGE)}:{line} imports {n}"
+        for p in _modules()
+        if _layer_of(p) == "nodes"
+        for line, n in _imports(p)
+        if n.startswith("piezofin_ros.cli")
+    ]
+    assert from_cli == []
+
+
 def test_only_the_nodes_import_ros_client_code() -> None:
     bad = []
     for path in _modules():

@@ -14,44 +14,25 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
-from .blocks import (
-    COMMAND_FIELDS,
-    DRIVE_CHANNELS,
-    LOADCELL_CHANNELS,
-    SUPPLY_CHANNELS,
-    TIP_CHANNELS,
-    Block,
-    BlockFormatError,
-    check_samples,
-)
+from .blocks import COMMAND_FIELDS, Block, BlockFormatError, check_samples
 from .reader import Damage, read_messages
+from .topics import (  # noqa: F401 (re-exported: a reader of a fin's bag needs the names too)
+    SAMPLED,
+    TOPIC_CMD,
+    TOPIC_DEMAND,
+    TOPIC_DRIVE,
+    TOPIC_ESTIMATE,
+    TOPIC_LOADCELL,
+    TOPIC_SPEED,
+    TOPIC_STATUS,
+    TOPIC_SUPPLY,
+    TOPIC_TIP,
+    topic_prefix,
+)
 from .types import MessageError, block_of, decode
 
-# The topics of one fin, relative to its namespace (the nodes' contract, docs/reference.md).
-TOPIC_DRIVE = "drive"
-TOPIC_TIP = "tip_velocity"
-TOPIC_LOADCELL = "loadcell"
-TOPIC_SUPPLY = "supply"
-TOPIC_CMD = "cmd"
-TOPIC_ESTIMATE = "estimate"
-TOPIC_SPEED = "swim_speed"
-TOPIC_STATUS = "controller/status"
-TOPIC_DEMAND = "thrust_demand"
-
-#: The sample channels of each sampled topic, in wire order.
-SAMPLED = {
-    TOPIC_DRIVE: DRIVE_CHANNELS,
-    TOPIC_TIP: TIP_CHANNELS,
-    TOPIC_LOADCELL: LOADCELL_CHANNELS,
-    TOPIC_SUPPLY: SUPPLY_CHANNELS,
-}
 #: Skipped messages are counted; only this many lines describing them are kept.
 MAX_SKIPPED_LINES = 100
-
-
-def topic_prefix(namespace: str) -> str:
-    """``"/fin"`` for ``"fin"``, ``"/fin/"`` or ``"/fin"``; ``""`` for the root namespace."""
-    return "/" + namespace.strip("/") if namespace.strip("/") else ""
 
 
 @dataclass(frozen=True)

@@ -24,14 +24,12 @@ a campaign recorded elsewhere (a real rig, same topics) can be analysed too.
 from __future__ import annotations
 
 import json
-import math
 import os
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,47 +40,13 @@ from ..bags.reader import Damage
 from ..errors import CliError
 from ..identification.frf import read_sweep
 from ..identification.identify import Identification, identify
-from ..physics.fin import Fin, FinConfigError, config_dir, load_fin, read_yaml_file
-from ..physics.model import load_model
-from .campaign_report import analyse, filename, namespace
+from ..physics.fin import FinConfigError, config_dir, load_fin, read_yaml_file
+from .campaign_plan import CampaignConfig, filename, namespace
+from .campaign_report import analyse
 
 
 class CampaignError(CliError):
     """A stage of the campaign failed (its log says why)."""
-
-
-@dataclass
-class CampaignConfig:
-    fins: tuple[str, ...] = ("M8528-P1", "M8514-P1", "M8507-P1")
-    models: dict[str, str] = field(default_factory=dict)  # fin name -> augmented model file
-    out: Path = Path("out/campaign")
-    frequencies: tuple[float, ...] | None = None  # None: each fin's band (protocol_frequencies)
-    voltages: tuple[float, ...] = (400.0, 600.0, 800.0)
-    trace: tuple[float, float] = (5.5, 800.0)  # Fig. 6
-    air_vpp: float = 50.0
-    water_vpp: float = 100.0
-    sweep_points: int = 21
-    realtime_factor: float = 200.0
-    _truths: dict[str, Fin] = field(default_factory=dict, repr=False)
-
-    def protocol_frequencies(self, name: str) -> list[float]:
-        """The protocol's frequencies for a fin: ``frequencies`` if given, else the paper's 1-11 Hz
-        widened to the fin's band (1 Hz steps up to 1.25 times its linear underwater resonance:
-        M8514-P1 and M8507-P1 resonate above 11 Hz), plus 5.5 Hz for M8528-P1 (Fig. 6)."""
-        if self.frequencies is not None:
-            freqs = list(self.frequencies)
-        else:
-            top = max(11, math.ceil(1.25 * self.truth(name).f_water_linear))
-            freqs = [float(f) for f in range(1, top + 1)]
-        if name == "M8528-P1" and self.trace[0] not in freqs:
-            freqs = sorted([*freqs, self.trace[0]])
-        return freqs
-
-    def truth(self, name: str) -> Fin:
-        """The fin the rig simulates (the preset, or the twin's fin); each file is read once."""
-        if name not in self._truths:
-            self._truths[name] = load_model(self.models[name]).fin if name in self.models else load_fin(name)
-        return self._truths[name]
 
 
 def sweep_frequencies(f0: float, n: int, low: float, high: float) -> list[float]:
@@ -171,7 +135,6 @@ def run_bringups(jobs: dict[str, list[str]], logs: dict[str, Path], say: Callabl
     """``bringup`` once per fin, all at once, each in its own process and ROS domain; their progress
     lines go to ``say`` (prefixed with the fin) and everything they print to their ``logs``.
     Raises :class:`CampaignError` naming the log of any that fails."""
-    code = "import sys; from piezofin_ros.nodes.bringup import main; sys.exit(main(sys.argv[1:]))"
     procs: dict[str, subprocess.Popen[str]] = {}
     handles = {}
     threads = []
@@ -184,7 +147,7 @@ def run_bringups(jobs: dict[str, list[str]], logs: dict[str, Path], say: Callabl
         env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # a simulation needs no network
         handles[name] = fh = open(logs[name], "w")  # noqa: SIM115 (closed below)
         procs[name] = proc = subprocess.Popen(
-            [sys.executable, "-c", code, *args],
+            [sys.executable, "-m", "piezofin_ros.nodes.bringup", *args],
             stdin=subprocess.DEVNULL,
             stdout=fh,
             stderr=subprocess.PIPE,

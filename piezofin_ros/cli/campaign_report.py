@@ -9,10 +9,9 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -22,10 +21,8 @@ from ..identification.identify import Identification
 from ..physics import hydro
 from ..physics.fin import Fin
 from ..physics.steady import harmonic_balance
+from .campaign_plan import CampaignConfig, filename, namespace
 from .plots import plot_frf
-
-if TYPE_CHECKING:
-    from .campaign import CampaignConfig
 
 #: What the paper publishes, per fin (Tables 1-2, Eq. 21, Sec. 3.3).
 PAPER: dict[str, dict[str, float]] = {
@@ -59,17 +56,6 @@ PAPER: dict[str, dict[str, float]] = {
 }
 #: Sec. 3.3: M8528-P1's representative run (Fig. 6), the common maximum of T/P (Fig. 10b), and the
 #: power near resonance at 800 Vpp, psi 5.4 : 3.9 : 2.1 about 1 : 2 : 5.
-
-
-def namespace(name: str) -> str:
-    """A ROS namespace for a fin name (``M8528-P1`` -> ``m8528_p1``)."""
-    ns = re.sub(r"[^a-z0-9_]", "_", name.lower())
-    return ns if ns[:1].isalpha() else f"fin_{ns}"
-
-
-def filename(name: str) -> str:
-    """A file-name-safe form of a fin name."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", name)
 
 
 def model_curves(fin: Fin, freqs: np.ndarray, vpp: float) -> dict[str, np.ndarray]:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,47 +20,19 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import workers
-from ..errors import CliError
 from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
 from ..physics.steady import SteadyState, harmonic_balance
+from .args import (
+    EXIT_UNTRUSTED,
+    EXIT_USAGE,
+    UsageError,
+    parse_frequencies,
+    writable_folder,
+    writable_path,
+)
 
 if TYPE_CHECKING:
     from ..diagnosis.paper import Twin
-
-EXIT_USAGE = 2
-#: The work ran, but its result is not to be trusted (said on standard error, with the cause).
-EXIT_UNTRUSTED = 3
-
-
-class UsageError(CliError):
-    """A user-facing error: printed as one line, exit status 2."""
-
-
-def parse_frequencies(spec: Sequence[str]) -> np.ndarray:
-    """``start:stop:step`` (stop included, like the paper's 1-11 Hz) and/or plain values, Hz."""
-    values: list[float] = []
-    for item in spec:
-        parts = item.split(":")
-        try:
-            nums = [float(p) for p in parts]
-        except ValueError:
-            raise UsageError(f"--freq: cannot read {item!r}; use values or start:stop:step") from None
-        if len(nums) == 1:
-            values.append(nums[0])
-        elif len(nums) == 3:
-            start, stop, step = nums
-            if not step > 0 or stop < start:
-                raise UsageError(f"--freq {item!r}: need start <= stop and step > 0")
-            n = int(np.floor((stop - start) / step + 1e-9)) + 1
-            if n > 1_000_000:
-                raise UsageError(f"--freq {item!r}: {n} points is too many (max 1e6)")
-            values.extend(np.round(start + step * np.arange(n), 12))
-        else:
-            raise UsageError(f"--freq: cannot read {item!r}; use values or start:stop:step")
-    freqs = np.asarray(values, dtype=float)
-    if freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):
-        raise UsageError("--freq: frequencies must be finite and > 0 Hz")
-    return freqs
 
 
 def _load(fin_arg: str, c_d: float | None) -> Fin:
@@ -285,7 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     camp.add_argument("--force", action="store_true", help="replace a campaign already in --out")
     camp.set_defaults(func=run_campaign_cmd)
 
-    from . import watts as _watts  # (it imports this module)
+    from . import watts as _watts  # (when the parser is built: its imports are not all light)
 
     watts = sub.add_parser(
         "watts", help="the best thrust per watt of each fin in each watt (fin, apparent, supply), and Fig. 10"
@@ -388,26 +359,6 @@ def run_identify(args: argparse.Namespace) -> int:
     return EXIT_UNTRUSTED
 
 
-def writable_path(option: str, path: str | Path) -> None:
-    """``path`` can be written: its folder exists (made if need be) and takes files, and it is no
-    folder itself; else one line naming ``option``."""
-    path = Path(path)
-    if path.is_dir():
-        raise UsageError(f"{option} {path}: a folder, not a file")
-    writable_folder(option, path.parent, f"{option} {path}: its folder")
-
-
-def writable_folder(option: str, folder: Path, what: str = "") -> None:
-    """``folder`` exists (made if need be) and takes files; else one line naming ``option``."""
-    what = what or option
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"{what} {folder}: cannot make it ({exc.strerror or exc})") from None
-    if not os.access(folder, os.W_OK):
-        raise UsageError(f"{what} {folder}: not writable")
-
-
 def run_campaign_cmd(args: argparse.Namespace) -> int:
     from ..bags import BagError
     from ..identification.frf import IdentificationError
@@ -433,7 +384,7 @@ def run_campaign_cmd(args: argparse.Namespace) -> int:
     except (FinConfigError, ModelError, FileNotFoundError) as exc:
         raise UsageError(str(exc)) from None
     if args.frequencies:
-        cfg.frequencies = tuple(float(f) for f in parse_frequencies(args.frequencies))
+        cfg.frequencies = tuple(float(f) for f in parse_frequencies(args.frequencies, "--frequencies"))
     if args.voltages:
         if not all(0 < v <= 800 for v in args.voltages):
             raise UsageError("--voltages: each within (0, 800] Vpp")

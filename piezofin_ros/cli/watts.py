@@ -17,7 +17,7 @@ from ..errors import PiezofinError
 from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
-from .main import UsageError, parse_frequencies
+from .args import UsageError, parse_frequencies
 
 
 class WattsError(UsageError):

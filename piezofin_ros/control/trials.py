@@ -21,6 +21,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 
+import numpy as np
+from numpy.typing import NDArray
+
 from ..errors import ControlError
 from ..estimation.estimator import THRUST_FIELDS, Estimate
 from ..physics.amplifier import check_watt
@@ -206,3 +209,31 @@ def watt_label(watt: str) -> str:
 
 def _finite(x: float) -> float:
     return x if math.isfinite(x) else -math.inf
+
+
+def parse_frequencies(spec: Sequence[str], option: str = "--freq") -> NDArray[np.float64]:
+    """``start:stop:step`` (stop included, like the paper's 1-11 Hz) and/or plain values, Hz; a
+    :class:`ControlError` naming ``option`` for anything else (the CLI and ``bringup`` share it)."""
+    values: list[float] = []
+    for item in spec:
+        parts = item.split(":")
+        try:
+            nums = [float(p) for p in parts]
+        except ValueError:
+            raise ControlError(f"{option}: cannot read {item!r}; use values or start:stop:step") from None
+        if len(nums) == 1:
+            values.append(nums[0])
+        elif len(nums) == 3:
+            start, stop, step = nums
+            if not step > 0 or stop < start:
+                raise ControlError(f"{option} {item!r}: need start <= stop and step > 0")
+            n = int(np.floor((stop - start) / step + 1e-9)) + 1
+            if n > 1_000_000:
+                raise ControlError(f"{option} {item!r}: {n} points is too many (max 1e6)")
+            values.extend(np.round(start + step * np.arange(n), 12))
+        else:
+            raise ControlError(f"{option}: cannot read {item!r}; use values or start:stop:step")
+    freqs = np.asarray(values, dtype=float)
+    if freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):
+        raise ControlError(f"{option}: frequencies must be finite and > 0 Hz")
+    return freqs

@@ -417,7 +417,6 @@ class StreamEstimator:
         self._off_since = -math.inf  # time since which the drive has been off and settled
         self._first_t = math.nan
         self._prev = (math.nan, math.nan)  # last drive sample (t, v)
-        self._armed = False
         self._vmin = math.inf
         self._vmax = -math.inf
         self._last_cross = math.nan

@@ -36,7 +36,7 @@ QOS_COMMAND = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 # Topic names (relative: a node's namespace puts them under one fin), defined with the bags' reader.
-from ..bags.fin import (  # noqa: E402, F401 (re-exported: the nodes' contract)
+from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contract)
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_DRIVE,

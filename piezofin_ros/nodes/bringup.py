@@ -31,9 +31,9 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from ..cli.main import UsageError, parse_frequencies
-from ..cli.plots import frf_table, plot_trials, trial_table
-from ..errors import PiezofinError
+from ..control.report import frf_table, plot_trials, trial_table
+from ..control.trials import parse_frequencies
+from ..errors import ControlError, PiezofinError
 from ..physics.amplifier import Amplifier
 from ..physics.fin import config_dir
 from ._common import StartupError, StopFlag
@@ -96,9 +96,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.frequencies:
         try:
-            args.frequencies = [float(f) for f in parse_frequencies(args.frequencies)]
-        except UsageError as exc:
-            p.error(str(exc).replace("--freq", "--frequencies"))
+            args.frequencies = [float(f) for f in parse_frequencies(args.frequencies, "--frequencies")]
+        except ControlError as exc:
+            p.error(str(exc))
     if args.frequency_max is not None and not (
         math.isfinite(args.frequency_max) and 0 < args.frequency_max <= 1000
     ):

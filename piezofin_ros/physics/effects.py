@@ -43,6 +43,7 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import optimize
 
 from ..errors import PhysicsError
 from .fin import Fin
@@ -501,6 +502,23 @@ class SwimSpeed(Coefficient):
         return self.U
 
 
+def clipped_fundamental(r: FloatArray | float) -> FloatArray:
+    """The describing function of a sine clipped at ``r`` of its amplitude (``0 <= r <= 1``): its
+    fundamental's share of the sine's, ``(2 / pi) (asin r + r sqrt(1 - r^2))``."""
+    r = np.clip(np.asarray(r, float), 0.0, 1.0)
+    return (2 / math.pi) * (np.arcsin(r) + r * np.sqrt(1 - r * r))  # type: ignore[no-any-return]
+
+
+def clip_ratio(fundamental: float) -> float:
+    """The clip level ``r`` whose :func:`clipped_fundamental` is ``fundamental`` (its inverse; the
+    streaming rig clips its drive where the model says the amplifier does)."""
+    if fundamental >= 1.0:
+        return 1.0
+    if fundamental <= 0.0:
+        return 0.0
+    return float(optimize.brentq(lambda r: float(clipped_fundamental(r)) - fundamental, 0.0, 1.0, xtol=1e-12))
+
+
 def amplifier_clip(inv_i_max: float, fin: Fin, omega: FloatArray) -> FloatArray:
     """The voltage amplitude at which an amplifier of peak current ``1 / inv_i_max`` mA clips."""
     with np.errstate(divide="ignore"):
@@ -538,7 +556,7 @@ class AmplifierLimit(Effect):
         clip = amplifier_clip(self.inv_i_max, op.fin, op.omega)
         r = np.clip(clip / np.maximum(v, 1e-12), 0.0, 1.0)
         alpha = np.arcsin(r)
-        fundamental = (2 / math.pi) * (alpha + r * np.sqrt(1 - r * r))
+        fundamental = clipped_fundamental(r)
         # C dv/dt of the clipped sine: mean square (V w)^2 (2 alpha + sin 2 alpha) / (2 pi), of which
         # the fundamental carries (fundamental V w)^2 / 2; the rest is harmonic current.
         ms = (2 * alpha + np.sin(2 * alpha)) / (2 * math.pi) - 0.5 * fundamental**2

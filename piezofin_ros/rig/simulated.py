@@ -32,11 +32,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize, signal
+from scipy import signal
 
 from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..errors import RigError
 from ..physics.amplifier import PAPER_BENCH, Amplifier
+from ..physics.effects import clip_ratio
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
 from ..physics.timedomain import default_step, integrate_nodes
@@ -237,20 +238,6 @@ class Drive:
     def voltage_pp(self) -> float:
         """Present peak-to-peak amplitude, V."""
         return 2.0 * self.amplitude
-
-
-def clip_ratio(fundamental: float) -> float:
-    """Clip level ``r = c / V`` of a sine of amplitude ``V`` clipped at ``+-c`` whose fundamental is
-    ``fundamental`` times the sine's: inverts ``(2 / pi) (asin r + r sqrt(1 - r^2))``."""
-    if fundamental >= 1.0:
-        return 1.0
-    if fundamental <= 0.0:
-        return 0.0
-
-    def excess(r: float) -> float:
-        return (2 / math.pi) * (math.asin(r) + r * math.sqrt(1 - r * r)) - fundamental
-
-    return float(optimize.brentq(excess, 0.0, 1.0, xtol=1e-12))
 
 
 @dataclass(frozen=True)

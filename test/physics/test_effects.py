@@ -239,3 +239,17 @@ def test_effects_compose_and_are_immutable() -> None:
     assert both.predict(FREQS, VPP).power_w == pytest.approx(Model(FIN, a + b).predict(FREQS, VPP).power_w)
     with pytest.raises(AttributeError):
         a.scale = 3.0  # type: ignore[misc]
+
+
+def test_the_clipped_sine_fundamental_against_its_closed_form_and_its_inverse() -> None:
+    """The clipped sine's describing function (a Fourier coefficient computed here on 20,000 samples)
+    and ``clip_ratio``, the streaming rig's inverse of it, one place for both."""
+    from piezofin_ros.physics.effects import clip_ratio, clipped_fundamental
+
+    phase = np.linspace(0.0, 2 * math.pi, 20_000, endpoint=False)
+    for r in (0.0, 0.1, 0.37, 0.8, 0.999, 1.0):
+        clipped = np.clip(np.sin(phase), -r, r)
+        fourier = 2 * float(np.mean(clipped * np.sin(phase)))
+        assert float(clipped_fundamental(r)) == pytest.approx(fourier, abs=1e-6)
+        assert clip_ratio(float(clipped_fundamental(r))) == pytest.approx(r, abs=1e-9)
+    assert clip_ratio(1.5) == 1.0 and clip_ratio(-0.1) == 0.0

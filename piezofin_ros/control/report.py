@@ -1,0 +1,141 @@
+"""The controller's results as a person reads them: the trial table, the stepped sine's table and
+the trials' plot (thrust per watt in the watt named), shared by ``bringup`` and the CLI.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..estimation.estimator import tpw_field
+from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in
+from ..physics.fin import Fin
+from ..physics.steady import harmonic_balance
+
+
+def _fmt(x: float | None, scale: float, digits: int) -> str:
+    if x is None or not math.isfinite(x):
+        return "-"
+    return f"{x * scale:.{digits}f}"
+
+
+def _tpw(r: dict[str, float], watt: str, source: str) -> float | None:
+    """A record's thrust per watt in ``watt`` of ``source`` (NaN-safe: records of older bags lack it)."""
+    return r.get(tpw_field(watt, source))
+
+
+def trial_table(
+    records: Sequence[dict[str, float]],
+    chosen: dict[str, float] | None,
+    watt: str = "fin",
+    source: str = "vibrometer",
+) -> str:
+    """A fixed-width table of trial records (the controller's status ``results``): thrusts, then the
+    power and thrust per watt of ``source`` in the fin's watt and, when it is another, in ``watt``."""
+    watts = ["fin"] if watt == "fin" else ["fin", watt]
+    head = f"{'trial':>5} {'f [Hz]':>7} {'Vpp':>5} {'T [mN]':>8} {'T_self':>8} {'T_cell':>8}"
+    for w in watts:
+        head += f" {'P_' + w + ' [mW]':>{max(13, len(w) + 8)}} {'T/P_' + w:>{max(10, len(w) + 4)}}"
+    lines = [
+        f"(T/P in mN/W of the {'vibrometer' if source == 'vibrometer' else 'self-sensed'} thrust; "
+        + "; ".join(f"{w}: {WATTS_SHORT[w]}" for w in watts)
+        + ")",
+        head,
+        "-" * len(head),
+    ]
+    for r in records:
+        mark = " <- chosen" if chosen is not None and r["trial"] == chosen["trial"] else ""
+        row = (
+            f"{int(r['trial']):>5} {r['frequency_hz']:>7.2f} {r['voltage_pp']:>5.0f} "
+            f"{_fmt(r.get('thrust_n'), 1e3, 3):>8} {_fmt(r.get('thrust_self_n'), 1e3, 3):>8} "
+            f"{_fmt(r.get('thrust_loadcell_n'), 1e3, 3):>8}"
+        )
+        for w in watts:
+            row += (
+                f" {_fmt(r.get(POWER_FIELDS[w]), 1e3, 3):>{max(13, len(w) + 8)}}"
+                f" {_fmt(_tpw(r, w, source), 1e3, 1):>{max(10, len(w) + 4)}}"
+            )
+        lines.append(row + mark)
+    return "\n".join(lines)
+
+
+def frf_table(records: Sequence[dict[str, float]]) -> str:
+    """A stepped sine's points: frequency, voltage, RMS tip velocity and current, dwell."""
+    head = f"{'point':>5} {'f [Hz]':>8} {'Vpp':>5} {'u [mm/s]':>9} {'I [uA]':>8} {'dwell [s]':>9}"
+    lines = [head, "-" * len(head)]
+    starts = [r["t_start"] for r in records] + [math.nan]
+    for r, t_next in zip(records, starts[1:], strict=True):
+        dwell = t_next - r["t_start"]
+        lines.append(
+            f"{int(r['trial']):>5} {r['frequency_hz']:>8.3f} {r['voltage_pp']:>5.0f} "
+            f"{_fmt(r.get('tip_velocity_rms'), 1e3, 2):>9} {_fmt(r.get('current_rms'), 1e6, 2):>8} "
+            f"{_fmt(dwell, 1.0, 1):>9}"
+        )
+    lines.append("(a stepped sine: `piezofin identify --air/--water <bag>` fits the fin to it)")
+    return "\n".join(lines)
+
+
+def plot_trials(
+    path: str | os.PathLike[str],
+    fin: Fin,
+    records: Sequence[dict[str, float]],
+    chosen: dict[str, float] | None,
+    title: str = "",
+    watt: str = "fin",
+    amplifier: Amplifier = PAPER_BENCH,
+) -> Path:
+    """Measured thrust, power and thrust per watt (in ``watt``) against frequency, with the model's
+    curves (its power in ``watt`` through ``amplifier``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4), constrained_layout=True)
+    volts = sorted({r["voltage_pp"] for r in records})
+    freqs = [r["frequency_hz"] for r in records]
+    f_dense = np.linspace(max(0.2, min(freqs) * 0.8), max(freqs) * 1.1, 300)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, v in enumerate(volts):
+        c = colors[j % len(colors)]
+        model = harmonic_balance(fin, f_dense, v, harmonics=3)
+        power = power_in(watt, model.voltage_pp, model.current_rms, model.power_w, amplifier)
+        rs = [r for r in records if r["voltage_pp"] == v and "thrust_n" in r]
+        f = [r["frequency_hz"] for r in rs]
+        for ax, key, mkey, scale in (
+            (axes[0], "thrust_n", model.thrust_n, 1e3),
+            (axes[1], POWER_FIELDS[watt], power, 1e3),
+            (axes[2], tpw_field(watt), np.asarray(model.thrust_n) / power, 1e3),
+        ):
+            ax.plot(f_dense, np.asarray(mkey) * scale, color=c, lw=1, alpha=0.6, label=f"model {v:.0f} Vpp")
+            ys = [r.get(key, math.nan) * scale for r in rs]
+            ax.plot(f, ys, "o", color=c, label=f"measured {v:.0f} Vpp")
+            if key == "thrust_n":
+                ax.plot(f, [r["thrust_loadcell_n"] * scale for r in rs], "x", color=c, label="load cell")
+    if chosen is not None and "thrust_n" in chosen:
+        axes[2].plot(
+            chosen["frequency_hz"],
+            chosen.get(tpw_field(watt), math.nan) * 1e3,
+            "*",
+            ms=16,
+            color="k",
+            label="chosen",
+        )
+    labels = ("mean thrust [mN]", f"mean power, {watt} watt [mW]", f"thrust per {watt} watt [mN/W]")
+    for ax, ylabel in zip(axes, labels, strict=True):
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[1].set_yscale("log")
+    axes[0].legend(fontsize=7)
+    axes[2].legend(fontsize=7)
+    fig.suptitle(title or f"{fin.name}: protocol trials")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
