@@ -54,7 +54,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
-from typing import Any
+from enum import StrEnum
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,14 +70,16 @@ from ..physics.effects import (
     CapacitanceOffset,
     DielectricLoss,
     DragOffset,
+    Effect,
     Electroelastic,
     FieldCoupling,
+    LoadcellGain,
     ResonanceOffset,
 )
 from ..physics.fin import Fin
 from ..physics.model import Model, Prediction
 from .gp import ResidualGP
-from .plants import EstimateNoise, PlantResponse
+from .response import EstimateNoise, PlantResponse
 
 FloatArray = NDArray[Any]
 
@@ -84,6 +87,15 @@ FloatArray = NDArray[Any]
 MODEL_ERROR = 0.02
 #: Trials this close (relative, see ``_close``) are at the same operating point.
 SAME_POINT = 1e-3
+
+
+class Mode(StrEnum):
+    """How the optimiser proposes: from the corrected model's map, or searching near the incumbent
+    when the model mispredicts the trials."""
+
+    MODEL = "model"
+    SEARCH = "search"
+
 
 #: Which estimate feeds the optimiser: Lighthill on the vibrometer's tip velocity (with the fin's
 #: ``c_m``), the drive's own current (a fish), or a load cell.
@@ -180,36 +192,59 @@ class Correction:
         return Calibration(law.capacitance, law.loss_conductance, law.coupling, law.mass)
 
 
-# The fitted parameters: (name, log-transformed, prior sigma, lower, upper) in fit coordinates (inside
-# each effect's bounds in the library: exp(log(x)) may round across them).  The prior mean is the
-# nominal fin (0 in these coordinates).  The stiffness may move 30 % (a fin that drifts, a warm day):
-# the quiet identification trial below resonance measures it where a vibrometer or a load cell is
-# there; so a resonance that moves in water is read as added mass (the issue's "in-water resonance
-# reveals c_m"), and with it every Lighthill thrust; the softening separates what moves with the
-# voltage.  On a fish the drive alone cannot tell the stiffness from the coupling: it is held to the
-# fin file's (``Optimiser.stiffness_sigma``, 5 %: ``piezofin identify`` measures it in air).
+# The fitted parameters (:class:`Fitted`): each one of the library's declared parameters, fitted
+# within its range there (narrowed where the optimiser knows more), a small margin inside the bounds
+# (exp(log(x)) may round across them).  The prior mean is the nominal fin (0 in fit coordinates).
+# The stiffness may move 30 % (a fin that drifts, a warm day): the quiet identification trial below
+# resonance measures it where a vibrometer or a load cell is there; so a resonance that moves in
+# water is read as added mass (the issue's "in-water resonance reveals c_m"), and with it every
+# Lighthill thrust; the softening separates what moves with the voltage.  On a fish the drive alone
+# cannot tell the stiffness from the coupling: it is held to the fin file's
+# (``Optimiser.stiffness_sigma``, 5 %: ``piezofin identify`` measures it in air).
+@dataclass(frozen=True)
+class Fitted:
+    """One fitted parameter of the :class:`Correction`: the library's declared parameter it is
+    (``effect.param``), fitted in log coordinates or not, its prior sigma there, and the range the
+    optimiser allows, within the library's own (``None``: the library's)."""
+
+    name: str
+    effect: type[Effect]
+    param: str
+    log: bool
+    prior_sigma: float
+    within: tuple[float, float] | None = None
+
+    def bounds(self) -> tuple[float, float]:
+        """The range in fit coordinates: the library's, narrowed to ``within``."""
+        q = next(q for q in self.effect.params if q.name == self.param)
+        lo, hi = (q.lower, q.upper) if self.within is None else self.within
+        if not q.lower <= lo < hi <= q.upper:
+            raise ControlError(f"{self.name}: [{lo}, {hi}] is not within the library's {q.lower}-{q.upper}")
+        return (math.log(lo), math.log(hi)) if self.log else (lo, hi)
+
+
 _PARAMS = (
-    ("resonance_scale", True, 0.3, math.log(0.3), math.log(2.0)),
-    ("added_mass", True, 0.3, math.log(0.3), math.log(4.0)),
-    ("softening", False, 0.3, 0.0, 0.8),
-    ("drag_scale", True, 0.7, math.log(0.1), math.log(10.0)),
-    ("coupling_k", False, 0.3, -0.5, 2.0),
-    ("loss_tan_delta", False, 0.3, 0.0, 0.5),
-    ("capacitance", True, 0.05, math.log(0.5), math.log(2.0)),
-    ("thrust_gain", True, 0.3, math.log(0.2), math.log(5.0)),
+    Fitted("resonance_scale", ResonanceOffset, "scale", True, 0.3),
+    Fitted("added_mass", AddedMassOffset, "scale", True, 0.3, (0.3, 4.0)),
+    Fitted("softening", Electroelastic, "softening", False, 0.3, (0.0, 0.8)),  # a fin only softens
+    Fitted("drag_scale", DragOffset, "scale", True, 0.7, (0.1, 10.0)),  # (log: not down to 0)
+    Fitted("coupling_k", FieldCoupling, "k", False, 0.3),
+    Fitted("loss_tan_delta", DielectricLoss, "tan_delta", False, 0.3),
+    Fitted("capacitance", CapacitanceOffset, "scale", True, 0.05),
+    Fitted("thrust_gain", LoadcellGain, "gain", True, 0.3, (0.2, 5.0)),
 )
-_PRIOR_SIGMA = np.array([p[2] for p in _PARAMS])
-_LOWER = np.array([p[3] for p in _PARAMS]) + 1e-9
-_UPPER = np.array([p[4] for p in _PARAMS]) - 1e-9
+_PRIOR_SIGMA = np.array([p.prior_sigma for p in _PARAMS])
+_LOWER = np.array([p.bounds()[0] for p in _PARAMS]) + 1e-9
+_UPPER = np.array([p.bounds()[1] for p in _PARAMS]) - 1e-9
 
 
 def _correction(x: FloatArray, base: Model | None = None) -> Correction:
-    values = {name: (math.exp(v) if log else float(v)) for (name, log, *_), v in zip(_PARAMS, x, strict=True)}
+    values = {p.name: (math.exp(v) if p.log else float(v)) for p, v in zip(_PARAMS, x, strict=True)}
     return Correction(**values, base=base)
 
 
 def _vector(c: Correction) -> FloatArray:
-    return np.array([math.log(getattr(c, name)) if log else getattr(c, name) for name, log, *_ in _PARAMS])
+    return np.array([math.log(getattr(c, p.name)) if p.log else getattr(c, p.name) for p in _PARAMS])
 
 
 @dataclass(frozen=True)
@@ -304,7 +339,8 @@ class Optimiser:
     correction: Correction = field(default_factory=Correction)
     choice: Choice | None = None
     converged: bool = False
-    mode: str = "model"  # or "search": the corrected model mispredicts, search near the incumbent
+    mode: Mode = Mode.MODEL  # SEARCH: the corrected model mispredicts, search near the incumbent
+    rule: str = "map"  # the proposal's rule that chose the next point (RULES)
     reason: str = "no trial yet: the model's optimum"
     self_sensing_bound: float = math.nan  # 2 sigma, relative, of the thrust estimate's calibration
     model: Model | None = None  # a diagnosed model: its fin and effects replace ``fin``
@@ -519,7 +555,7 @@ class Optimiser:
         x = _vector(self.correction)
         grad = np.zeros((*base.shape, len(x)))
         for k in range(len(x)):
-            if _PARAMS[k][0] == skip:
+            if _PARAMS[k].name == skip:
                 continue
             step = 1e-4 * _PRIOR_SIGMA[k]
             xk = x.copy()
@@ -735,31 +771,54 @@ class Optimiser:
         self.choice = choice
         inc = self.incumbent()
         self._mode(inc)
-        self._next = (self.choice.frequency_hz, self.choice.voltage_pp)
-        if self.mode == "search" and inc is not None:
+        self.rule, self._next = self._proposal(inc)
+        held = inc is not None and _close(self._next, inc, self.tolerance)
+        if held and not self.converged:
+            self.converged = True
+        elif not held:
+            self.converged = False
+
+    def _proposal(self, inc: tuple[float, float] | None) -> tuple[str, tuple[float, float]]:
+        """The next point and the rule that chose it: the first of :attr:`RULES` that has one.
+
+        In order: a quiet identification trial while none is in memory; a confirming trial of a
+        point whose one trial beat the incumbent; else the map's point of this mode (a search near
+        the incumbent, the incumbent held when the map expects too little elsewhere, or the map's
+        optimum), moved onto a point measured before when it is that close (its trials add up)."""
+        for name, rule in self.RULES:
+            point = rule(self, inc)
+            if point is not None:
+                return name, point
+        raise AssertionError("the map's rule always has a point")  # (the last rule)
+
+    def _rule_identify(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
+        return self._identification_point()
+
+    def _rule_confirm(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
+        return self._candidate()
+
+    def _rule_map(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
+        assert self.choice is not None
+        point = (self.choice.frequency_hz, self.choice.voltage_pp)
+        if self.mode == Mode.SEARCH and inc is not None:
             f0 = inc[0]
             local = np.geomspace(f0 * (1 - self.trust_region), f0 * (1 + self.trust_region), 31)
             local = local[(local >= self.limits.frequency_min_hz) & (local <= self.limits.frequency_max_hz)]
             if local.size:
                 s, ok = self._frontier(local)
                 pick = self._best(s, ok, optimism=self.kappa)
-                self._next = (pick.frequency_hz, pick.voltage_pp)
-        if self.mode == "model" and inc is not None and self._gain(inc, self._next) < self.hold_gain:
-            self._next = inc  # the map expects too little elsewhere to be worth a new point's trials
-        near = [o for o in self.observations if _close(_point(o), self._next, self.tolerance)]
-        if near:  # measure that point again rather than one beside it: its trials add up
-            self._next = (near[-1].frequency_hz, near[-1].voltage_pp)
-        candidate = self._candidate()
-        if candidate is not None:
-            self._next = candidate  # confirm it: a trial that did not choose it
-        quiet = self._identification_point()
-        if quiet is not None:
-            self._next = quiet
-        held = inc is not None and _close(self._next, inc, self.tolerance)
-        if held and not self.converged:
-            self.converged = True
-        elif not held:
-            self.converged = False
+                point = (pick.frequency_hz, pick.voltage_pp)
+        elif self.mode == Mode.MODEL and inc is not None and self._gain(inc, point) < self.hold_gain:
+            point = inc  # the map expects too little elsewhere to be worth a new point's trials
+        near = [o for o in self.observations if _close(_point(o), point, self.tolerance)]
+        return (near[-1].frequency_hz, near[-1].voltage_pp) if near else point
+
+    #: The proposal's rules, first match wins (see :meth:`_proposal`).
+    RULES: ClassVar[tuple[tuple[str, Callable[..., tuple[float, float] | None]], ...]] = (
+        ("identify", _rule_identify),
+        ("confirm", _rule_confirm),
+        ("map", _rule_map),
+    )
 
     def _gain(self, here: tuple[float, float], there: tuple[float, float]) -> float:
         """The map's relative gain in the task's objective from ``here`` to ``there`` (both on the map,
@@ -786,16 +845,16 @@ class Optimiser:
     def _mode(self, inc: tuple[float, float] | None) -> None:
         n = len(self.observations)
         if n == 0:
-            self.mode, self.reason = "model", "no trial yet: the model's optimum"
+            self.mode, self.reason = Mode.MODEL, "no trial yet: the model's optimum"
         elif self._chi2 > self.search_chi2 and n >= 2:
-            self.mode = "search"
+            self.mode = Mode.SEARCH
             self.reason = (
                 f"the corrected model misses the trials by {math.sqrt(self._chi2):.1f} sigma (RMS): "
                 f"searching near the best measured point"
                 + ("" if inc is not None else " (none meets the task yet: the map's optimum)")
             )
         else:
-            self.mode = "model"
+            self.mode = Mode.MODEL
             self.reason = f"the corrected model fits the {n} trial(s) ({math.sqrt(self._chi2):.1f} sigma RMS)"
 
     def _repeat_disagrees(self, o: Observation) -> float:
@@ -866,7 +925,8 @@ class Optimiser:
             "converged": self.converged,
             "feasible": c.feasible,
             "demand_n": self.demand_n,
-            "optimiser_mode": self.mode,
+            "optimiser_mode": str(self.mode),
+            "optimiser_rule": self.rule,
             "optimiser_reason": self.reason,
             "frequency_hz": c.frequency_hz,
             "voltage_pp": c.voltage_pp,

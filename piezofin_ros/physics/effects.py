@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Iterator
-from dataclasses import astuple, dataclass, fields, replace
+from dataclasses import astuple, dataclass, field, fields, replace
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -219,12 +219,39 @@ class Effects(tuple[Effect, ...]):
 LIBRARY: dict[str, type[Effect]] = {}
 
 
+def param(
+    unit: str,
+    neutral: float,
+    lower: float,
+    upper: float,
+    scale: float,
+    description: str = "",
+    starts: tuple[float, ...] = (),
+) -> Any:
+    """An effect's parameter, declared once: the dataclass field (its default the neutral value)
+    that carries its :class:`Param` (unit, bounds, scale, description, fit starts)."""
+    return field(default=neutral, metadata={PARAM: (unit, neutral, lower, upper, scale, description, starts)})
+
+
+#: The key of a field's metadata that :func:`param` fills.
+PARAM = "piezofin_param"
+
+
+def declared(cls: type[E]) -> type[E]:
+    """Class decorator (under ``@dataclass``): the effect's ``params``, read from its fields (each
+    made by :func:`param`)."""
+    found = []
+    for f in fields(cls):  # type: ignore[arg-type]
+        if PARAM not in f.metadata:
+            raise TypeError(f"{cls.__name__}.{f.name}: declare it with param(...)")
+        found.append(Param(f.name, *f.metadata[PARAM]))
+    cls.params = tuple(found)
+    return cls
+
+
 def register(cls: type[E]) -> type[E]:
-    """Class decorator: a frozen dataclass effect whose fields are its ``params``, into :data:`LIBRARY`."""
-    names = tuple(f.name for f in fields(cls))  # type: ignore[arg-type]
-    if names != tuple(q.name for q in cls.params):
-        raise TypeError(f"{cls.__name__}: fields {names} are not its params")
-    LIBRARY[cls.name] = cls
+    """Class decorator: a frozen dataclass effect (its ``params`` :func:`declared`) into :data:`LIBRARY`."""
+    LIBRARY[cls.name] = declared(cls)
     return cls
 
 
@@ -284,14 +311,14 @@ class ResonanceOffset(Coefficient):
     name = "resonance_offset"
     title = "stiffness off (in-water resonance shifted, linear)"
     family = "stiffness"
-    params = (Param("scale", "-", 1.0, 0.3, 2.0, 0.1, "natural frequency x scale"),)
-    scale: float = 1.0
+    scale: float = param("-", 1.0, 0.3, 2.0, 0.1, "natural frequency x scale")
     target = "stiffness"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
         return self.scale**2
 
 
+@declared
 @dataclass(frozen=True)
 class CapacitanceOffset(Coefficient):
     """The drive's capacitance off ``C_eq`` (a fin's own MFC, temperature, the cable).  Not in the
@@ -301,8 +328,7 @@ class CapacitanceOffset(Coefficient):
     name = "capacitance_offset"
     title = "capacitance off C_eq"
     family = "electrical loss"
-    params = (Param("scale", "-", 1.0, 0.5, 2.0, 0.05, "C_eq x scale"),)
-    scale: float = 1.0
+    scale: float = param("-", 1.0, 0.5, 2.0, 0.05, "C_eq x scale")
     target = "capacitance"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
@@ -317,9 +343,8 @@ class Duffing(Effect):
     name = "stiffness_nonlinearity"
     title = "geometric stiffness nonlinearity (Duffing, amplitude-dependent)"
     family = "stiffness"
-    params = (Param("beta", "-", 0.0, -5000.0, 5000.0, 20.0, "wn^2 x (1 + beta (X/L)^2)"),)
     amplitude_dependent = True
-    beta: float = 0.0
+    beta: float = param("-", 0.0, -5000.0, 5000.0, 20.0, "wn^2 x (1 + beta (X/L)^2)")
 
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         x = op.tip_amplitude / op.fin.L
@@ -343,8 +368,7 @@ class Electroelastic(Coefficient):
     name = "electroelastic_softening"
     title = "electroelastic softening (stiffness falls with the field)"
     family = "stiffness"
-    params = (Param("softening", "-", 0.0, -0.5, 0.9, 0.1, "wn x (1 - s Vpp/800)"),)
-    softening: float = 0.0
+    softening: float = param("-", 0.0, -0.5, 0.9, 0.1, "wn x (1 - s Vpp/800)")
     target = "stiffness"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
@@ -359,9 +383,8 @@ class NonlinearDamping(Effect):
     name = "nonlinear_damping"
     title = "internal dissipative nonlinearity (damping grows with amplitude)"
     family = "damping"
-    params = (Param("q", "-", 0.0, -1.0, 2000.0, 10.0, "zeta x (1 + q X/L)"),)
     amplitude_dependent = True
-    q: float = 0.0
+    q: float = param("-", 0.0, -1.0, 2000.0, 10.0, "zeta x (1 + q X/L)")
 
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return replace(k, damping=k.damping * np.maximum(1.0 + self.q * op.tip_amplitude / op.fin.L, 0.01))
@@ -384,8 +407,7 @@ class AddedMassOffset(Coefficient):
     name = "added_mass_offset"
     title = "inertia coefficient c_m off the curve of Eq. (21)"
     family = "added mass"
-    params = (Param("scale", "-", 1.0, 0.1, 4.0, 0.2, "c_m x scale"),)
-    scale: float = 1.0
+    scale: float = param("-", 1.0, 0.1, 4.0, 0.2, "c_m x scale")
     target = "mass"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
@@ -401,9 +423,8 @@ class AddedMassKC(Effect):
     name = "added_mass_kc"
     title = "amplitude-dependent added mass (Keulegan-Carpenter)"
     family = "added mass"
-    params = (Param("a", "-", 0.0, -0.8, 5.0, 0.2, "c_m x (1 + a KC)"),)
     amplitude_dependent = True
-    a: float = 0.0
+    a: float = param("-", 0.0, -0.8, 5.0, 0.2, "c_m x (1 + a KC)")
 
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return replace(k, mass=k.mass * np.maximum(1.0 + self.a * op.kc, 0.05))
@@ -425,8 +446,7 @@ class DragOffset(Coefficient):
     name = "drag_offset"
     title = "drag coefficient c_d off the assumed value"
     family = "drag"
-    params = (Param("scale", "-", 1.0, 0.0, 20.0, 0.5, "c_d x scale"),)
-    scale: float = 1.0
+    scale: float = param("-", 1.0, 0.0, 20.0, 0.5, "c_d x scale")
     target = "drag"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
@@ -439,9 +459,8 @@ class DragKC(Effect):
     name = "drag_kc"
     title = "amplitude-dependent drag coefficient (c_d ~ KC^-n, Graham)"
     family = "drag"
-    params = (Param("n", "-", 0.0, -2.0, 2.0, 0.2, "c_d x KC^-n"),)
     amplitude_dependent = True
-    n: float = 0.0
+    n: float = param("-", 0.0, -2.0, 2.0, 0.2, "c_d x KC^-n")
 
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return replace(k, drag=k.drag * np.maximum(op.kc, 1e-3) ** (-self.n))
@@ -463,8 +482,7 @@ class DielectricLoss(Coefficient):
     name = "dielectric_loss"
     title = "dielectric loss of the piezoceramic (tan delta)"
     family = "electrical loss"
-    params = (Param("tan_delta", "-", 0.0, 0.0, 0.5, 0.02, "P += tan(delta) C_eq w V^2 / 2"),)
-    tan_delta: float = 0.0
+    tan_delta: float = param("-", 0.0, 0.0, 0.5, 0.02, "P += tan(delta) C_eq w V^2 / 2")
     target = "loss_conductance"
     how = "add"
 
@@ -478,8 +496,7 @@ class Leakage(Coefficient):
     name = "leakage"
     title = "resistive leakage of the drive (frequency-independent loss)"
     family = "electrical loss"
-    params = (Param("conductance", "uS", 0.0, 0.0, 50.0, 1.0, "P += G V^2 / 2"),)
-    conductance: float = 0.0
+    conductance: float = param("uS", 0.0, 0.0, 50.0, 1.0, "P += G V^2 / 2")
     target = "loss_conductance"
     how = "add"
 
@@ -493,8 +510,7 @@ class SwimSpeed(Coefficient):
     name = "swim_speed"
     title = "flow past the fin (U != 0 in Eq. 19)"
     family = "flow"
-    params = (Param("U", "m/s", 0.0, 0.0, 5.0, 0.05, "free-stream speed"),)
-    U: float = 0.0
+    U: float = param("m/s", 0.0, 0.0, 5.0, 0.05, "free-stream speed")
     target = "swim_speed"
     how = "set"
 
@@ -537,19 +553,15 @@ class AmplifierLimit(Effect):
     name = "amplifier_limit"
     title = "amplifier current limit (the drive clips at high f x V)"
     family = "amplifier"
-    params = (
-        Param(
-            "inv_i_max",
-            "1/mA",
-            0.0,
-            0.0,
-            50.0,
-            1.0,
-            "1 / peak current the amplifier delivers",
-            (0.5, 2.0, 8.0, 30.0),
-        ),
+    inv_i_max: float = param(
+        "1/mA",
+        0.0,
+        0.0,
+        50.0,
+        1.0,
+        "1 / peak current the amplifier delivers",
+        (0.5, 2.0, 8.0, 30.0),
     )
-    inv_i_max: float = 0.0
 
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         v = 0.5 * op.voltage_pp
@@ -585,8 +597,7 @@ class LoadcellOffset(Coefficient):
     name = "loadcell_offset"
     title = "thrust transducer drift not cancelled by the baselines (offset)"
     family = "load cell"
-    params = (Param("bias", "mN", 0.0, -50.0, 50.0, 0.2, "added to the load-cell thrust"),)
-    bias: float = 0.0
+    bias: float = param("mN", 0.0, -50.0, 50.0, 0.2, "added to the load-cell thrust")
     target = "thrust_bias_n"
     how = "add"
 
@@ -600,8 +611,7 @@ class LoadcellGain(Coefficient):
     name = "loadcell_gain"
     title = "thrust transducer calibration (gain)"
     family = "load cell"
-    params = (Param("gain", "-", 1.0, 0.1, 5.0, 0.2, "load-cell thrust x gain"),)
-    gain: float = 1.0
+    gain: float = param("-", 1.0, 0.1, 5.0, 0.2, "load-cell thrust x gain")
     target = "thrust_gain"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
@@ -621,12 +631,8 @@ class FieldCoupling(Coefficient):
     name = "field_coupling"
     title = "field-dependent piezoelectric coupling (theta grows with the drive)"
     family = "coupling"
-    params = (
-        Param("k", "-", 0.0, -0.5, 2.0, 0.1, "theta x (1 + k (Vpp/800)^p)"),
-        Param("p", "-", 1.0, 0.3, 3.0, 0.3, "how the coupling grows with the field (1: Rayleigh's law)"),
-    )
-    k: float = 0.0
-    p: float = 1.0
+    k: float = param("-", 0.0, -0.5, 2.0, 0.1, "theta x (1 + k (Vpp/800)^p)")
+    p: float = param("-", 1.0, 0.3, 3.0, 0.3, "how the coupling grows with the field (1: Rayleigh's law)")
     target = "coupling"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
@@ -651,12 +657,15 @@ class AmplifierSag(Coefficient):
     name = "amplifier_sag"
     title = "amplifier sags its output under a current limit (no clipping)"
     family = "amplifier"
-    params = (
-        Param(
-            "inv_i_max", "1/mA", 0.0, 0.0, 50.0, 1.0, "1 / current the amplifier holds", (0.5, 2.0, 8.0, 30.0)
-        ),
+    inv_i_max: float = param(
+        "1/mA",
+        0.0,
+        0.0,
+        50.0,
+        1.0,
+        "1 / current the amplifier holds",
+        (0.5, 2.0, 8.0, 30.0),
     )
-    inv_i_max: float = 0.0
     target = "voltage_scale"
 
     def amount(self, fin: Fin, omega: FloatArray, voltage_pp: FloatArray) -> FloatArray | float:
@@ -671,9 +680,8 @@ class AddedMassKC2(Effect):
     name = "added_mass_kc2"
     title = "added mass growing with the square of the Keulegan-Carpenter number"
     family = "added mass"
-    params = (Param("a", "-", 0.0, -0.8, 20.0, 0.2, "c_m x (1 + a KC^2)"),)
     amplitude_dependent = True
-    a: float = 0.0
+    a: float = param("-", 0.0, -0.8, 20.0, 0.2, "c_m x (1 + a KC^2)")
 
     def describe(self, k: Knobs, op: OperatingPoint) -> Knobs:
         return replace(k, mass=k.mass * np.maximum(1.0 + self.a * op.kc**2, 0.05))
@@ -709,8 +717,7 @@ class VoltageMonitorGain(_Instrument):
     name = "voltage_monitor_gain"
     title = "voltage monitor calibration (gain: the drive is not what it reads)"
     family = "voltage monitor"
-    params = (Param("gain", "-", 1.0, 0.3, 3.0, 0.05, "drive reading x gain"),)
-    gain: float = 1.0
+    gain: float = param("-", 1.0, 0.3, 3.0, 0.05, "drive reading x gain")
     target = "voltage_gain"
 
 
@@ -720,8 +727,7 @@ class VibrometerGain(_Instrument):
     name = "vibrometer_gain"
     title = "vibrometer calibration (gain)"
     family = "vibrometer"
-    params = (Param("gain", "-", 1.0, 0.2, 5.0, 0.05, "tip-velocity reading x gain"),)
-    gain: float = 1.0
+    gain: float = param("-", 1.0, 0.2, 5.0, 0.05, "tip-velocity reading x gain")
     target = "tip_gain"
 
 
@@ -731,8 +737,7 @@ class VibrometerDelay(_Instrument):
     name = "vibrometer_delay"
     title = "vibrometer lag (a phase growing with frequency)"
     family = "vibrometer"
-    params = (Param("delay", "ms", 0.0, -20.0, 20.0, 0.5, "tip-velocity reading delayed by this"),)
-    delay: float = 0.0
+    delay: float = param("ms", 0.0, -20.0, 20.0, 0.5, "tip-velocity reading delayed by this")
     target = "tip_delay_s"
     how = "add"
 
@@ -743,8 +748,7 @@ class CurrentMonitorGain(_Instrument):
     name = "current_monitor_gain"
     title = "current monitor calibration (gain)"
     family = "current monitor"
-    params = (Param("gain", "-", 1.0, 0.2, 5.0, 0.05, "current reading x gain"),)
-    gain: float = 1.0
+    gain: float = param("-", 1.0, 0.2, 5.0, 0.05, "current reading x gain")
     target = "current_gain"
 
 
@@ -756,8 +760,7 @@ class CurrentMonitorDelay(_Instrument):
     name = "current_monitor_delay"
     title = "current monitor lag (a power loss growing as f^2)"
     family = "current monitor"
-    params = (Param("delay", "ms", 0.0, -20.0, 20.0, 0.2, "current reading delayed by this"),)
-    delay: float = 0.0
+    delay: float = param("ms", 0.0, -20.0, 20.0, 0.2, "current reading delayed by this")
     target = "current_delay_s"
     how = "add"
 
@@ -795,8 +798,7 @@ class ResonanceDrift(_Drift):
     name = "resonance_drift"
     title = "resonance drifting over the run (warming, water uptake)"
     family = "drift in time"
-    params = (Param("rate", "%/h", 0.0, -200.0, 200.0, 5.0, "natural frequency x (1 + rate t)"),)
-    rate: float = 0.0
+    rate: float = param("%/h", 0.0, -200.0, 200.0, 5.0, "natural frequency x (1 + rate t)")
     target = "stiffness"
     square = True
 
@@ -807,8 +809,7 @@ class CapacitanceDrift(_Drift):
     name = "capacitance_drift"
     title = "capacitance drifting over the run (the MFC warming)"
     family = "drift in time"
-    params = (Param("rate", "%/h", 0.0, -200.0, 200.0, 5.0, "C_eq x (1 + rate t)"),)
-    rate: float = 0.0
+    rate: float = param("%/h", 0.0, -200.0, 200.0, 5.0, "C_eq x (1 + rate t)")
     target = "capacitance"
 
 
@@ -818,6 +819,5 @@ class CouplingDrift(_Drift):
     name = "coupling_drift"
     title = "coupling drifting over the run (the MFC warming, depoling)"
     family = "drift in time"
-    params = (Param("rate", "%/h", 0.0, -200.0, 200.0, 5.0, "theta x (1 + rate t)"),)
-    rate: float = 0.0
+    rate: float = param("%/h", 0.0, -200.0, 200.0, 5.0, "theta x (1 + rate t)")
     target = "coupling"

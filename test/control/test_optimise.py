@@ -305,3 +305,23 @@ def test_converges_in_the_watt_it_is_told(m8528: Fin, watt: str, told: str, true
     if demand is None:
         assert f_watt > 1.5 * f_fin  # (the watt moves the optimum: this is not the fin-watt test again)
     assert opt.status()["watt"] == watt
+
+
+def test_the_proposal_says_which_rule_chose_each_point(m8528: Fin) -> None:
+    """Issue 29's house: ``_update`` set the next point six times and the last write won.  The rules
+    are now one ordered list, and each proposal names the rule that chose it: the quiet
+    identification trial first, then the map (its optimum, a held incumbent, a point measured
+    before), a confirming trial when a point's one trial beat the incumbent."""
+    from piezofin_ros.control.optimise import Mode
+
+    plant = Plant(m8528.replace(f_sc=0.93 * m8528.f_sc))
+    opt = Optimiser(m8528, LIMITS)
+    assert [name for name, _ in Optimiser.RULES] == ["identify", "confirm", "map"]
+    assert opt.rule == "identify" and opt.status()["optimiser_rule"] == "identify"
+    seen = []
+    rng = np.random.default_rng(3)
+    for _ in range(8):
+        evaluation.campaign(opt, plant, 1, rng, 60.0 * len(opt.observations))
+        seen.append(opt.rule)
+        assert opt.mode in (Mode.MODEL, Mode.SEARCH) and opt.status()["optimiser_mode"] in ("model", "search")
+    assert seen[0] != "identify" and "map" in seen, seen  # the quiet trial once, then the map's points

@@ -253,3 +253,28 @@ def test_the_clipped_sine_fundamental_against_its_closed_form_and_its_inverse() 
         assert float(clipped_fundamental(r)) == pytest.approx(fourier, abs=1e-6)
         assert clip_ratio(float(clipped_fundamental(r))) == pytest.approx(r, abs=1e-9)
     assert clip_ratio(1.5) == 1.0 and clip_ratio(-0.1) == 0.0
+
+
+def test_an_effect_parameter_is_declared_once() -> None:
+    """Issue 29's house: each parameter was declared twice (a positional ``Param`` and a field).  Now
+    the field carries its ``Param``; a field declared without it is refused at class creation."""
+    from dataclasses import dataclass
+
+    from piezofin_ros.physics.effects import LIBRARY, declared, param
+
+    for cls in LIBRARY.values():
+        assert [q.name for q in cls.params] == [f.name for f in fields(cls)]
+        assert all(getattr(cls(), q.name) == q.neutral for q in cls.params)  # the default: neutral
+
+    @dataclass(frozen=True)
+    class Good(Effect):
+        gain: float = param("-", 1.0, 0.5, 2.0, 0.1, "x gain")
+
+    assert declared(Good).params[0].upper == 2.0
+
+    @dataclass(frozen=True)
+    class Bad(Effect):
+        gain: float = 1.0
+
+    with pytest.raises(TypeError, match="param"):
+        declared(Bad)
