@@ -263,6 +263,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _watts.add_arguments(watts)
     watts.set_defaults(func=_watts.run)
+    from . import swim as _swim
+
+    swim = sub.add_parser(
+        "swim", help="how fast and how far on one charge: a fish's body, battery and amplifier on each fin"
+    )
+    _swim.add_arguments(swim)
+    swim.set_defaults(func=_swim.run)
     bag = sub.add_parser("bag", help="bag tools: recover a damaged or unclosed bag")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
     rec = bag_sub.add_parser(

@@ -1,0 +1,113 @@
+"""How far a fish goes on one charge, by how it drives its fins: the range-per-charge of each
+strategy on a fin's model (:mod:`piezofin_ros.physics.swim` for the body and the battery).
+
+A strategy is an operating point of the fins (frequency, voltage).  At each point the model gives
+each fin's still-water thrust, its current and ``mean(v i)``; the amplifier turns them into its
+supply power; the body's steady speed follows in closed form and the battery's endurance at that
+power (plus the hotel load) gives the range.  The strategies:
+
+* ``range``: the point that maximises the range, the power counted in the supply's watts (what the
+  suite's controller optimises on a fish: ``watt:=supply``);
+* ``range (fin watt)``: the point a controller optimising the fin's ``mean(v i)`` would choose (the
+  same objective, the wrong watt), its range then counted as the battery pays it;
+* ``resonance, full voltage``: the largest motion (the model's underwater resonance at the highest
+  voltage), what a builder without a model does;
+* ``paper (5.5 Hz, 800 Vpp)``: the paper's operating point;
+* ``grid``: the best of the paper's protocol grid (1-11 Hz x 400/600/800 Vpp).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..physics.amplifier import Amplifier
+from ..physics.model import Model
+from ..physics.swim import Battery, Body, Swim
+
+FloatArray = NDArray[np.float64]
+
+STRATEGIES = ("range", "range (fin watt)", "resonance, full voltage", "paper (5.5 Hz, 800 Vpp)", "grid")
+
+
+@dataclass(frozen=True)
+class Fish:
+    """A fish: its fins' model, its body, its battery and the amplifier between them."""
+
+    model: Model
+    body: Body
+    battery: Battery
+    amplifier: Amplifier
+    voltage_pp_max: float = 800.0
+
+    def at(self, frequency_hz: FloatArray, voltage_pp: FloatArray) -> dict[str, FloatArray]:
+        """Everything a strategy is judged by, at these (broadcast) points."""
+        f, v = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
+        p = self.model.predict(f, v)
+        n = self.body.fins
+        thrust0 = np.asarray(p.thrust_n, float)
+        speed = self.body.steady_speed(thrust0, f, self.model.fin.L)
+        fin_w = n * np.asarray(p.power_w, float)
+        supply_w = n * self.amplifier.steady(p.voltage_pp_drive, p.current_rms, p.power_w)
+        rng = self.battery.range_m(supply_w, speed)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            energy = np.where(speed > 0, (supply_w + self.battery.hotel_w) / speed, np.inf)
+        return {
+            "frequency_hz": f,
+            "voltage_pp": v,
+            "thrust0_n": thrust0,
+            "speed_m_s": speed,
+            "fin_w": fin_w,
+            "supply_w": supply_w,
+            "range_m": rng,
+            "energy_per_m_j": energy,
+            "cost_of_transport": self.body.cost_of_transport(supply_w + self.battery.hotel_w, speed),
+        }
+
+    def swim(self, frequency_hz: float, voltage_pp: float) -> Swim:
+        r = {
+            k: float(np.asarray(x).ravel()[0])
+            for k, x in self.at(np.array([frequency_hz]), np.array([voltage_pp])).items()
+        }
+        return Swim(
+            r["frequency_hz"],
+            r["voltage_pp"],
+            r["thrust0_n"],
+            r["speed_m_s"],
+            r["supply_w"],
+            r["range_m"],
+            r["energy_per_m_j"],
+            r["cost_of_transport"],
+            {"fin_w": r["fin_w"]},
+        )
+
+    def best(self, frequencies: FloatArray, voltages: FloatArray, watt: str = "supply") -> Swim:
+        """The point of the grid with the longest range, the power counted in ``watt`` (``supply``
+        or ``fin``); the range reported is always the battery's."""
+        f, v = np.meshgrid(np.asarray(frequencies, float), np.asarray(voltages, float), indexing="ij")
+        m = self.at(f, v)
+        power = m["supply_w"] if watt == "supply" else m["fin_w"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            objective = np.where(m["speed_m_s"] > 0, m["speed_m_s"] / (power + self.battery.hotel_w), -np.inf)
+        k = np.unravel_index(int(np.argmax(objective)), objective.shape)
+        return self.swim(float(f[k]), float(v[k]))
+
+    def resonance_hz(self, voltage_pp: float, frequencies: FloatArray) -> float:
+        """Where the fin moves most at ``voltage_pp`` (its tip velocity's peak), Hz."""
+        p = self.model.predict(frequencies, np.full(np.shape(frequencies), voltage_pp))
+        return float(np.asarray(frequencies)[int(np.argmax(np.asarray(p.tip_velocity_rms)))])
+
+    def strategies(self, f_max_hz: float = 30.0) -> dict[str, Swim]:
+        """Each of :data:`STRATEGIES` (module docstring)."""
+        dense = np.geomspace(1.0, f_max_hz, 240)
+        volts = np.arange(50.0, self.voltage_pp_max + 1e-9, 25.0)
+        top = self.voltage_pp_max
+        return {
+            "range": self.best(dense, volts, "supply"),
+            "range (fin watt)": self.best(dense, volts, "fin"),
+            "resonance, full voltage": self.swim(self.resonance_hz(top, dense), top),
+            "paper (5.5 Hz, 800 Vpp)": self.swim(5.5, min(800.0, top)),
+            "grid": self.best(np.arange(1.0, 12.0), np.array([400.0, 600.0, 800.0]), "supply"),
+        }
