@@ -17,6 +17,8 @@ setup(
         (f"share/{PACKAGE}/config/fins", glob("config/fins/*.yaml")),
         (f"share/{PACKAGE}/config/amplifiers", glob("config/amplifiers/*.yaml")),
         (f"share/{PACKAGE}/config/models", glob("config/models/*.yaml")),
+        (f"share/{PACKAGE}/config/bodies", glob("config/bodies/*.yaml")),
+        (f"share/{PACKAGE}/config/batteries", glob("config/batteries/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         (f"share/{PACKAGE}/bags", ["bags/sample_M8528-P1.mcap"]),  # `player -p bag:=bags/sample_...`
     ],

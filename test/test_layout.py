@@ -62,6 +62,9 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
     ]
     share = prefix / "share" / "piezofin_ros"
     assert (share / "config" / "bringup.yaml").exists()
+    for folder in sorted(p for p in (ROOT / "config").iterdir() if p.is_dir()):  # every preset installed
+        installed = sorted(p.name for p in (share / "config" / folder.name).glob("*.yaml"))
+        assert installed == sorted(p.name for p in folder.glob("*.yaml")), folder.name
     assert (share / "bags" / "sample_M8528-P1.mcap").exists()  # `player -p bag:=bags/sample_...` anywhere
     launch = share / "launch" / "piezofin.launch.py"
     compile(launch.read_text(), str(launch), "exec")  # launch itself is not on PyPI: syntax only
