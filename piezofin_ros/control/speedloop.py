@@ -1,0 +1,151 @@
+"""A fish's speed loop: a speed set-point (m/s) to the thrust demand the optimising controller meets
+(``thrust_demand``), feed-forward through the body's drag law and feedback on the measured speed.
+
+The demand is
+
+.. math::
+
+    T_d = \\frac{D(U^*)}{n} + K_p\\,e + \\frac{K_p}{T_i}\\int e\\,dt, \\qquad e = U^* - U_{measured},
+
+with ``D`` the body's drag (:class:`~piezofin_ros.physics.swim.Body`), ``n`` its fins, a
+proportional gain that doubles the body's own damping at the set-point by default
+(``K_p = D'(U^*) / n``: the speed then settles twice as fast as the body alone, whose time constant
+is 3-9 s for the paper's fins) and an integral that removes what the drag law gets wrong.  Safe
+whatever it is fed:
+
+* the demand stays within ``[0, max_demand_n]`` (the integral stops winding at either end);
+* a set-point the allowed demand cannot reach is said, with the fastest speed it can give;
+* a speed sensor that falls silent (no reading for ``sensor_timeout_s``) leaves the feed-forward
+  alone (no integral, no proportional action on a stale reading), said; a reading that is not a
+  finite speed is refused;
+* a sensor that lies (its speed far from what the demand gives through the drag law, for
+  ``disagreement_s``) is said; the demand stays clamped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from ..errors import ControlError
+from ..physics.swim import Body
+
+
+@dataclass(frozen=True)
+class SpeedLoopConfig:
+    """The loop's settings (SI)."""
+
+    max_demand_n: float = 0.01  # the most thrust the loop may ask of each fin
+    kp_n_per_m_s: float = math.nan  # NaN: the body's damping at the set-point, per fin
+    ti_s: float = 8.0  # integral time
+    sensor_timeout_s: float = 2.0
+    disagreement: float = 0.5  # relative speed error against the drag law that is said
+    disagreement_s: float = 20.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_demand_n", "ti_s", "sensor_timeout_s", "disagreement", "disagreement_s"):
+            x = getattr(self, name)
+            if not (math.isfinite(x) and x > 0):
+                raise ControlError(f"speed loop: {name} = {x!r} must be finite and > 0")
+        if not (math.isnan(self.kp_n_per_m_s) or (math.isfinite(self.kp_n_per_m_s) and self.kp_n_per_m_s >= 0)):
+            raise ControlError(f"speed loop: kp_n_per_m_s = {self.kp_n_per_m_s!r} must be >= 0 (NaN: the body's)")
+
+
+@dataclass
+class SpeedLoop:
+    """The loop (module docstring); :meth:`update` once per tick with the time and the latest reading."""
+
+    body: Body
+    config: SpeedLoopConfig = field(default_factory=SpeedLoopConfig)
+    setpoint_m_s: float = 0.0
+    integral_n: float = 0.0
+    demand_n: float = 0.0
+    state: str = "no set-point"
+    _last_t: float = math.nan
+    _speed: float = math.nan
+    _speed_t: float = -math.inf
+    _disagree_since: float = math.nan
+
+    def set_setpoint(self, speed_m_s: float) -> str:
+        """A new set-point (m/s, >= 0); returns what is said about it ("" when it is reachable)."""
+        if not (math.isfinite(speed_m_s) and speed_m_s >= 0):
+            raise ControlError(f"speed set-point {speed_m_s!r}: a finite speed >= 0 m/s")
+        self.setpoint_m_s = float(speed_m_s)
+        top = self.fastest_m_s()
+        if self.feed_forward_n(speed_m_s) > self.config.max_demand_n:
+            return (
+                f"set-point {speed_m_s:.3g} m/s is beyond the {self.config.max_demand_n * 1e3:.3g} mN per fin "
+                f"the loop may ask for: it will swim at most {top:.3g} m/s"
+            )
+        return ""
+
+    def fastest_m_s(self) -> float:
+        """The speed the largest allowed demand gives through the drag law (U term neglected), m/s."""
+        return float(self.body.steady_speed(self.config.max_demand_n, 1e6, 1.0))
+
+    def feed_forward_n(self, speed_m_s: float) -> float:
+        """Thrust per fin that holds ``speed_m_s`` against the drag law (the ``U`` term of Eq. 19 is
+        under 1 % at a fish's speeds and is left to the integral), N."""
+        return float(self.body.drag_n(speed_m_s)) / self.body.fins
+
+    def measure(self, t: float, speed_m_s: float) -> bool:
+        """A speed reading at time ``t``; False (ignored) unless it is a finite speed."""
+        if not math.isfinite(speed_m_s) or not math.isfinite(t) or abs(speed_m_s) > 100.0:
+            return False
+        self._speed, self._speed_t = float(speed_m_s), float(t)
+        return True
+
+    def kp(self) -> float:
+        if not math.isnan(self.config.kp_n_per_m_s):
+            return self.config.kp_n_per_m_s
+        u = max(self.setpoint_m_s, 1e-3)
+        slope = self.body.rho_w * self.body.drag_area_m2 * u + self.body.drag_linear_n_s_m
+        return slope / self.body.fins
+
+    def update(self, t: float) -> float:
+        """The thrust demand per fin at time ``t`` (N), clamped to ``[0, max_demand_n]``."""
+        dt = 0.0 if math.isnan(self._last_t) else max(0.0, min(t - self._last_t, 1.0))
+        self._last_t = t
+        cfg = self.config
+        if self.setpoint_m_s <= 0.0:
+            self.integral_n, self.demand_n, self.state = 0.0, 0.0, "no set-point: no thrust asked"
+            return 0.0
+        ff = self.feed_forward_n(self.setpoint_m_s)
+        fresh = t - self._speed_t <= cfg.sensor_timeout_s
+        if not fresh:
+            self.demand_n = min(max(ff, 0.0), cfg.max_demand_n)
+            self.state = (
+                f"speed sensor silent for {t - self._speed_t:.1f} s: feed-forward only "
+                f"({self.demand_n * 1e3:.3g} mN per fin)"
+                if math.isfinite(self._speed_t)
+                else "no speed reading yet: feed-forward only"
+            )
+            return self.demand_n
+        e = self.setpoint_m_s - self._speed
+        kp = self.kp()
+        raw = ff + kp * e + self.integral_n
+        # the integral winds only while the demand is inside its bounds (or moving back inside)
+        if (raw < cfg.max_demand_n or e < 0) and (raw > 0 or e > 0):
+            self.integral_n += kp / cfg.ti_s * e * dt
+        self.demand_n = min(max(ff + kp * e + self.integral_n, 0.0), cfg.max_demand_n)
+        self.state = self._judge(t, e)
+        return self.demand_n
+
+    def _judge(self, t: float, e: float) -> str:
+        """What is said of the loop now: holding, saturated, or a sensor at odds with the drag law."""
+        expected = float(self.body.steady_speed(self.demand_n, 1e6, 1.0))  # what this demand gives
+        off = abs(self._speed - expected) / max(expected, 1e-6)
+        if off > self.config.disagreement:
+            if math.isnan(self._disagree_since):
+                self._disagree_since = t
+        else:
+            self._disagree_since = math.nan
+        if not math.isnan(self._disagree_since) and t - self._disagree_since >= self.config.disagreement_s:
+            return (
+                f"the speed sensor reads {self._speed:.3g} m/s where {self.demand_n * 1e3:.3g} mN gives "
+                f"{expected:.3g} m/s through the drag law, for {t - self._disagree_since:.0f} s: a sensor "
+                "that lies, a fouled body, or a drag law that is wrong"
+            )
+        if self.demand_n >= self.config.max_demand_n and e > 0:
+            return f"at the most thrust allowed ({self.config.max_demand_n * 1e3:.3g} mN per fin): {e:+.3g} m/s short"
+        return f"holding {self.setpoint_m_s:.3g} m/s ({e:+.2g} m/s)"

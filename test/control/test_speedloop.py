@@ -1,0 +1,117 @@
+"""The fish's speed loop (issue 27) closed around a swimming body: steps settle within 5 % in 30 s of
+fish time, a wrong drag law is corrected, and what it is fed cannot take the demand out of bounds."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from piezofin_ros.control.speedloop import SpeedLoop, SpeedLoopConfig
+from piezofin_ros.errors import ControlError
+from piezofin_ros.physics.swim import Body, load_body
+
+DT = 0.1
+
+
+def swim(
+    loop: SpeedLoop,
+    truth: Body,
+    setpoints: list[tuple[float, float]],
+    t_end: float,
+    lag_s: float = 2.0,
+    noise: float = 0.002,
+    sensor=lambda t, u: u,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fish time, true speed and demand: the body ``truth`` (its surge equation), a controller that
+    meets a new demand with a first-order lag ``lag_s`` (the optimiser's trials), a noisy sensor."""
+    rng = np.random.default_rng(seed)
+    u = thrust = 0.0
+    ts, us, ds = [], [], []
+    todo = list(setpoints)
+    for k in range(int(t_end / DT)):
+        t = k * DT
+        while todo and todo[0][0] <= t:
+            loop.set_setpoint(todo.pop(0)[1])
+        reading = sensor(t, u + noise * rng.standard_normal())
+        if reading is not None:
+            loop.measure(t, reading)
+        demand = loop.update(t)
+        thrust += (demand - thrust) * DT / lag_s
+        u += DT * truth.acceleration(u, thrust, 1e6, 1.0)
+        ts.append(t), us.append(u), ds.append(demand)
+    return np.array(ts), np.array(us), np.array(ds)
+
+
+def settled_after(t: np.ndarray, u: np.ndarray, target: float, t0: float, tol: float = 0.05) -> float:
+    """Time after ``t0`` from which the speed stays within ``tol`` of ``target``."""
+    sel = t >= t0
+    out = np.abs(u[sel] / target - 1.0) > tol
+    if not out.any():
+        return 0.0
+    return float(t[sel][np.flatnonzero(out)[-1]] - t0 + DT)
+
+
+@pytest.mark.parametrize("drag_error", [1.0, 1.3, 0.7])
+def test_steps_settle_within_5_percent_in_30_s_even_with_a_wrong_drag_law(drag_error: float) -> None:
+    body = load_body("mfc-fish")
+    truth = dataclasses.replace(body, drag_area_m2=body.drag_area_m2 * drag_error)
+    loop = SpeedLoop(body)
+    t, u, d = swim(loop, truth, [(0.0, 0.06), (60.0, 0.04)], 120.0)
+    assert settled_after(t[t < 60], u[t < 60], 0.06, 0.0) <= 30.0
+    assert settled_after(t, u, 0.04, 60.0) <= 30.0
+    assert np.all((d >= 0) & (d <= loop.config.max_demand_n))
+    assert "holding 0.04 m/s" in loop.state
+
+
+def test_an_unreachable_set_point_is_said_and_the_demand_stays_allowed() -> None:
+    body = load_body("mfc-fish")
+    loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.003))
+    said = loop.set_setpoint(0.5)
+    assert "beyond" in said and f"{loop.fastest_m_s():.3g} m/s" in said
+    t, u, d = swim(loop, body, [], 60.0)
+    assert d.max() == pytest.approx(0.003) and u[-1] == pytest.approx(loop.fastest_m_s(), rel=0.02)
+    assert "at the most thrust allowed" in loop.state
+
+
+def test_a_silent_sensor_leaves_the_feed_forward_and_says_so() -> None:
+    body = load_body("mfc-fish")
+    loop = SpeedLoop(body)
+    t, u, d = swim(loop, body, [(0.0, 0.05)], 80.0, sensor=lambda t, x: x if t < 30 else None)
+    assert d[-1] == pytest.approx(loop.feed_forward_n(0.05))
+    assert "speed sensor silent" in loop.state
+    assert abs(u[-1] / 0.05 - 1) < 0.02  # the drag law is right here: the feed-forward alone holds it
+
+
+def test_a_lying_sensor_is_said_and_cannot_push_the_demand_out_of_bounds() -> None:
+    body = load_body("mfc-fish")
+    loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.008))
+    t, u, d = swim(loop, body, [(0.0, 0.05)], 90.0, sensor=lambda t, x: 0.0)  # reads "still" for ever
+    assert d.max() <= 0.008 and "a sensor that lies" in loop.state
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    readings=st.lists(
+        st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-1.0, 1.0)), min_size=1, max_size=50
+    ),
+    setpoint=st.floats(0.0, 10.0),
+)
+def test_whatever_it_reads_the_demand_stays_within_its_bounds(readings, setpoint) -> None:
+    loop = SpeedLoop(Body(), SpeedLoopConfig(max_demand_n=0.004))
+    loop.set_setpoint(setpoint)
+    for k, r in enumerate(readings):
+        loop.measure(0.1 * k, r)
+        d = loop.update(0.1 * k)
+        assert 0.0 <= d <= 0.004 and math.isfinite(d)
+
+
+@pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf])
+def test_a_set_point_that_is_no_speed_is_refused(bad: float) -> None:
+    with pytest.raises(ControlError, match="set-point"):
+        SpeedLoop(Body()).set_setpoint(bad)
