@@ -47,8 +47,12 @@ class SpeedLoopConfig:
             x = getattr(self, name)
             if not (math.isfinite(x) and x > 0):
                 raise ControlError(f"speed loop: {name} = {x!r} must be finite and > 0")
-        if not (math.isnan(self.kp_n_per_m_s) or (math.isfinite(self.kp_n_per_m_s) and self.kp_n_per_m_s >= 0)):
-            raise ControlError(f"speed loop: kp_n_per_m_s = {self.kp_n_per_m_s!r} must be >= 0 (NaN: the body's)")
+        if not (
+            math.isnan(self.kp_n_per_m_s) or (math.isfinite(self.kp_n_per_m_s) and self.kp_n_per_m_s >= 0)
+        ):
+            raise ControlError(
+                f"speed loop: kp_n_per_m_s = {self.kp_n_per_m_s!r} must be >= 0 (NaN: the body's)"
+            )
 
 
 @dataclass
@@ -73,9 +77,10 @@ class SpeedLoop:
         self.setpoint_m_s = float(speed_m_s)
         top = self.fastest_m_s()
         if self.feed_forward_n(speed_m_s) > self.config.max_demand_n:
+            most = self.config.max_demand_n * 1e3
             return (
-                f"set-point {speed_m_s:.3g} m/s is beyond the {self.config.max_demand_n * 1e3:.3g} mN per fin "
-                f"the loop may ask for: it will swim at most {top:.3g} m/s"
+                f"set-point {speed_m_s:.3g} m/s is beyond the {most:.3g} mN per fin the loop may ask for: "
+                f"it will swim at most {top:.3g} m/s"
             )
         return ""
 
@@ -147,5 +152,6 @@ class SpeedLoop:
                 "that lies, a fouled body, or a drag law that is wrong"
             )
         if self.demand_n >= self.config.max_demand_n and e > 0:
-            return f"at the most thrust allowed ({self.config.max_demand_n * 1e3:.3g} mN per fin): {e:+.3g} m/s short"
+            most = self.config.max_demand_n * 1e3
+            return f"at the most thrust allowed ({most:.3g} mN per fin): {e:+.3g} m/s short"
         return f"holding {self.setpoint_m_s:.3g} m/s ({e:+.2g} m/s)"

@@ -335,6 +335,8 @@ class SimulatedRig:
     ) -> None:
         self.fin = fin
         self.amplifier = amplifier or PAPER_BENCH  # the supply's law
+        #: a free-swimming body's speed (:mod:`.fish`), which Eq. (19) then uses; None: the config's
+        self.swim_speed_m_s: float | None = None
         self.model = model
         self._knobs = Knobs()
         self._history: dict[str, tuple[FloatArray, FloatArray]] = {}  # recent samples, for the lags
@@ -501,7 +503,9 @@ class SimulatedRig:
         tip = fin.phi_tip * deta_s
         cap = fin.C_eq * float(kn.capacitance)
         current = cap * dv + float(kn.loss_conductance) * v + fin.theta * float(kn.coupling) * deta_s
-        U = float(kn.swim_speed) or cfg.swim_speed_m_s
+        U = float(kn.swim_speed) or (
+            cfg.swim_speed_m_s if self.swim_speed_m_s is None else self.swim_speed_m_s
+        )
         thrust = 0.5 * fin.m_v * float(kn.mass) * (tip**2 - U**2 * (fin.phi_tip_slope * eta_s) ** 2)
         reading = float(kn.thrust_gain) * thrust
         if kn.thrust_bias_n and self._knobs_at:

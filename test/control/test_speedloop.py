@@ -74,7 +74,7 @@ def test_an_unreachable_set_point_is_said_and_the_demand_stays_allowed() -> None
     loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.003))
     said = loop.set_setpoint(0.5)
     assert "beyond" in said and f"{loop.fastest_m_s():.3g} m/s" in said
-    t, u, d = swim(loop, body, [], 60.0)
+    _, u, d = swim(loop, body, [], 60.0)
     assert d.max() == pytest.approx(0.003) and u[-1] == pytest.approx(loop.fastest_m_s(), rel=0.02)
     assert "at the most thrust allowed" in loop.state
 
@@ -82,7 +82,7 @@ def test_an_unreachable_set_point_is_said_and_the_demand_stays_allowed() -> None
 def test_a_silent_sensor_leaves_the_feed_forward_and_says_so() -> None:
     body = load_body("mfc-fish")
     loop = SpeedLoop(body)
-    t, u, d = swim(loop, body, [(0.0, 0.05)], 80.0, sensor=lambda t, x: x if t < 30 else None)
+    _, u, d = swim(loop, body, [(0.0, 0.05)], 80.0, sensor=lambda t, x: x if t < 30 else None)
     assert d[-1] == pytest.approx(loop.feed_forward_n(0.05))
     assert "speed sensor silent" in loop.state
     assert abs(u[-1] / 0.05 - 1) < 0.02  # the drag law is right here: the feed-forward alone holds it
@@ -91,14 +91,16 @@ def test_a_silent_sensor_leaves_the_feed_forward_and_says_so() -> None:
 def test_a_lying_sensor_is_said_and_cannot_push_the_demand_out_of_bounds() -> None:
     body = load_body("mfc-fish")
     loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.008))
-    t, u, d = swim(loop, body, [(0.0, 0.05)], 90.0, sensor=lambda t, x: 0.0)  # reads "still" for ever
+    _, _, d = swim(loop, body, [(0.0, 0.05)], 90.0, sensor=lambda t, x: 0.0)  # reads "still" for ever
     assert d.max() <= 0.008 and "a sensor that lies" in loop.state
 
 
 @settings(max_examples=200, deadline=None)
 @given(
     readings=st.lists(
-        st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-1.0, 1.0)), min_size=1, max_size=50
+        st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-1.0, 1.0)),
+        min_size=1,
+        max_size=50,
     ),
     setpoint=st.floats(0.0, 10.0),
 )
