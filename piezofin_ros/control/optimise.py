@@ -785,11 +785,11 @@ class Optimiser:
         point whose one trial beat the incumbent; else the map's point of this mode (a search near
         the incumbent, the incumbent held when the map expects too little elsewhere, or the map's
         optimum), moved onto a point measured before when it is that close (its trials add up)."""
-        for name, rule in self.RULES:
+        for name, rule in self.RULES[:-1]:
             point = rule(self, inc)
             if point is not None:
                 return name, point
-        raise AssertionError("the map's rule always has a point")  # (the last rule)
+        return "map", self._rule_map(inc)  # (the last rule always has a point)
 
     def _rule_identify(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
         return self._identification_point()
@@ -797,7 +797,7 @@ class Optimiser:
     def _rule_confirm(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
         return self._candidate()
 
-    def _rule_map(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
+    def _rule_map(self, inc: tuple[float, float] | None) -> tuple[float, float]:
         assert self.choice is not None
         point = (self.choice.frequency_hz, self.choice.voltage_pp)
         if self.mode == Mode.SEARCH and inc is not None:

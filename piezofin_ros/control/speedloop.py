@@ -27,31 +27,36 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from ..config import setting
 from ..errors import ControlError
 from ..physics.swim import Body
 
 
 @dataclass(frozen=True)
 class SpeedLoopConfig:
-    """The loop's settings (SI)."""
+    """The loop's settings (SI); the ``speed_loop`` node's ``loop.*`` parameters."""
 
-    max_demand_n: float = 0.01  # the most thrust the loop may ask of each fin
-    kp_n_per_m_s: float = math.nan  # NaN: the body's damping at the set-point, per fin
-    ti_s: float = 8.0  # integral time
-    sensor_timeout_s: float = 2.0
-    disagreement: float = 0.5  # relative speed error against the drag law that is said
-    disagreement_s: float = 20.0
+    max_demand_n: float = setting(0.01, "the most thrust the loop may ask of each fin, N", 1e-6, 1.0)
+    kp_n_per_m_s: float = setting(
+        0.0, "proportional gain, N per m/s per fin (0: the body's damping at the set-point)", 0.0, 100.0
+    )
+    ti_s: float = setting(8.0, "integral time, s", 0.1, 600.0)
+    sensor_timeout_s: float = setting(
+        2.0, "a speed sensor silent this long leaves the feed-forward alone, s", 0.1, 60.0
+    )
+    disagreement: float = setting(
+        0.5, "relative speed error against the drag law that is said (a sensor that lies)", 0.01, 10.0
+    )
+    disagreement_s: float = setting(20.0, "for this long, s", 0.1, 3600.0)
 
     def __post_init__(self) -> None:
         for name in ("max_demand_n", "ti_s", "sensor_timeout_s", "disagreement", "disagreement_s"):
             x = getattr(self, name)
             if not (math.isfinite(x) and x > 0):
                 raise ControlError(f"speed loop: {name} = {x!r} must be finite and > 0")
-        if not (
-            math.isnan(self.kp_n_per_m_s) or (math.isfinite(self.kp_n_per_m_s) and self.kp_n_per_m_s >= 0)
-        ):
+        if not (math.isfinite(self.kp_n_per_m_s) and self.kp_n_per_m_s >= 0):
             raise ControlError(
-                f"speed loop: kp_n_per_m_s = {self.kp_n_per_m_s!r} must be >= 0 (NaN: the body's)"
+                f"speed loop: kp_n_per_m_s = {self.kp_n_per_m_s!r} must be >= 0 (0: the body's)"
             )
 
 
@@ -101,7 +106,7 @@ class SpeedLoop:
         return True
 
     def kp(self) -> float:
-        if not math.isnan(self.config.kp_n_per_m_s):
+        if self.config.kp_n_per_m_s > 0:
             return self.config.kp_n_per_m_s
         u = max(self.setpoint_m_s, 1e-3)
         slope = self.body.rho_w * self.body.drag_area_m2 * u + self.body.drag_linear_n_s_m
