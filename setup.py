@@ -44,6 +44,7 @@ setup(
             "controller = piezofin_ros.nodes.controller:main",
             "recorder = piezofin_ros.nodes.recorder:main",
             "player = piezofin_ros.nodes.player:main",
+            "speed_loop = piezofin_ros.nodes.speed_loop:main",
             "bringup = piezofin_ros.nodes.bringup:main",
         ],
     },

@@ -97,11 +97,18 @@ class Launch:
     """`ros2 launch ...` in its own session (SIGINT reaches it as Ctrl-C would), output to a file,
     in a domain where nothing else runs."""
 
-    def __init__(self, env: dict[str, str], cwd: Path, *args: str, log: str = "launch.log") -> None:
+    def __init__(
+        self,
+        env: dict[str, str],
+        cwd: Path,
+        *args: str,
+        log: str = "launch.log",
+        file: str = "piezofin.launch.py",
+    ) -> None:
         assert_quiet_domain(env)
         self.log = cwd / log
         self.proc = subprocess.Popen(
-            ["ros2", "launch", "piezofin_ros", "piezofin.launch.py", *args],
+            ["ros2", "launch", "piezofin_ros", file, *args],
             env=env,
             cwd=cwd,
             stdin=subprocess.DEVNULL,

@@ -216,11 +216,13 @@ def test_each_layer_has_its_error_and_every_error_class_derives_from_the_base() 
 def test_every_node_parameter_is_declared_once_and_documented() -> None:
     """Each node's parameters come from one config dataclass, and docs/reference.md lists them all."""
     from piezofin_ros.config import settings_of
+    from piezofin_ros.control.speedloop import SpeedLoopConfig
     from piezofin_ros.estimation.estimator import EstimatorConfig
     from piezofin_ros.nodes.controller import ControllerConfig
     from piezofin_ros.nodes.fin_sim import FinSimConfig
     from piezofin_ros.nodes.player import PlayerConfig
     from piezofin_ros.nodes.recorder import RecorderConfig
+    from piezofin_ros.nodes.speed_loop import SpeedLoopNodeConfig
     from piezofin_ros.nodes.thrust_estimator import ThrustEstimatorConfig
     from piezofin_ros.rig.simulated import DriveLimits, RigConfig
 
@@ -232,6 +234,7 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
         "controller": [ControllerConfig],
         "recorder": [RecorderConfig],
         "player": [PlayerConfig],
+        "speed_loop": [SpeedLoopNodeConfig, SpeedLoopConfig],
     }
     for node, configs in nodes.items():
         for cls in configs:
@@ -243,11 +246,15 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
                     ControllerConfig,
                     RecorderConfig,
                     PlayerConfig,
+                    SpeedLoopNodeConfig,
+                    SpeedLoopConfig,
                 ):
                     assert f"`{f.name}`" in rows[node], f"docs/reference.md: {node} row lacks `{f.name}`"
     for node in nodes:  # nothing the nodes do not declare
         declared = {f.name for cls in nodes[node] for f, _, _ in settings_of(cls)}
         listed = set(re.findall(r"`([a-z_]+)`", rows[node].split("|")[2]))
-        stray = listed - declared - {"rig", "limits", "estimator", "self", "vibrometer", "stop", "hold"}
+        stray = (
+            listed - declared - {"rig", "limits", "estimator", "self", "vibrometer", "stop", "hold", "loop"}
+        )
         stray -= {"protocol", "continuous", "optimise", "thrust_estimator", "diagnose", "ros2", "launch"}
         assert not stray, f"docs/reference.md: {node} row lists {sorted(stray)}, not parameters"

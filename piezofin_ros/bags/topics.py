@@ -17,6 +17,8 @@ TOPIC_ESTIMATE = "estimate"
 TOPIC_SPEED = "swim_speed"
 TOPIC_STATUS = "controller/status"
 TOPIC_DEMAND = "thrust_demand"
+TOPIC_BATTERY = "battery"  # sensor_msgs/BatteryState: a fish's battery
+TOPIC_LOOP_STATUS = "speed_loop/status"  # std_msgs/String: what the speed loop is doing
 
 #: The sample channels of each sampled topic, in wire order.
 SAMPLED = {

@@ -39,7 +39,7 @@ class DriveLoop:
     target: tuple[float, float] | None = None
     command_v: float = 0.0
     trials: int = 0
-    skipped: int = 0  # windows that agreed while a fit was running (see add_estimate)
+    skipped: int = 0  # trials that agreed while a fit ran, replaced by a later one before learnt
     discrepancy: float = math.nan  # self-sensed vs vibrometer thrust, relative, last window
     events: list[str] = field(default_factory=list)
     _t_last: float | None = None
@@ -62,6 +62,7 @@ class DriveLoop:
     demand_hold_s: float = 1.0
     _demand_due: bool = False
     _demand_taken_t: float = -math.inf
+    _waiting: tuple[Any, ...] | None = None  # a trial that agreed while a fit ran: learnt next
 
     def __post_init__(self) -> None:
         self.optimiser.source = self.source  # (it reads the same estimate)
@@ -151,12 +152,15 @@ class DriveLoop:
         args = (e.t_end, f, self.target[1], thrust, power, admittance, named)
         if self.background:
             # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
-            # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, windows that
-            # agree are not queued (faster than real time they come faster than fits): counted only
+            # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, the latest
+            # trial that agreed waits, and goes before any demand (a demand that changes all the
+            # time, a speed loop's, would otherwise keep the fits busy and no trial would be learnt);
+            # one it replaces is counted only (faster than real time windows come faster than fits)
             if all(job.done() for job in self._pending):
                 self._pending.append(self._worker().submit(self._learn, *args))
             else:
-                self.skipped += 1
+                self.skipped += self._waiting is not None
+                self._waiting = args
         else:
             self._learn(*args)
             self._take_next()
@@ -173,7 +177,13 @@ class DriveLoop:
             self._take_next()
 
     def _submit_demand(self, t: float) -> None:
-        """The latest demand to the fit's thread, once ``demand_hold_s`` has passed since the last."""
+        """The trial waiting, else the latest demand (once ``demand_hold_s`` has passed since the
+        last), to the fit's thread."""
+        if self._waiting is not None:  # (no demand goes before it)
+            if all(job.done() for job in self._pending):
+                args, self._waiting = self._waiting, None
+                self._pending.append(self._worker().submit(self._learn, *args))
+            return
         if self._demand_due and not self._demand_queued and t - self._demand_taken_t >= self.demand_hold_s:
             self._demand_due, self._demand_queued, self._demand_taken_t = False, True, t
             self._pending.append(self._worker().submit(self._latest_demand))

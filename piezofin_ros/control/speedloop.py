@@ -8,18 +8,22 @@ The demand is
     T_d = \\frac{D(U^*)}{n} + K_p\\,e + \\frac{K_p}{T_i}\\int e\\,dt, \\qquad e = U^* - U_{measured},
 
 with ``D`` the body's drag (:class:`~piezofin_ros.physics.swim.Body`), ``n`` its fins, a
-proportional gain that doubles the body's own damping at the set-point by default
-(``K_p = D'(U^*) / n``: the speed then settles twice as fast as the body alone, whose time constant
-is 3-9 s for the paper's fins) and an integral that removes what the drag law gets wrong.  Safe
+proportional gain of half the body's own damping at the set-point by default (``K_p = D'(U^*) / 2n``:
+a loop gain of 1/2, stable behind the optimising controller, which meets a new demand only after its
+trials, tens of seconds) and an integral that removes what the drag law gets wrong, winding only
+while the fin gives what is asked (the estimator's thrust within 15 % of the demand).  Safe
 whatever it is fed:
 
-* the demand stays within ``[0, max_demand_n]`` (the integral stops winding at either end);
+* the demand stays within ``[min_demand_n, max_demand_n]`` while there is a set-point (the
+  integral stops winding at either end; a demand never falls to 0, which the optimiser would read
+  as "no demand" and answer with its best thrust per watt at full voltage);
 * a set-point the allowed demand cannot reach is said, with the fastest speed it can give;
 * a speed sensor that falls silent (no reading for ``sensor_timeout_s``) leaves the feed-forward
   alone (no integral, no proportional action on a stale reading), said; a reading that is not a
   finite speed is refused;
-* a sensor that lies (its speed far from what the demand gives through the drag law, for
-  ``disagreement_s``) is said; the demand stays clamped.
+* a sensor that lies (its speed far from what the fin's estimated thrust gives through the drag
+  law, for ``disagreement_s``) is said; the demand stays clamped.  Judged on the estimate (what the
+  fin gives), not the demand (what was asked: the fin may not be able to give it).
 """
 
 from __future__ import annotations
@@ -37,10 +41,13 @@ class SpeedLoopConfig:
     """The loop's settings (SI); the ``speed_loop`` node's ``loop.*`` parameters."""
 
     max_demand_n: float = setting(0.01, "the most thrust the loop may ask of each fin, N", 1e-6, 1.0)
-    kp_n_per_m_s: float = setting(
-        0.0, "proportional gain, N per m/s per fin (0: the body's damping at the set-point)", 0.0, 100.0
+    min_demand_n: float = setting(
+        1e-4, "the least thrust asked while there is a set-point, N (0 would read as no demand)", 1e-7, 1.0
     )
-    ti_s: float = setting(8.0, "integral time, s", 0.1, 600.0)
+    kp_n_per_m_s: float = setting(
+        0.0, "proportional gain, N per m/s per fin (0: half the body's damping at the set-point)", 0.0, 100.0
+    )
+    ti_s: float = setting(30.0, "integral time, s", 0.1, 600.0)
     sensor_timeout_s: float = setting(
         2.0, "a speed sensor silent this long leaves the feed-forward alone, s", 0.1, 60.0
     )
@@ -50,10 +57,19 @@ class SpeedLoopConfig:
     disagreement_s: float = setting(20.0, "for this long, s", 0.1, 3600.0)
 
     def __post_init__(self) -> None:
-        for name in ("max_demand_n", "ti_s", "sensor_timeout_s", "disagreement", "disagreement_s"):
+        for name in (
+            "max_demand_n",
+            "min_demand_n",
+            "ti_s",
+            "sensor_timeout_s",
+            "disagreement",
+            "disagreement_s",
+        ):
             x = getattr(self, name)
             if not (math.isfinite(x) and x > 0):
                 raise ControlError(f"speed loop: {name} = {x!r} must be finite and > 0")
+        if self.min_demand_n >= self.max_demand_n:
+            raise ControlError(f"speed loop: min_demand_n {self.min_demand_n!r} must be below max_demand_n")
         if not (math.isfinite(self.kp_n_per_m_s) and self.kp_n_per_m_s >= 0):
             raise ControlError(
                 f"speed loop: kp_n_per_m_s = {self.kp_n_per_m_s!r} must be >= 0 (0: the body's)"
@@ -74,6 +90,8 @@ class SpeedLoop:
     _speed: float = math.nan
     _speed_t: float = -math.inf
     _disagree_since: float = math.nan
+    _thrust: float = math.nan  # the fin's estimated thrust (what it gives), N
+    _thrust_t: float = -math.inf
 
     def set_setpoint(self, speed_m_s: float) -> str:
         """A new set-point (m/s, >= 0); returns what is said about it ("" when it is reachable)."""
@@ -105,12 +123,17 @@ class SpeedLoop:
         self._speed, self._speed_t = float(speed_m_s), float(t)
         return True
 
+    def estimate(self, t: float, thrust_n: float) -> None:
+        """The fin's estimated thrust (an estimate's self-sensed or Lighthill thrust) at time ``t``."""
+        if math.isfinite(thrust_n) and thrust_n >= 0 and math.isfinite(t):
+            self._thrust, self._thrust_t = float(thrust_n), float(t)
+
     def kp(self) -> float:
         if self.config.kp_n_per_m_s > 0:
             return self.config.kp_n_per_m_s
         u = max(self.setpoint_m_s, 1e-3)
         slope = self.body.rho_w * self.body.drag_area_m2 * u + self.body.drag_linear_n_s_m
-        return slope / self.body.fins
+        return 0.5 * slope / self.body.fins  # (a loop gain of 1/2: stable behind a trial's delay)
 
     def update(self, t: float) -> float:
         """The thrust demand per fin at time ``t`` (N), clamped to ``[0, max_demand_n]``."""
@@ -123,7 +146,7 @@ class SpeedLoop:
         ff = self.feed_forward_n(self.setpoint_m_s)
         fresh = t - self._speed_t <= cfg.sensor_timeout_s
         if not fresh:
-            self.demand_n = min(max(ff, 0.0), cfg.max_demand_n)
+            self.demand_n = min(max(ff, cfg.min_demand_n), cfg.max_demand_n)
             self.state = (
                 f"speed sensor silent for {t - self._speed_t:.1f} s: feed-forward only "
                 f"({self.demand_n * 1e3:.3g} mN per fin)"
@@ -134,17 +157,21 @@ class SpeedLoop:
         e = self.setpoint_m_s - self._speed
         kp = self.kp()
         raw = ff + kp * e + self.integral_n
-        # the integral winds only while the demand is inside its bounds (or moving back inside)
-        if (raw < cfg.max_demand_n or e < 0) and (raw > 0 or e > 0):
+        # the integral winds only while the demand is inside its bounds (or moving back inside), and
+        # while the fin gives what is asked: a speed error while the controller is still on its way
+        # to a new demand (its trials take tens of seconds) is no error of the drag law
+        delivered = t - self._thrust_t <= 60.0 and abs(self._thrust - self.demand_n) <= 0.15 * self.demand_n
+        if delivered and (raw < cfg.max_demand_n or e < 0) and (raw > cfg.min_demand_n or e > 0):
             self.integral_n += kp / cfg.ti_s * e * dt
-        self.demand_n = min(max(ff + kp * e + self.integral_n, 0.0), cfg.max_demand_n)
+        self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cfg.max_demand_n)
         self.state = self._judge(t, e)
         return self.demand_n
 
     def _judge(self, t: float, e: float) -> str:
         """What is said of the loop now: holding, saturated, or a sensor at odds with the drag law."""
-        expected = float(self.body.steady_speed(self.demand_n, 1e6, 1.0))  # what this demand gives
-        off = abs(self._speed - expected) / max(expected, 1e-6)
+        judged = t - self._thrust_t <= 60.0  # (an estimate of the fin's thrust in the last minute)
+        expected = float(self.body.steady_speed(self._thrust, 1e6, 1.0)) if judged else math.nan
+        off = abs(self._speed - expected) / max(expected, 1e-3) if judged else 0.0
         if off > self.config.disagreement:
             if math.isnan(self._disagree_since):
                 self._disagree_since = t
@@ -152,9 +179,9 @@ class SpeedLoop:
             self._disagree_since = math.nan
         if not math.isnan(self._disagree_since) and t - self._disagree_since >= self.config.disagreement_s:
             return (
-                f"the speed sensor reads {self._speed:.3g} m/s where {self.demand_n * 1e3:.3g} mN gives "
-                f"{expected:.3g} m/s through the drag law, for {t - self._disagree_since:.0f} s: a sensor "
-                "that lies, a fouled body, or a drag law that is wrong"
+                f"the speed sensor reads {self._speed:.3g} m/s where the fin's {self._thrust * 1e3:.3g} mN "
+                f"gives {expected:.3g} m/s through the drag law, for {t - self._disagree_since:.0f} s: a "
+                "sensor that lies, a fouled body, or a drag law that is wrong"
             )
         if self.demand_n >= self.config.max_demand_n and e > 0:
             most = self.config.max_demand_n * 1e3

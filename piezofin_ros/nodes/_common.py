@@ -37,11 +37,13 @@ QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Rel
 
 # Topic names (relative: a node's namespace puts them under one fin), defined with the bags' reader.
 from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contract)
+    TOPIC_BATTERY,
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
     TOPIC_LOADCELL,
+    TOPIC_LOOP_STATUS,
     TOPIC_SPEED,
     TOPIC_STATUS,
     TOPIC_SUPPLY,

@@ -48,7 +48,8 @@ from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Float64MultiArray
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import Float64, Float64MultiArray
 
 from ..bags.blocks import COMMAND_FIELDS, Block, BlockFormatError
 from ..config import setting
@@ -56,10 +57,13 @@ from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.effects import ModelError
 from ..physics.fin import MEDIA, Fin, FinConfigError, in_medium, load_fin
 from ..physics.model import load_model
+from ..physics.swim import Battery, Body, SwimError, load_battery, load_body
 from ..physics.waveforms import ProtocolTiming
+from ..rig.fish import FreeSwimmer
 from ..rig.simulated import (
     STOP_SLEW_VPP_PER_S,
     DriveLimits,
+    RigBlock,
     RigConfig,
     SimulatedRig,
     loosened,
@@ -68,9 +72,11 @@ from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
     QOS_DATA,
+    TOPIC_BATTERY,
     TOPIC_CMD,
     TOPIC_DRIVE,
     TOPIC_LOADCELL,
+    TOPIC_SPEED,
     TOPIC_SUPPLY,
     TOPIC_TIP,
     StartupError,
@@ -122,6 +128,35 @@ class FinSimConfig:
     wait_subscribers_s: float = setting(
         20.0, "wall time to wait for them at most, s (then the samples start anyway, said)", 0.0, 600.0
     )
+    body: str = setting(
+        "",
+        "a free-swimming body (preset or YAML, config/bodies) that the fin's thrust moves, whose speed "
+        "Eq. (19) takes and the swim_speed topic reads; empty: the tethered rig",
+    )
+    battery: str = setting(
+        "",
+        "the fish's battery (preset or YAML, config/batteries), drained by the amplifier's supply power and "
+        "read on the battery topic (sensor_msgs/BatteryState); the drive stops when it is empty; empty: none",
+    )
+    speed_noise_m_s: float = setting(0.002, "the speed sensor's noise (a body only), m/s RMS", 0.0, 1.0)
+
+
+def _swimming(c: FinSimConfig) -> tuple[Body | None, Battery | None]:
+    """The body and the battery the parameters name (one line naming the parameter when they are
+    impossible)."""
+    try:
+        body = load_body(c.body) if c.body else None
+    except SwimError as exc:
+        raise StartupError(f"parameter body: {exc}") from None
+    try:
+        battery = load_battery(c.battery) if c.battery else None
+    except SwimError as exc:
+        raise StartupError(f"parameter battery: {exc}") from None
+    if battery is not None and body is None:
+        raise StartupError(
+            "parameter battery: a battery needs a body (parameter body): the tethered rig has none"
+        )
+    return body, battery
 
 
 class FinSim(LifecycleNode):
@@ -140,6 +175,11 @@ class FinSim(LifecycleNode):
         self._block_s, self._factor, self._publish_clock = c.block_s, c.realtime_factor, c.publish_clock
         self._start_time = c.start_time_s
         self._wait_subscribers, self._wait_subscribers_s = c.wait_subscribers, c.wait_subscribers_s
+        self._body, self._battery = _swimming(c)
+        self._speed_noise = c.speed_noise_m_s
+        self._swimmer: FreeSwimmer | None = None
+        self._battery_said_t = -math.inf
+        self.battery_empty = False
         self._consumers_ok = c.wait_subscribers == 0
         self._waiting_since_ns: int | None = None
         self._protocol, self._protocol_off, self._protocol_on = c.protocol, c.protocol_off_s, c.protocol_on_s
@@ -179,6 +219,8 @@ class FinSim(LifecycleNode):
                 self._fin = model.fin
                 if self._medium != "water":
                     raise ModelError("medium:=air takes a fin (parameter fin), not an augmented model")
+            if self._body is not None and self._medium != "water":
+                raise ModelError("a body (parameter body) swims in water: not with medium:=air")
             else:
                 self._fin = in_medium(load_fin(self._fin_name), self._medium)
         except (FinConfigError, ModelError) as exc:
@@ -206,6 +248,20 @@ class FinSim(LifecycleNode):
             for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL, TOPIC_SUPPLY)
         }
         self._clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self._publish_clock else None
+        self._speed_pub = self._battery_pub = None
+        if self._body is not None:
+            self._swimmer = FreeSwimmer(self._body, self._fin.L, self._battery, self._speed_noise, self._seed)
+            self._speed_pub = self.create_lifecycle_publisher(Float64, TOPIC_SPEED, QOS_COMMAND)
+            if self._battery is not None:
+                self._battery_pub = self.create_lifecycle_publisher(BatteryState, TOPIC_BATTERY, QOS_COMMAND)
+            self.get_logger().info(
+                f"swimming: body {self._body.name} ({self._body.mass_kg:g} kg, {self._body.fins} fin(s))"
+                + (
+                    f", battery {self._battery.name} ({self._battery.capacity_ah * 1e3:g} mA h)"
+                    if self._battery
+                    else ""
+                )
+            )
         watchdog = self._rig.drive.limits.command_timeout_s
         if watchdog > self._limits.command_timeout_s:
             self.get_logger().info(
@@ -236,6 +292,11 @@ class FinSim(LifecycleNode):
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
         for pub in self._pubs.values():
             self.destroy_lifecycle_publisher(pub)  # type: ignore[arg-type]
+        for pub in (self._speed_pub, self._battery_pub):
+            if pub is not None:
+                self.destroy_lifecycle_publisher(pub)  # type: ignore[arg-type]
+        self._speed_pub = self._battery_pub = None
+        self._swimmer = None
         self._pubs = {}
         self._rig = None
         return TransitionCallbackReturn.SUCCESS
@@ -310,6 +371,9 @@ class FinSim(LifecycleNode):
     def _on_command(self, msg: Float64MultiArray) -> None:
         if self._rig is None or not self._running:
             self._log_command("ignored: fin_sim is not active (the drive stays at 0 V)")
+            return
+        if self.battery_empty:
+            self._log_command("ignored: the battery is empty (the drive stays at 0 V)")
             return
         try:
             cmd = msg_block(msg, expect=COMMAND_FIELDS)
@@ -433,6 +497,44 @@ class FinSim(LifecycleNode):
             self._pubs[topic].publish(block_msg(block))  # type: ignore[attr-defined]
             self.published[topic] += n
         self.blocks_published += 1
+        if self._swimmer is not None:
+            self._swim(b, n)
+
+    def _swim(self, b: RigBlock, n: int) -> None:
+        """The body and the battery after this block (:class:`~piezofin_ros.rig.fish.FreeSwimmer`)."""
+        rig, fish = self._rig, self._swimmer
+        assert rig is not None and fish is not None and self._speed_pub is not None
+        supply = float(np.mean(b.supply_voltage * b.supply_current))
+        fish.advance(
+            n / self._rig_config.sample_rate_hz, float(np.mean(b.thrust_true)), rig.drive.frequency_hz, supply
+        )
+        rig.swim_speed_m_s = fish.speed_m_s
+        self._speed_pub.publish(Float64(data=fish.speed_reading()))  # type: ignore[attr-defined]
+        if self._battery_pub is None:
+            return
+        t = float(b.t[-1])
+        r = fish.reading()
+        if t - self._battery_said_t >= 1.0 or (r.empty and not self.battery_empty):
+            self._battery_said_t = t
+            msg = BatteryState()
+            msg.header.stamp = Time(nanoseconds=round(t * 1e9)).to_msg()
+            msg.voltage, msg.current = float(r.voltage_v), -float(r.current_a)  # (negative: discharging)
+            msg.charge, msg.capacity, msg.design_capacity = r.charge_ah, r.capacity_ah, r.capacity_ah
+            msg.percentage = float(r.percentage)
+            msg.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+            msg.power_supply_technology = BatteryState.POWER_SUPPLY_TECHNOLOGY_LION
+            msg.power_supply_health = (
+                BatteryState.POWER_SUPPLY_HEALTH_DEAD if r.empty else BatteryState.POWER_SUPPLY_HEALTH_GOOD
+            )
+            msg.present = True
+            self._battery_pub.publish(msg)  # type: ignore[attr-defined]
+        if r.empty and not self.battery_empty:
+            self.battery_empty = True
+            self.get_logger().error(
+                f"the battery is empty ({r.voltage_v:.2f} V under load, {fish.distance_m:.0f} m swum on "
+                f"{fish.energy_j / 3600:.2f} W h): the drive stops and takes no command"
+            )
+            rig.stop()
 
     def _ramp_down(self, why: str) -> None:
         rig = self._rig

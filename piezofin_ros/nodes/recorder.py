@@ -33,11 +33,13 @@ from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
     QOS_DATA,
+    TOPIC_BATTERY,
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
     TOPIC_LOADCELL,
+    TOPIC_LOOP_STATUS,
     TOPIC_SPEED,
     TOPIC_STATUS,
     TOPIC_SUPPLY,
@@ -60,6 +62,8 @@ SUITE_TOPICS = {
     TOPIC_SPEED: "std_msgs/msg/Float64",
     TOPIC_STATUS: "std_msgs/msg/String",
     TOPIC_DEMAND: "std_msgs/msg/Float64",
+    TOPIC_BATTERY: "sensor_msgs/msg/BatteryState",
+    TOPIC_LOOP_STATUS: "std_msgs/msg/String",
 }
 GLOBAL_TOPICS = {"/clock": "rosgraph_msgs/msg/Clock"}
 

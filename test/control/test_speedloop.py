@@ -41,6 +41,8 @@ def swim(
         reading = sensor(t, u + noise * rng.standard_normal())
         if reading is not None:
             loop.measure(t, reading)
+        if k % 50 == 0:  # the estimator's windows: the thrust the fin gives
+            loop.estimate(t, thrust)
         demand = loop.update(t)
         thrust += (demand - thrust) * DT / lag_s
         u += DT * truth.acceleration(u, thrust, 1e6, 1.0)
@@ -57,16 +59,60 @@ def settled_after(t: np.ndarray, u: np.ndarray, target: float, t0: float, tol: f
     return float(t[sel][np.flatnonzero(out)[-1]] - t0 + DT)
 
 
-@pytest.mark.parametrize("drag_error", [1.0, 1.3, 0.7])
-def test_steps_settle_within_5_percent_in_30_s_even_with_a_wrong_drag_law(drag_error: float) -> None:
+#: A loop tuned for a controller that meets a new demand within seconds (not the default, which
+#: waits out the optimiser's trials): the body's damping as gain, an 8 s integral.
+FAST = SpeedLoopConfig(kp_n_per_m_s=1000 * 1.88e-3 * 0.05, ti_s=8.0)  # rho C_D S U at 5 cm/s
+
+
+@pytest.mark.parametrize(
+    ("drag_error", "config", "within_s"),
+    [
+        (1.0, SpeedLoopConfig(), 30.0),  # the drag law right: the feed-forward alone, the issue's 30 s
+        (1.3, SpeedLoopConfig(), 120.0),  # 30 % off: the cautious integral takes longer
+        (0.7, SpeedLoopConfig(), 120.0),
+        (1.3, FAST, 30.0),  # tuned for a fast actuator: 30 s with the law 30 % off either way
+        (0.7, FAST, 30.0),
+    ],
+    ids=["right", "drag+30%", "drag-30%", "drag+30%-fast", "drag-30%-fast"],
+)
+def test_steps_settle_within_5_percent(drag_error: float, config: SpeedLoopConfig, within_s: float) -> None:
+    """Steps up and down, the controller meeting each new demand within 2 s (first-order lag)."""
     body = load_body("mfc-fish")
     truth = dataclasses.replace(body, drag_area_m2=body.drag_area_m2 * drag_error)
-    loop = SpeedLoop(body)
-    t, u, d = swim(loop, truth, [(0.0, 0.06), (60.0, 0.04)], 120.0)
-    assert settled_after(t[t < 60], u[t < 60], 0.06, 0.0) <= 30.0
-    assert settled_after(t, u, 0.04, 60.0) <= 30.0
-    assert np.all((d >= 0) & (d <= loop.config.max_demand_n))
+    loop = SpeedLoop(body, config)
+    step = within_s + 30.0
+    t, u, d = swim(loop, truth, [(0.0, 0.06), (step, 0.04)], 2 * step)
+    assert settled_after(t[t < step], u[t < step], 0.06, 0.0) <= within_s
+    assert settled_after(t, u, 0.04, step) <= within_s
+    assert np.all((d >= loop.config.min_demand_n) & (d <= loop.config.max_demand_n))
     assert "holding 0.04 m/s" in loop.state
+
+
+@pytest.mark.parametrize("drag_error", [1.0, 1.3, 0.7])
+def test_behind_the_optimisers_trials_the_loop_does_not_oscillate(drag_error: float) -> None:
+    """The live fish: the controller meets a new demand only from its next 30 s trial (and then with
+    the fin's own 3 s), the fin gives at most 5.3 mN.  The default loop settles within 5 % and stays
+    there (before: a limit cycle between 1.5 and 7.5 cm/s in the live stack)."""
+    body = load_body("mfc-fish")
+    truth = dataclasses.replace(body, drag_area_m2=body.drag_area_m2 * drag_error)
+    loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.008))
+    loop.set_setpoint(0.05)
+    rng = np.random.default_rng(0)
+    u = thrust = held = 0.0
+    next_trial, speeds = 0.0, []
+    for k in range(int(600.0 / DT)):
+        t = k * DT
+        loop.measure(t, u + 0.002 * rng.standard_normal())
+        demand = loop.update(t)
+        if t >= next_trial:
+            held, next_trial = min(demand, 0.0053), t + 30.0
+        thrust += (held - thrust) * DT / 3.0
+        if k % 50 == 0:
+            loop.estimate(t, thrust)
+        u += DT * truth.acceleration(u, thrust, 1e6, 1.0)
+        speeds.append(u)
+    late = np.array(speeds[-int(200.0 / DT) :])
+    assert np.all(np.abs(late / 0.05 - 1) <= 0.05), (late.min(), late.max())
 
 
 def test_an_unreachable_set_point_is_said_and_the_demand_stays_allowed() -> None:
@@ -110,10 +156,28 @@ def test_whatever_it_reads_the_demand_stays_within_its_bounds(readings, setpoint
     for k, r in enumerate(readings):
         loop.measure(0.1 * k, r)
         d = loop.update(0.1 * k)
-        assert 0.0 <= d <= 0.004 and math.isfinite(d)
+        assert (0.0 if setpoint == 0 else 1e-4) <= d <= 0.004 and math.isfinite(d)
 
 
 @pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf])
 def test_a_set_point_that_is_no_speed_is_refused(bad: float) -> None:
     with pytest.raises(ControlError, match="set-point"):
         SpeedLoop(Body()).set_setpoint(bad)
+
+
+def test_a_fin_that_cannot_give_the_demand_is_no_lying_sensor() -> None:
+    """The demand asks more than the fin gives (the live fish at 8 mN, its fin 5.3 mN at most): the
+    speed the estimated thrust gives is what the sensor is judged against, so nothing is blamed."""
+    body = load_body("mfc-fish")
+    loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.008))
+    capped = dataclasses.replace(body)  # the same body, its fin capped below
+    rng = np.random.default_rng(1)
+    u = 0.0
+    loop.set_setpoint(0.09)
+    for k in range(2000):
+        t = 0.1 * k
+        loop.measure(t, u + 0.002 * rng.standard_normal())
+        thrust = min(loop.update(t), 0.0053)
+        loop.estimate(t, thrust)
+        u += 0.1 * capped.acceleration(u, thrust, 1e6, 1.0)
+    assert "lies" not in loop.state and "at the most thrust allowed" in loop.state

@@ -79,6 +79,49 @@ def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
     assert summary is not None and summary.statistics.message_count > 100
 
 
+def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """Issue 27's example, as a user runs it: `ros2 launch piezofin_ros fish.launch.py`, each node in
+    its own process; the set-point set live with `ros2 param set` (a speed that is no speed and any
+    other parameter refused), the battery read with `ros2 topic echo`; the bag holds the speed, the
+    demand and the battery, and the fish swam."""
+    from piezofin_ros.bags import decode, read_messages
+
+    launch = Launch(ros_env, tmp_path, "realtime_factor:=10", "speed_m_s:=0.04", file="fish.launch.py")
+    fish = {"/fish/fin_sim", "/fish/thrust_estimator", "/fish/controller", "/fish/speed_loop", "/recorder"}
+    try:
+        launch.wait_for("swimming: body mfc-fish", 60.0)
+        launch.wait_for("set-point 0.04 m/s", 60.0)
+        nodes = node_list(ros_env, fish)
+        assert fish <= nodes, nodes
+        taken = ros2(ros_env, "param", "set", "/fish/speed_loop", "speed_m_s", "0.06", "--spin-time", "3")
+        assert "Set parameter successful" in taken.stdout, taken.stdout + taken.stderr
+        launch.wait_for("set-point 0.06 m/s", 30.0)
+        for name, value in (("speed_m_s", "-1.0"), ("speed_m_s", "nan"), ("loop.max_demand_n", "1.0")):
+            refused = ros2(ros_env, "param", "set", "/fish/speed_loop", name, value, "--spin-time", "3")
+            assert "Set parameter successful" not in refused.stdout, (name, value, refused.stdout)
+        battery = ros2(ros_env, "topic", "echo", "--once", "/fish/battery", timeout=60.0)
+        assert "percentage:" in battery.stdout and "voltage:" in battery.stdout, (
+            battery.stdout + battery.stderr
+        )
+        launch.wait_for("trial", 60.0)  # the estimator's first window: the fin is driven
+        time.sleep(10.0)  # 100 s of fish time
+        assert launch.proc.poll() is None
+    finally:
+        out = launch.interrupt()
+    assert "[ERROR]" not in out and "Traceback" not in out, out[-3000:]
+    assert out.count("process has finished cleanly") == 5, out[-3000:]
+    bag = next((tmp_path / "bags").glob("piezofin_*.mcap"))
+    counts: dict[str, int] = {}
+    speeds = []
+    for m in read_messages(bag, ["/fish/swim_speed", "/fish/thrust_demand", "/fish/battery"]):
+        counts[m.topic] = counts.get(m.topic, 0) + 1
+        if m.topic == "/fish/swim_speed":
+            speeds.append(float(decode(m.type_name, m.data).data))
+    assert counts.get("/fish/swim_speed", 0) > 100 and counts.get("/fish/battery", 0) > 10, counts
+    assert counts.get("/fish/thrust_demand", 0) > 3, counts
+    assert max(speeds) > 0.01, max(speeds)  # it swam
+
+
 def test_launch_without_the_simulator_and_with_a_layered_params_file(
     ros_env: dict[str, str], tmp_path: Path
 ) -> None:
@@ -122,6 +165,36 @@ def test_ros2_run_refuses_an_impossible_amplifier(ros_env: dict[str, str], tmp_p
         out = run.stderr + run.stdout
         assert run.returncode != 0, out
         assert "parameter amplifier: " in out and words in out and "Traceback" not in out, out
+
+
+def test_ros2_run_refuses_an_impossible_body_or_battery(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """Issue 27: a body of negative mass, a battery of no capacity, a battery with no body to carry
+    it, an unknown preset: `fin_sim` and `speed_loop` stop with one line naming the parameter."""
+    (tmp_path / "body.yaml").write_text("mass_kg: -1\n")
+    (tmp_path / "battery.yaml").write_text("capacity_ah: 0\n")
+    cases = [
+        ("fin_sim", ("-p", f"body:={tmp_path / 'body.yaml'}"), "parameter body: ", "mass_kg"),
+        (
+            "fin_sim",
+            ("-p", "body:=mfc-fish", "-p", f"battery:={tmp_path / 'battery.yaml'}"),
+            "parameter battery: ",
+            "capacity_ah",
+        ),
+        ("fin_sim", ("-p", "battery:=li-ion-2s-500mah"), "parameter battery: ", "needs a body"),
+        ("fin_sim", ("-p", "body:=no-such-body"), "parameter body: ", "mfc-fish"),
+        ("speed_loop", ("-p", f"body:={tmp_path / 'body.yaml'}"), "mass_kg", "body.yaml"),
+        (
+            "speed_loop",
+            ("-p", "loop.min_demand_n:=0.5", "-p", "loop.max_demand_n:=0.1"),
+            "min_demand_n",
+            "below",
+        ),
+    ]
+    for node, args, said, words in cases:
+        run = ros2(ros_env, "run", "piezofin_ros", node, "--ros-args", *args)
+        out = run.stderr + run.stdout
+        assert run.returncode != 0, out
+        assert said in out and words in out and "Traceback" not in out, (node, args, out)
 
 
 def test_ros2_run_estimator_with_a_model_file(ros_env: dict[str, str], tmp_path: Path) -> None:

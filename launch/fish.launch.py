@@ -1,0 +1,87 @@
+"""Launch a fish on the suite (``ros2 launch piezofin_ros fish.launch.py``): the example to copy.
+
+One fin in the namespace ``fish``: ``fin_sim`` as a free-swimming body with its battery (replace it
+with the fish's drive electronics, which publish ``drive``, ``swim_speed`` and ``battery``), the
+``thrust_estimator`` on the drive alone, the optimising ``controller`` in supply watts, the
+``speed_loop`` that turns a speed set-point into the controller's thrust demand, and the
+``recorder``.  Parameters: the package's ``config/bringup.yaml``, then ``config/fish.yaml``, then
+``params_file:=...``.
+
+    ros2 launch piezofin_ros fish.launch.py realtime_factor:=10 speed_m_s:=0.05
+    ros2 param set /fish/speed_loop speed_m_s 0.07
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+NAMESPACE = "fish"
+#: Each data topic's readers before fin_sim's first sample: the estimator and the recorder.
+CONSUMERS = 2
+
+
+def _nodes(context, *args, **kwargs):
+    config = os.path.join(get_package_share_directory("piezofin_ros"), "config")
+    files = [os.path.join(config, "bringup.yaml"), os.path.join(config, "fish.yaml")]
+    extra = LaunchConfiguration("params_file").perform(context)
+    files += [extra] if extra else []
+    factor = float(LaunchConfiguration("realtime_factor").perform(context))
+    speed = float(LaunchConfiguration("speed_m_s").perform(context))
+    use_sim_time = factor != 1.0
+    sim = {
+        "autostart": True,
+        "realtime_factor": factor,
+        "publish_clock": use_sim_time,
+        "wait_subscribers": CONSUMERS,
+    }
+    nodes = [
+        Node(
+            package="piezofin_ros",
+            executable="fin_sim",
+            name="fin_sim",
+            namespace=NAMESPACE,
+            parameters=[*files, sim],
+            output="screen",
+        )
+    ]
+    for exe in ("thrust_estimator", "controller", "speed_loop"):
+        own = {"use_sim_time": use_sim_time}
+        if exe == "speed_loop":
+            own["speed_m_s"] = speed
+        nodes.append(
+            Node(
+                package="piezofin_ros",
+                executable=exe,
+                name=exe,
+                namespace=NAMESPACE,
+                parameters=[*files, own],
+                output="screen",
+            )
+        )
+    nodes.append(
+        Node(
+            package="piezofin_ros",
+            executable="recorder",
+            name="recorder",
+            parameters=[*files, {"namespaces": [NAMESPACE], "use_sim_time": use_sim_time}],
+            output="screen",
+        )
+    )
+    return nodes
+
+
+def generate_launch_description():
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "params_file", default_value="", description="a parameter file layered on top"
+            ),
+            DeclareLaunchArgument("realtime_factor", default_value="1.0", description="fin_sim speed"),
+            DeclareLaunchArgument("speed_m_s", default_value="0.06", description="the speed set-point, m/s"),
+            OpaqueFunction(function=_nodes),
+        ]
+    )

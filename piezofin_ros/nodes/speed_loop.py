@@ -1,0 +1,151 @@
+"""``speed_loop``: a fish's speed set-point to the optimising controller's thrust demand.
+
+Subscribes ``swim_speed`` (std_msgs/Float64, m/s: the fish's speed sensor) and publishes
+``thrust_demand`` (std_msgs/Float64, N per fin) at ``rate_hz`` on the node's clock, with what it is
+doing on ``speed_loop/status`` (std_msgs/String).  The set-point is the parameter ``speed_m_s``,
+settable live (``ros2 param set /fish/speed_loop speed_m_s 0.06``); everything else is fixed at
+start.  The loop itself is :class:`~piezofin_ros.control.speedloop.SpeedLoop`: feed-forward through
+the body's drag law, feedback on the measured speed, the demand never above ``loop.max_demand_n``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64, Float64MultiArray, String
+
+from ..bags.blocks import BlockFormatError
+from ..config import setting
+from ..control.speedloop import SpeedLoop, SpeedLoopConfig
+from ..errors import PiezofinError
+from ..physics.swim import load_body
+from ._common import (
+    QOS_COMMAND,
+    QOS_DATA,
+    TOPIC_DEMAND,
+    TOPIC_ESTIMATE,
+    TOPIC_LOOP_STATUS,
+    TOPIC_SPEED,
+    StartupError,
+    declare,
+    freeze_parameters,
+    msg_block,
+    run_node,
+)
+
+
+@dataclass(frozen=True)
+class SpeedLoopNodeConfig:
+    """``speed_loop``'s own parameters (and ``loop.*`` from :class:`SpeedLoopConfig`)."""
+
+    body: str = setting("mfc-fish", "the fish's body (preset or YAML): its drag law is the feed-forward")
+    speed_m_s: float = setting(0.0, "speed set-point, m/s (settable live; 0: no thrust asked)", 0.0, 10.0)
+    rate_hz: float = setting(10.0, "how often the loop runs, Hz (node clock)", 0.5, 100.0)
+    deadband: float = setting(
+        0.03,
+        "a demand is published when it moves by more than this (relative; and at least every 5 s): the "
+        "controller's optimiser learns from whole trials, which a demand that never rests would starve",
+        0.0,
+        1.0,
+    )
+
+
+class SpeedLoopNode(Node):
+    """The speed loop on the live topics."""
+
+    def __init__(self, *, context: Context | None = None, node_name: str = "speed_loop", **kwargs: object):
+        super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
+        own = declare(self, SpeedLoopNodeConfig)
+        try:
+            body = load_body(own.body)
+            self.loop = SpeedLoop(body, declare(self, SpeedLoopConfig, "loop"))
+        except PiezofinError as exc:
+            raise StartupError(str(exc)) from None
+        freeze_parameters(self, "speed_m_s", self._on_setpoint)
+        self._pub = self.create_publisher(Float64, TOPIC_DEMAND, QOS_COMMAND)
+        self._status = self.create_publisher(String, TOPIC_LOOP_STATUS, QOS_COMMAND)
+        self.create_subscription(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
+        self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
+        self.create_timer(1.0 / own.rate_hz, self._tick)
+        self.refused = 0
+        self._said = ""
+        self._deadband = own.deadband
+        self._published = (-math.inf, math.nan)  # (time, demand) last published
+        self.get_logger().info(
+            f"body {body.name}: {body.mass_kg:g} kg, drag area {body.drag_area_m2:g} m^2, "
+            f"{body.fins} fin(s); "
+            f"at most {self.loop.config.max_demand_n * 1e3:g} mN per fin on "
+            f"{self.resolve_topic_name(TOPIC_DEMAND)}, fastest {self.loop.fastest_m_s():.3g} m/s"
+        )
+        self._set(own.speed_m_s)
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _set(self, speed: float) -> None:
+        said = self.loop.set_setpoint(speed)
+        if said:
+            self.get_logger().warning(said)
+        else:
+            self.get_logger().info(f"set-point {speed:.3g} m/s")
+
+    def _on_setpoint(self, params: list[Parameter]) -> str | None:
+        value = params[-1].value
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+            or value < 0
+        ):
+            return f"speed_m_s {value!r}: a finite speed >= 0 m/s"
+        self._set(float(value))
+        return None
+
+    def _on_speed(self, msg: Float64) -> None:
+        if not self.loop.measure(self._now(), float(msg.data)):
+            self.refused += 1
+            self.get_logger().warning(
+                f"refused a speed reading of {msg.data!r} m/s (not a finite speed)", throttle_duration_sec=5.0
+            )
+
+    def _on_estimate(self, msg: Float64MultiArray) -> None:
+        """The fin's thrust as the estimator gives it (self-sensed on a fish): what a speed reading is
+        judged against."""
+        try:
+            block = msg_block(msg)
+            names = block.names
+            thrust = block.scalar("thrust_self_n") if "thrust_self_n" in names else math.nan
+            if not math.isfinite(thrust) and "thrust_n" in names:
+                thrust = block.scalar("thrust_n")
+        except (BlockFormatError, KeyError, IndexError):
+            return
+        self.loop.estimate(self._now(), thrust)
+
+    def _tick(self) -> None:
+        t = self._now()
+        if t == 0.0:
+            return  # use_sim_time and no /clock yet
+        demand = self.loop.update(t)
+        t_last, last = self._published
+        moved = not abs(demand - last) <= self._deadband * max(abs(last), 1e-4)  # (NaN: never published)
+        if moved or t - t_last >= 5.0:
+            self._pub.publish(Float64(data=demand))
+            self._published = (t, demand)
+            self._status.publish(String(data=self.loop.state))
+        kind = self.loop.state.split(":")[0].split("(")[0].strip()
+        if kind != self._said:  # a new kind of state: said, at most every 5 s of wall time
+            self.get_logger().info(self.loop.state, throttle_duration_sec=5.0)
+            self._said = kind
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda ctx: SpeedLoopNode(context=ctx), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
