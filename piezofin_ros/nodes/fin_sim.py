@@ -219,12 +219,18 @@ class FinSim(LifecycleNode):
                 self._fin = model.fin
                 if self._medium != "water":
                     raise ModelError("medium:=air takes a fin (parameter fin), not an augmented model")
-            if self._body is not None and self._medium != "water":
-                raise ModelError("a body (parameter body) swims in water: not with medium:=air")
             else:
                 self._fin = in_medium(load_fin(self._fin_name), self._medium)
+            if self._body is not None and self._medium != "water":
+                raise ModelError("a body swims in water, not with medium:=air")
         except (FinConfigError, ModelError) as exc:
-            key = "model" if self._model_path else "fin"
+            key = (
+                "body"
+                if self._body is not None and self._medium != "water"
+                else "model"
+                if self._model_path
+                else "fin"
+            )
             self.get_logger().error(f"cannot configure (parameter {key}): {exc}")
             return TransitionCallbackReturn.FAILURE
         t0 = self._start_time or self.get_clock().now().nanoseconds * 1e-9
