@@ -70,7 +70,8 @@ class TestTwoFins(unittest.TestCase):
         self.spin(120.0, until=lambda: all(estimates.values()))
         assert all(estimates.values()), f"estimates per fin: {estimates}"
         first_times = {ns: [] for ns in NAMESPACES}  # a fresh window of blocks from both fins
-        self.spin(5.0)
+        # (50 blocks of each: 5 s at x10 on an idle machine; a loaded one runs the suite slower)
+        self.spin(60.0, until=lambda: all(len(first_times[ns]) > 50 for ns in NAMESPACES))
 
         nodes = {f"{ns.rstrip('/')}/{n}" for n, ns in self.node.get_node_names_and_namespaces()}
         for ns in NAMESPACES:
@@ -84,7 +85,7 @@ class TestTwoFins(unittest.TestCase):
 
         # one clock: both fins publish blocks on one time grid, block for block
         left, right = (set(first_times[ns]) for ns in NAMESPACES)
-        assert len(left) > 50, "blocks received in 5 s at x10"
+        assert len(left) > 50, "blocks received in 60 s at x10"
         common = left & right
         assert len(common) >= min(len(left), len(right)) - 4, (sorted(left)[:5], sorted(right)[:5])
         for sub in subs:
