@@ -302,8 +302,7 @@ def test_identify_corrects_a_rig_of_the_other_sign_and_refuses_swapped_sweeps(
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr
     untrusted = [line for line in proc.stdout.splitlines() if line.startswith("NOT TRUSTED: ")]
-    assert untrusted and "swapped" in untrusted[0], proc.stdout
-    assert any("is the fit's bound, not an estimate" in line for line in untrusted), untrusted
+    assert untrusted and "swapped" in untrusted[0], proc.stdout  # (bounds: test_identification.py)
     assert "no fin file written" in proc.stderr and not (tmp_path / "swapped.yaml").exists()
     proc = run("identify", *swapped, "-o", str(tmp_path / "swapped.yaml"), "--accept-poor-fit")
     assert proc.returncode == 3, proc.stderr
