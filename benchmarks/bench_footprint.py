@@ -3,8 +3,8 @@
     python benchmarks/bench_footprint.py [--seconds 60] [--source self]
 
 ``fin_sim`` streams at 1 kHz in real time (its 50-sample blocks, 20 per second per topic) in its
-own process; ``thrust_estimator`` and ``controller`` (``mode:=optimise``) run as ``ros2 run`` starts
-them, each in its own process.  The baseline, in the same run: the least a competent user would
+own process; ``thrust_estimator``, ``controller`` (``mode:=optimise``) and ``speed_loop`` (a
+set-point, 10 Hz) run as ``ros2 run`` starts them, each in its own process.  The baseline, in the same run: the least a competent user would
 write, an rclpy node that subscribes the same drive topic and does nothing with it.  Measured from
 ``/proc``: CPU time over ``--seconds`` after a warm-up, the resident set at the end and its peak.
 
@@ -91,7 +91,7 @@ def stop(*procs: subprocess.Popen[bytes]) -> None:
 
 
 def measure(seconds: float = 60.0, warmup_s: float = 15.0, source: str = "self") -> list[Footprint]:
-    """The footprints of the two nodes and of the baseline, measured together in one run."""
+    """The footprints of the three nodes and of the baseline, measured together in one run."""
     ns = f"/footprint{os.getpid()}"
     ros = ["--ros-args", "-r", f"__ns:={ns}"]
     sim = start([str(BIN / "fin_sim"), *ros, "-p", "realtime_factor:=1.0"])
@@ -109,6 +109,7 @@ def measure(seconds: float = 60.0, warmup_s: float = 15.0, source: str = "self")
                 "demand_n:=0.002",
             ]
         ),
+        "speed_loop": start([str(BIN / "speed_loop"), *ros, "-p", "speed_m_s:=0.05"]),
         "bare rclpy subscriber (baseline)": start([sys.executable, "-c", BASELINE.format(ns=ns)]),
     }
     try:
@@ -140,7 +141,7 @@ def main() -> int:
     print("|---|---|---|---|")
     for r in rows:
         print(r.row())
-    ok = all(r.cpu_percent < CPU_GOAL and r.peak_mb < RSS_GOAL_MB for r in rows[:2])
+    ok = all(r.cpu_percent < CPU_GOAL and r.peak_mb < RSS_GOAL_MB for r in rows[:3])
     print(f"goal (< {CPU_GOAL:g} % of a core, < {RSS_GOAL_MB:g} MB): {'met' if ok else 'MISSED'}")
     return 0 if ok else 1
 

@@ -24,9 +24,16 @@ class DriveLoop:
     Stopped for want of estimates, it tries the drive again after ``retry_s`` (doubling each time
     up to 8 times that, back to ``retry_s`` once an estimate comes): the off-commands it sent while
     stopped re-arm a rig whose watchdog tripped (a heartbeat that stalled), which would otherwise
-    give no estimate ever again.  ``halted`` (a finished run) never retries.  Demands are taken at
-    most once per ``demand_hold_s``, the latest one, and at most one waits for the fit's thread: a
-    flood of them is a fit a second, not a fit per message.
+    give no estimate ever again.  ``halted`` (a finished run) never retries.
+
+    Demands are taken at most once per ``demand_hold_s``, the latest one, and at most one waits for
+    the fit's thread: a flood of them is a fit a second, not a fit per message.  And a demand waits
+    for the trial it would cut short: once one is taken, the next is taken after a trial has been
+    learnt (and none is half-measured), unless it moves the demand by more than ``demand_jump``
+    (a new set-point) or has waited ``demand_wait_s``.  A speed loop's demand moves all the time
+    (its feedback on a noisy speed); taken at once, each new demand moved the drive to a new point
+    before its trial ended, no trial was ever learnt, and the optimiser held its first guess (the
+    fish of issue 27 swam at 3.4 cm/s for 700 s when asked for 5).
     """
 
     optimiser: Optimiser
@@ -60,6 +67,13 @@ class DriveLoop:
     #: a demand is taken at most once per this much time (the latest one): a demand that flips
     #: faster than a trial would move the drive every fit and teach the optimiser nothing
     demand_hold_s: float = 1.0
+    #: a demand this far (relative) from the one in force is taken without waiting for a trial
+    demand_jump: float = 0.25
+    #: nor one that has waited this long for a trial to end, s
+    demand_wait_s: float = 20.0
+    _demand_since: float | None = None  # when the demand waiting was first wanted
+    _demand_trials: int = -1  # trials learnt when the last demand was taken
+    _demand_in_force: float | None = None
     _demand_due: bool = False
     _demand_taken_t: float = -math.inf
     _waiting: tuple[Any, ...] | None = None  # a trial that agreed while a fit ran: learnt next
@@ -167,26 +181,46 @@ class DriveLoop:
         return True
 
     def set_demand(self, demand_n: float | None) -> None:
-        """A new demand: taken by the fit's thread after the running fit (never beside it).  Demands
-        that come faster than the fits are coalesced: the one waiting takes the latest."""
-        if self.background:
-            self._demand_wanted = demand_n
-            self._demand_due = True  # (the heartbeat submits it: _submit_demand)
-        else:
-            self._demand(demand_n)
+        """A new demand: taken by the heartbeat (:meth:`tick`) when it is due (class docstring), by
+        the fit's thread after the running fit (never beside it).  Demands that come faster than they
+        are taken are coalesced: the one waiting takes the latest.  The first is taken at once."""
+        if demand_n is not None and not math.isfinite(demand_n):
+            return  # (as the optimiser: ignored)
+        self._demand_wanted = demand_n if demand_n is not None and demand_n > 0 else None
+        self._demand_due = True
+        if not self.background and self._demand_trials < 0:
+            self._submit_demand(self._t_last if self._t_last is not None else 0.0)
             self._take_next()
 
+    def _demand_ready(self, t: float) -> bool:
+        """Whether the demand waiting may be taken now (class docstring)."""
+        if not self._demand_due or self._demand_queued or t - self._demand_taken_t < self.demand_hold_s:
+            return False
+        if self._demand_since is None:
+            self._demand_since = t
+        new, old = self._demand_wanted, self._demand_in_force
+        jump = (new is None) != (old is None) or (
+            new is not None and old is not None and abs(new / old - 1.0) > self.demand_jump
+        )
+        between = self.trials > self._demand_trials and not self._windows
+        return self._demand_trials < 0 or jump or between or t - self._demand_since >= self.demand_wait_s
+
     def _submit_demand(self, t: float) -> None:
-        """The trial waiting, else the latest demand (once ``demand_hold_s`` has passed since the
-        last), to the fit's thread."""
+        """The trial waiting, else the latest demand when it is due, to the fit's thread (or at once,
+        without one)."""
         if self._waiting is not None:  # (no demand goes before it)
             if all(job.done() for job in self._pending):
                 args, self._waiting = self._waiting, None
                 self._pending.append(self._worker().submit(self._learn, *args))
             return
-        if self._demand_due and not self._demand_queued and t - self._demand_taken_t >= self.demand_hold_s:
-            self._demand_due, self._demand_queued, self._demand_taken_t = False, True, t
-            self._pending.append(self._worker().submit(self._latest_demand))
+        if self._demand_ready(t):
+            self._demand_due, self._demand_taken_t, self._demand_since = False, t, None
+            self._demand_trials, self._demand_in_force = self.trials, self._demand_wanted
+            if self.background:
+                self._demand_queued = True
+                self._pending.append(self._worker().submit(self._latest_demand))
+            else:
+                self._demand(self._demand_wanted)
 
     def _latest_demand(self) -> None:
         self._demand_queued = False  # (a demand set from now on queues a new fit)

@@ -18,7 +18,8 @@ power (plus the hotel load) gives the range.  The strategies:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,8 +43,9 @@ class Fish:
     amplifier: Amplifier
     voltage_pp_max: float = 800.0
 
-    def at(self, frequency_hz: FloatArray, voltage_pp: FloatArray) -> dict[str, FloatArray]:
-        """Everything a strategy is judged by, at these (broadcast) points."""
+    def at(self, frequency_hz: FloatArray, voltage_pp: FloatArray, ranges: bool = True) -> dict[str, FloatArray]:
+        """Everything a strategy is judged by, at these (broadcast) points (``ranges=False``: without
+        the range, which integrates the battery's discharge at each point)."""
         f, v = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
         p = self.model.predict(f, v)
         n = self.body.fins
@@ -51,7 +53,7 @@ class Fish:
         speed = self.body.steady_speed(thrust0, f, self.model.fin.L)
         fin_w = n * np.asarray(p.power_w, float)
         supply_w = n * self.amplifier.steady(p.voltage_pp_drive, p.current_rms, p.power_w)
-        rng = self.battery.range_m(supply_w, speed)
+        rng = self.battery.range_m(supply_w, speed) if ranges else np.full(speed.shape, np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
             energy = np.where(speed > 0, (supply_w + self.battery.hotel_w) / speed, np.inf)
         return {
@@ -87,7 +89,7 @@ class Fish:
         """The point of the grid with the longest range, the power counted in ``watt`` (``supply``
         or ``fin``); the range reported is always the battery's."""
         f, v = np.meshgrid(np.asarray(frequencies, float), np.asarray(voltages, float), indexing="ij")
-        m = self.at(f, v)
+        m = self.at(f, v, ranges=False)  # (the range ranks as speed per watt drawn: one range, at the best)
         power = m["supply_w"] if watt == "supply" else m["fin_w"]
         with np.errstate(divide="ignore", invalid="ignore"):
             objective = np.where(m["speed_m_s"] > 0, m["speed_m_s"] / (power + self.battery.hotel_w), -np.inf)
@@ -111,3 +113,30 @@ class Fish:
             "paper (5.5 Hz, 800 Vpp)": self.swim(5.5, min(800.0, top)),
             "grid": self.best(np.arange(1.0, 12.0), np.array([400.0, 600.0, 800.0]), "supply"),
         }
+
+    def fixed_draw_for(self, gain: float = 0.3) -> float:
+        """The fixed draw (the hotel load and the amplifier's quiescent draw together, W) below which
+        the ``range`` strategy goes ``gain`` further than ``resonance, full voltage``; NaN if it does
+        even at 10 W (bisection in log, to 2 %).
+
+        Above it the fixed draw dominates: the distance per joule grows with the speed, and the
+        longest range is the fastest drive, whatever the fins' own watts."""
+        dense = np.geomspace(1.0, 30.0, 240)
+        volts = np.arange(50.0, self.voltage_pp_max + 1e-9, 25.0)
+        top = self.voltage_pp_max
+        quiet = replace(self.amplifier, quiescent_w=0.0)
+
+        def beyond(fixed_w: float) -> float:
+            fish = replace(self, battery=replace(self.battery, hotel_w=fixed_w), amplifier=quiet)
+            best = fish.best(dense, volts, "supply").range_m
+            return best / fish.swim(fish.resonance_hz(top, dense), top).range_m - 1.0
+
+        lo, hi = math.log(1e-4), math.log(10.0)
+        if beyond(math.exp(hi)) >= gain:
+            return math.nan
+        if beyond(math.exp(lo)) < gain:
+            return 0.0
+        while hi - lo > 0.02:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if beyond(math.exp(mid)) >= gain else (lo, mid)
+        return math.exp(lo)

@@ -21,7 +21,7 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..bags.blocks import BlockFormatError
 from ..config import setting
-from ..control.speedloop import SpeedLoop, SpeedLoopConfig
+from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 from ..errors import PiezofinError
 from ..physics.swim import load_body
 from ._common import (
@@ -74,8 +74,7 @@ class SpeedLoopNode(Node):
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
         self._said = ""
-        self._deadband = own.deadband
-        self._published = (-math.inf, math.nan)  # (time, demand) last published
+        self._gate = DemandGate(own.deadband)
         self.get_logger().info(
             f"body {body.name}: {body.mass_kg:g} kg, drag area {body.drag_area_m2:g} m^2, "
             f"{body.fins} fin(s); "
@@ -131,11 +130,8 @@ class SpeedLoopNode(Node):
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         demand = self.loop.update(t)
-        t_last, last = self._published
-        moved = not abs(demand - last) <= self._deadband * max(abs(last), 1e-4)  # (NaN: never published)
-        if moved or t - t_last >= 5.0:
+        if self._gate.due(t, demand):
             self._pub.publish(Float64(data=demand))
-            self._published = (t, demand)
             self._status.publish(String(data=self.loop.state))
         kind = self.loop.state.split(":")[0].split("(")[0].strip()
         if kind != self._said:  # a new kind of state: said, at most every 5 s of wall time

@@ -45,6 +45,26 @@ def test_a_fish_on_each_paper_fin_by_strategy(tmp_path: Path) -> None:
     assert paper["speed_body_lengths_s"] == pytest.approx(0.3, rel=0.01)
 
 
+def test_the_fixed_draw_below_which_the_range_strategy_goes_30_percent_further(tmp_path: Path) -> None:
+    """Issue 27's range goal (30 % beyond the fixed drive at resonance) is a matter of the fixed draw:
+    the command names, per fin, the fixed draw below which the range strategy reaches it; run with
+    that hotel load (and the amplifier's quiescent draw in it), the table shows the gain, and 20 %
+    above it, it does not."""
+    r = json.loads(piezofin("--fins", "M8528-P1", "--json").stdout)
+    g = r["range_gain"]["M8528-P1"]
+    assert g["fixed_draw_w"] == pytest.approx(0.25 + 0.05)  # the preset's hotel and quiescent draws
+    assert 1e-3 < g["fixed_draw_below_w"] < 0.03, g  # a few mW: well below any fish's electronics
+    quiet = tmp_path / "quiet.yaml"  # the fish's amplifier without its quiescent draw
+    quiet.write_text(
+        "amplifier:\n  kind: switching\n  efficiency: 0.85\n  recovered: 0.5\n  quiescent_w: 0.0\n  bus_v: 7.4\n"
+    )
+    for scale, reached in ((0.97, True), (1.2, False)):
+        hotel = str(scale * g["fixed_draw_below_w"])
+        run = piezofin("--fins", "M8528-P1", "--hotel", hotel, "--amplifier", str(quiet), "--json")
+        gain = json.loads(run.stdout)["fins"]["M8528-P1"]["range"]["range_vs_baseline"]
+        assert (gain >= 0.3) == reached, (scale, gain)
+
+
 def test_the_watt_decides_the_range_once_the_fixed_draw_is_gone() -> None:
     """Without a hotel load, a controller that optimises the fin's mean(v i) drives the fin where it
     draws almost nothing and goes nowhere; in the battery's watt, it swims."""

@@ -13,7 +13,12 @@ HEAVY = ("numba", "llvmlite", "mcap", "zstandard", "rosbags", "scipy.signal", "s
 
 @pytest.mark.parametrize(
     ("node", "allowed"),
-    [("thrust_estimator", ()), ("controller", ()), ("recorder", ("mcap", "zstandard", "rosbags"))],
+    [
+        ("thrust_estimator", ()),
+        ("controller", ()),
+        ("speed_loop", ()),
+        ("recorder", ("mcap", "zstandard", "rosbags")),
+    ],
 )
 def test_a_node_loads_nothing_it_does_not_use(node: str, allowed: tuple[str, ...]) -> None:
     """numba (60 MB), the MCAP writer and scipy.signal are loaded only by what uses them: fin_sim
@@ -30,8 +35,8 @@ def test_a_node_loads_nothing_it_does_not_use(node: str, allowed: tuple[str, ...
 @pytest.mark.ros
 @pytest.mark.slow
 def test_estimator_and_controller_fit_a_fish_at_1_khz() -> None:
-    """`benchmarks/bench_footprint.py` for 20 s: thrust_estimator and controller (optimising, drive
-    only) beside fin_sim at 1 kHz in real time, each in its own process, each under 10 % of a core
+    """`benchmarks/bench_footprint.py` for 20 s: thrust_estimator, controller (optimising, drive
+    only) and speed_loop beside fin_sim at 1 kHz in real time, each in its own process, each under 10 % of a core
     and 120 MB resident at its peak."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from bench_footprint import CPU_GOAL, RSS_GOAL_MB, measure
@@ -39,7 +44,7 @@ def test_estimator_and_controller_fit_a_fish_at_1_khz() -> None:
     rows = measure(seconds=20.0)
     print("\n".join(r.row() for r in rows))
     nodes = {r.name: r for r in rows}
-    for name in ("thrust_estimator", "controller"):
+    for name in ("thrust_estimator", "controller", "speed_loop"):
         assert nodes[name].cpu_percent < CPU_GOAL, rows
         assert nodes[name].peak_mb < RSS_GOAL_MB, rows
         assert nodes[name].cpu_percent > 0.1, rows  # (it was running: a dead node measures nothing)

@@ -1,0 +1,205 @@
+"""The fish swims: speed against set-point, settling, energy per metre and range, per strategy.
+
+    python benchmarks/bench_fish.py [--fins M8528-P1 M8514-P1 M8507-P1] [--duration 400]
+                                    [--plot docs/fish.png] [--json out.json] [--workers 2]
+
+Each fin as the paper's twin (``config/models/paper-twin-<fin>.yaml``) carries the body
+``mfc-fish`` with the battery ``li-ion-2s-500mah`` and the amplifier ``fish-switching``, and swims
+from rest for ``--duration`` s of fish time with a set-point of 65 % of its fastest steady speed,
+stepped to 85 % halfway (:func:`~piezofin_ros.control.fishrun.swim_run`: the fish stack's science
+without ROS, the speed loop with its defaults and ``config/fish.yaml``'s 8 mN cap).  The drives
+(:data:`~piezofin_ros.control.fishrun.STRATEGIES`): the optimising controller on the drive's voltage
+and current alone, ranking by the supply watt or by the fin's ``mean(v i)``; the resonance with the
+loop's demand turned into a voltage through the model; the paper's grid measured in the tank, its
+cheapest point that meets the demand; the resonance at full voltage; the paper's 5.5 Hz / 800 Vpp.
+
+Per step, in truth: the speed's mean error over its second half, the settling time (the speed
+within 5 % of the set-point from then on), the battery's energy per metre and the range on one
+charge at that draw (the hotel load included), over the step's second half.  ``least`` is the
+fish's own bound: the range at the set-point's speed on the least supply power any point of the
+model gives it (:class:`~piezofin_ros.control.swimming.Fish`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from piezofin_ros import workers
+from piezofin_ros.control.fishrun import STRATEGIES, Trace, drive_for, swim_run
+from piezofin_ros.control.plants import Plant
+from piezofin_ros.control.speedloop import SpeedLoopConfig
+from piezofin_ros.control.swimming import Fish
+from piezofin_ros.physics.amplifier import load_amplifier
+from piezofin_ros.physics.model import load_model
+from piezofin_ros.physics.swim import load_battery, load_body
+
+FINS = ("M8528-P1", "M8514-P1", "M8507-P1")
+STEPS = (0.65, 0.85)  # of the fin's fastest steady speed
+CAP_N = 0.008  # config/fish.yaml's loop.max_demand_n
+
+
+def fish(fin: str) -> tuple[Fish, Plant]:
+    model = load_model(f"paper-twin-{fin}")
+    amp = load_amplifier("fish-switching")
+    f = Fish(model, load_body("mfc-fish"), load_battery("li-ion-2s-500mah"), amp)
+    return f, Plant(model.fin, effects=model.effects, amplifier=amp, name=fin)
+
+
+def fastest_m_s(f: Fish) -> float:
+    freqs = np.geomspace(1.0, 30.0, 400)
+    return float(np.max(f.at(freqs, np.full_like(freqs, f.voltage_pp_max), ranges=False)["speed_m_s"]))
+
+
+def least_supply_w(f: Fish, speed_m_s: float) -> float:
+    """The least supply power (all fins) at which the model's fish holds ``speed_m_s``."""
+    grid = f.at(*np.meshgrid(np.geomspace(1.0, 30.0, 300), np.linspace(50.0, f.voltage_pp_max, 300)), ranges=False)
+    ok = grid["speed_m_s"] >= speed_m_s
+    return float(np.min(grid["supply_w"][ok])) if ok.any() else math.nan
+
+
+def run(task: tuple[str, str, float]) -> dict[str, Any]:
+    fin, strategy, duration = task
+    f, plant = fish(fin)
+    top = fastest_m_s(f)
+    half = duration / 2
+    schedule = [(0.0, STEPS[0] * top), (half, STEPS[1] * top)]
+    t0 = time.perf_counter()
+    trace = swim_run(
+        plant,
+        f.body,
+        drive_for(strategy, f.model, plant, f.amplifier),
+        schedule,
+        duration,
+        f.battery,
+        loop_config=SpeedLoopConfig(max_demand_n=CAP_N),
+        seed=hash(fin) % 1000,
+    )
+    wall = time.perf_counter() - t0
+    steps = []
+    for k, (t_step, u_set) in enumerate(schedule):
+        t_end = schedule[k + 1][0] if k + 1 < len(schedule) else duration
+        mid = 0.5 * (t_step + t_end)
+        u = trace.mean("speed_m_s", mid, t_end)
+        supply = trace.mean("supply_w", mid, t_end)
+        least = least_supply_w(f, u_set)
+        steps.append(
+            {
+                "setpoint_m_s": u_set,
+                "speed_m_s": u,
+                "error": u / u_set - 1.0,
+                "settling_s": trace.settling_s(t_step, t_end),
+                "supply_w": supply,
+                "energy_per_m_j": trace.energy_per_m(mid, t_end),
+                "range_m": float(f.battery.range_m(supply, u)),
+                "least_supply_w": least,
+                "range_least_m": float(f.battery.range_m(least, u_set)),
+                "cost_of_transport": float(f.body.cost_of_transport(supply + f.battery.hotel_w, u)),
+            }
+        )
+    return {"fin": fin, "strategy": strategy, "steps": steps, "wall_s": wall, "trace": trace}
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    lines = []
+    for fin in dict.fromkeys(r["fin"] for r in results):
+        lines.append(f"\n{fin}:")
+        lines.append(
+            f"  {'strategy':34s} {'set cm/s':>8s} {'speed':>6s} {'err':>6s} {'settle s':>8s} "
+            f"{'supply mW':>9s} {'least':>6s} {'J/m':>6s} {'range km':>8s} {'CoT':>5s}"
+        )
+        for r in (r for r in results if r["fin"] == fin):
+            for k, s in enumerate(r["steps"]):
+                name = r["strategy"] if k == 0 else ""
+                lines.append(
+                    f"  {name:34s} {s['setpoint_m_s'] * 100:8.2f} {s['speed_m_s'] * 100:6.2f} "
+                    f"{s['error'] * 100:+5.1f}% {s['settling_s']:8.1f} {s['supply_w'] * 1e3:9.1f} "
+                    f"{s['least_supply_w'] * 1e3:6.1f} {s['energy_per_m_j']:6.2f} {s['range_m'] / 1e3:8.2f} "
+                    f"{s['cost_of_transport']:5.2f}"
+                )
+    return "\n".join(lines)
+
+
+def plot(results: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fin = results[0]["fin"]
+    mine = [r for r in results if r["fin"] == fin]
+    fig, ax = plt.subplots(4, 1, figsize=(9, 11), constrained_layout=True)
+    ours: Trace = next(r["trace"] for r in mine if r["strategy"] == "ours (supply watt)")
+    for r in mine:
+        tr: Trace = r["trace"]
+        ax[0].plot(tr.t, tr.speed_m_s * 100, lw=1.6 if r["strategy"].startswith("ours (s") else 0.9,
+                   label=r["strategy"])
+    ax[0].plot(ours.t, ours.setpoint_m_s * 100, "k--", lw=1, label="set-point")
+    ax[0].set_ylabel("speed, cm/s (in truth)")
+    ax[0].set_title(f"{fin} (paper twin) in body mfc-fish, set-point stepped: speed per strategy")
+    ax[0].legend(fontsize=7, ncol=2)
+    ax[1].plot(ours.t, ours.demand_n * 1e3, label="demand (speed loop)")
+    ax[1].plot(ours.t, ours.thrust_n * 1e3, label="thrust in truth")
+    ax[1].plot(ours.t, ours.thrust_estimate_n * 1e3, ".", ms=2, label="self-sensed estimate")
+    ax[1].set_ylabel("thrust per fin, mN")
+    ax[1].set_title("ours (supply watt): what the speed loop asks, what the fin gives")
+    ax[1].legend(fontsize=7)
+    ax2 = ax[2].twinx()
+    ax[2].plot(ours.t, ours.soc * 100, color="C2", label="charge")
+    ax2.plot(ours.t, ours.supply_w * 1e3, color="C3", lw=0.7, label="supply")
+    ax[2].set_ylabel("battery charge, %")
+    ax2.set_ylabel("fins' supply draw, mW")
+    ax[2].set_xlabel("fish time, s")
+    ax[2].set_title("ours (supply watt): the battery (the 0.25 W hotel load drains it too)")
+    fins = list(dict.fromkeys(r["fin"] for r in results))
+    width = 0.8 / len(STRATEGIES)
+    for j, name in enumerate(STRATEGIES):
+        ranges = [
+            next((r["steps"][-1]["range_m"] / 1e3 for r in results if r["fin"] == f and r["strategy"] == name), 0)
+            for f in fins
+        ]
+        ax[3].bar(np.arange(len(fins)) + j * width, ranges, width, label=name)
+    ax[3].set_xticks(np.arange(len(fins)) + 0.4 - width / 2, fins)
+    ax[3].set_ylabel("range on one charge, km")
+    ax[3].set_title("range at the second set-point (85 % of the fastest), per strategy")
+    ax[3].legend(fontsize=7, ncol=2)
+    fig.savefig(path, dpi=90)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fins", nargs="+", default=list(FINS))
+    ap.add_argument("--strategies", nargs="+", default=list(STRATEGIES))
+    ap.add_argument("--duration", type=float, default=400.0, help="fish time per run, s")
+    ap.add_argument("--plot", type=Path)
+    ap.add_argument("--json", type=Path)
+    workers.add_arguments(ap)
+    a = ap.parse_args(argv)
+    bad = [s for s in a.strategies if s not in STRATEGIES]
+    if bad:
+        ap.error(f"unknown strategy {bad[0]!r}: one of {', '.join(STRATEGIES)}")
+    tasks = [(fin, s, a.duration) for fin in a.fins for s in a.strategies]
+    t0 = time.perf_counter()
+    results = workers.run_tasks(
+        run, tasks, workers=a.workers, ray_address=a.ray, say=lambda m: print(m, file=sys.stderr, flush=True),
+        label=lambda t: f"{t[0]} {t[1]}",
+    )
+    print(table(results))
+    print(f"\n{len(tasks)} runs of {a.duration:g} s of fish time in {time.perf_counter() - t0:.0f} s")
+    if a.json:
+        a.json.write_text(json.dumps([{k: v for k, v in r.items() if k != "trace"} for r in results], indent=1))
+    if a.plot:
+        plot(results, a.plot)
+        print(f"plot: {a.plot}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

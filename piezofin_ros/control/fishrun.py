@@ -1,0 +1,332 @@
+"""A fish swimming in fish time, without ROS: the fish stack's science wired as its nodes wire it.
+
+:func:`swim_run` steps what ``launch/fish.launch.py`` runs, each part the same code the node
+adapts: the fin (a :class:`~.plants.Plant`, its steady response at the drive's point), the body and
+the battery (:class:`~piezofin_ros.rig.fish.FreeSwimmer`, Eq. 19's ``U`` term on the thrust), the
+speed sensor's noise, the estimator's segments and running windows with its default settings
+(the drive's voltage and current alone: the self-sensed thrust and the supply watt,
+:func:`~.plants.read`), the speed loop with its deadband
+(:class:`~.speedloop.SpeedLoop`, :class:`~.speedloop.DemandGate`) and a drive:
+
+* :class:`OptimisingDrive`: the controller (:class:`~.driveloop.DriveLoop` around an
+  :class:`~.optimise.Optimiser`), its demand from the speed loop;
+* :class:`FixedDrive`: one operating point whatever the speed (the fixed drive a builder starts
+  with; no speed loop can move it);
+* :class:`VoltageDrive`: a fixed frequency, the voltage that gives the speed loop's demand on the
+  nominal model (``T`` goes as ``V^2``), the loop's feedback closing what the model misses (what a
+  builder with a speed loop and no optimiser would write);
+* :class:`TableDrive`: the paper's protocol grid measured once in the tank (load cell, supply
+  meter), then the cheapest point of it whose thrust meets the speed loop's demand.
+
+:func:`drive_for` builds each of :data:`STRATEGIES`.
+
+What it leaves out, against the live stack: the time-domain waveform within a block (the fin's
+steady response replaces it: the body's time constant, 3-9 s, is long against a stroke), DDS and
+the executors' timing (the fit is instantaneous here, a few tenths of a second there).  The
+benchmark (``benchmarks/bench_fish.py``) and the README's figure run it; the live stack's test
+checks the same behaviour under the real ``ros2`` CLI.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import ControlError
+from ..estimation.estimator import Estimate, EstimatorConfig
+from ..physics.amplifier import Amplifier
+from ..physics.model import Model
+from ..physics.swim import Battery, Body, thrust_at_speed
+from ..rig.fish import FreeSwimmer
+from .driveloop import DriveLoop
+from .optimise import OperatingBox, Optimiser
+from .plants import Plant, read
+from .speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
+
+FloatArray = NDArray[np.float64]
+
+#: the speed loop's period (s), as the node's default ``rate_hz``
+LOOP_DT_S = 0.1
+
+
+class Drive(Protocol):
+    """What drives the fin: the point at each tick, the windows it learns from, the demands."""
+
+    def tick(self, t: float) -> tuple[float, float]: ...
+    def add_estimate(self, t: float, e: Estimate) -> None: ...
+    def set_demand(self, demand_n: float) -> None: ...
+
+
+@dataclass
+class FixedDrive:
+    """One operating point, always (the speed loop's demands are ignored)."""
+
+    frequency_hz: float
+    voltage_pp: float
+    slew_vpp_per_s: float = 400.0
+    _v: float = 0.0
+    _t: float | None = None
+
+    def tick(self, t: float) -> tuple[float, float]:
+        dt = 0.0 if self._t is None else t - self._t
+        self._t = t
+        self._v = min(self._v + self.slew_vpp_per_s * dt, self.voltage_pp)
+        return self.frequency_hz, self._v
+
+    def add_estimate(self, t: float, e: Estimate) -> None:
+        pass
+
+    def set_demand(self, demand_n: float) -> None:
+        pass
+
+
+@dataclass
+class VoltageDrive(FixedDrive):
+    """A fixed frequency, the voltage that gives the demand on ``thrust_at_max_n`` (the model's thrust
+    there at ``voltage_pp``, the most it may apply): ``V = V_max sqrt(T_d / T_max)``."""
+
+    thrust_at_max_n: float = math.nan
+
+    def set_demand(self, demand_n: float) -> None:
+        ratio = max(demand_n, 0.0) / self.thrust_at_max_n
+        self._target = min(self.voltage_pp_max * math.sqrt(ratio), self.voltage_pp_max)
+
+    def __post_init__(self) -> None:
+        self.voltage_pp_max = self.voltage_pp
+        self._target = 0.0
+
+    def tick(self, t: float) -> tuple[float, float]:
+        dt = 0.0 if self._t is None else t - self._t
+        self._t = t
+        step = self.slew_vpp_per_s * dt
+        self._v += min(max(self._target - self._v, -step), step)
+        return self.frequency_hz, self._v
+
+
+@dataclass
+class TableDrive(FixedDrive):
+    """The cheapest of measured points ``(f, V, thrust N, power W)`` whose thrust meets the demand
+    (the most thrust when none does); it moves only when the demand does."""
+
+    table: tuple[tuple[float, float, float, float], ...] = ()
+
+    def set_demand(self, demand_n: float) -> None:
+        meets = [p for p in self.table if p[2] >= demand_n]
+        f, v, _, _ = min(meets, key=lambda p: p[3]) if meets else max(self.table, key=lambda p: p[2])
+        self.frequency_hz, self._target = f, v
+
+    def __post_init__(self) -> None:
+        self._target = 0.0
+
+    def tick(self, t: float) -> tuple[float, float]:
+        dt = 0.0 if self._t is None else t - self._t
+        self._t = t
+        step = self.slew_vpp_per_s * dt
+        self._v += min(max(self._target - self._v, -step), step)
+        return self.frequency_hz, self._v
+
+
+@dataclass
+class OptimisingDrive:
+    """The controller: a :class:`DriveLoop` (fits in the caller's thread) around an optimiser."""
+
+    optimiser: Optimiser
+    loop: DriveLoop = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.loop = DriveLoop(self.optimiser, self.optimiser.source)
+
+    def tick(self, t: float) -> tuple[float, float]:
+        f, v, _ = self.loop.tick(t)
+        return f, v
+
+    def add_estimate(self, t: float, e: Estimate) -> None:
+        self.loop.add_estimate(t, e)
+
+    def set_demand(self, demand_n: float) -> None:
+        self.loop.set_demand(demand_n)
+
+
+@dataclass
+class Trace:
+    """A run, sampled every ``LOOP_DT_S`` (SI; ``thrust_n`` per fin, in truth at the body's speed)."""
+
+    t: FloatArray
+    setpoint_m_s: FloatArray
+    speed_m_s: FloatArray
+    demand_n: FloatArray
+    thrust_n: FloatArray
+    thrust_estimate_n: FloatArray
+    frequency_hz: FloatArray
+    voltage_pp: FloatArray
+    supply_w: FloatArray  # the fins' amplifier draw (the hotel load on top)
+    soc: FloatArray
+    distance_m: FloatArray
+    energy_j: FloatArray  # from the battery: supply and hotel
+    events: list[str] = field(default_factory=list)
+
+    def settling_s(self, t_step: float, t_end: float, band: float = 0.05) -> float:
+        """Time from ``t_step`` until the speed stays within ``band`` of the set-point (in truth) up to
+        ``t_end``; inf if it never does."""
+        sel = (self.t >= t_step) & (self.t < t_end)
+        t, u, s = self.t[sel], self.speed_m_s[sel], self.setpoint_m_s[sel]
+        outside = np.abs(u - s) > band * np.maximum(s, 1e-9)
+        if not outside.any():
+            return 0.0
+        last = int(np.flatnonzero(outside)[-1])
+        return math.inf if last == len(t) - 1 else float(t[last + 1] - t_step)
+
+    def mean(self, name: str, t0: float, t1: float) -> float:
+        sel = (self.t >= t0) & (self.t < t1)
+        return float(np.mean(getattr(self, name)[sel]))
+
+    def energy_per_m(self, t0: float, t1: float) -> float:
+        """The battery's joules per metre between ``t0`` and ``t1``."""
+        i0, i1 = np.searchsorted(self.t, [t0, t1])
+        i1 = min(i1, len(self.t) - 1)
+        d = self.distance_m[i1] - self.distance_m[i0]
+        return float((self.energy_j[i1] - self.energy_j[i0]) / d) if d > 0 else math.inf
+
+
+def _window(
+    plant: Plant, fin_of_estimator: Any, amplifier: Amplifier, f: float, v: float, t0: float, t1: float,
+    rng: np.random.Generator, U: float,
+) -> Estimate:
+    """The estimator's window ``[t0, t1)`` at the drive's point: self-sensed thrust and the watts."""
+    r = read(plant, f, v, t1, rng, "self", fin_of_estimator, "supply", amplifier)
+    nan = dict.fromkeys((x.name for x in fields(Estimate)), math.nan)
+    return Estimate(
+        **{
+            **nan,
+            "t_start": t0,
+            "t_end": t1,
+            "final": 0.0,
+            "frequency_hz": f,
+            "voltage_pp": v,
+            "power_w": r.power_w,
+            "thrust_self_n": r.thrust_n,
+            "swim_speed_m_s": U,
+            "admittance_re": r.admittance.real,
+            "admittance_im": r.admittance.imag,
+            "power_supply_w": r.power_named_w,
+        }
+    )
+
+
+def swim_run(
+    plant: Plant,
+    body: Body,
+    drive: Drive,
+    schedule: Sequence[tuple[float, float]],
+    duration_s: float,
+    battery: Battery | None = None,
+    amplifier: Amplifier | None = None,
+    loop_config: SpeedLoopConfig | None = None,
+    deadband: float = 0.03,
+    speed_noise_m_s: float = 0.002,
+    seed: int = 0,
+) -> Trace:
+    """Swim for ``duration_s`` of fish time from rest; ``schedule``: (time, set-point m/s) steps.
+
+    ``plant`` is the fin in truth (its amplifier the one that drains the battery: ``amplifier``
+    overrides it); the estimator uses the plant's nominal fin (the paper's ``C_eq``, ``theta``,
+    ``c_m``), as the live estimator its fin file."""
+    amp = amplifier or plant.amplifier
+    rng = np.random.default_rng(seed)
+    swimmer = FreeSwimmer(body, plant.fin.L, battery, speed_noise_m_s, seed)
+    loop = SpeedLoop(body, loop_config or SpeedLoopConfig())
+    gate = DemandGate(deadband)
+    steps = sorted(schedule)
+    n = int(round(duration_s / LOOP_DT_S))
+    out = {k: np.full(n, np.nan) for k in Trace.__annotations__ if k != "events"}
+    window_start, point = 0.0, (math.nan, math.nan)
+    estimator = EstimatorConfig()
+    steady_at, thrust0, supply = (math.nan, math.nan), 0.0, 0.0
+    model = plant.model()
+    events: list[str] = []
+    for k in range(n):
+        t = k * LOOP_DT_S
+        while steps and steps[0][0] <= t:
+            said = loop.set_setpoint(steps.pop(0)[1])
+            events.append(f"{t:.1f} s: set-point {loop.setpoint_m_s:.3g} m/s" + (f": {said}" if said else ""))
+        f, v = drive.tick(t)
+        # the estimator's segments: a drive that moves starts a new one, whose first ``settle_s`` is
+        # skipped; then a running window every ``window_s`` (a drive that never rests has none)
+        if (f, v) != point:
+            point, window_start = (f, v), t + estimator.settle_s
+        elif v > 0 and t - window_start >= estimator.window_s - 1e-9:
+            e = _window(plant, plant.fin, amp, f, v, window_start, t, rng, swimmer.speed_m_s)
+            loop.estimate(t, e.thrust_self_n)
+            drive.add_estimate(t, e)
+            window_start = t
+        if v > 0:
+            if (f, v) != steady_at:  # (a drive at rest is one model evaluation, not one a tick)
+                p = model.predict(f, v)
+                steady_at = (f, v)
+                thrust0 = float(p.thrust_n)
+                supply = float(amp.steady(p.voltage_pp_drive, p.current_rms, p.power_w))
+            thrust = float(thrust_at_speed(thrust0, f, plant.fin.L, swimmer.speed_m_s))
+        else:
+            thrust, supply = 0.0, 0.0
+        swimmer.advance(LOOP_DT_S, thrust, f, supply)
+        loop.measure(t, swimmer.speed_reading())
+        demand = loop.update(t)
+        if gate.due(t, demand):
+            drive.set_demand(demand)
+        out["t"][k], out["setpoint_m_s"][k], out["speed_m_s"][k] = t, loop.setpoint_m_s, swimmer.speed_m_s
+        out["demand_n"][k], out["thrust_n"][k] = demand, thrust
+        out["thrust_estimate_n"][k] = loop.thrust_estimate_n
+        out["frequency_hz"][k], out["voltage_pp"][k], out["supply_w"][k] = f, v, supply * body.fins
+        out["soc"][k], out["distance_m"][k], out["energy_j"][k] = swimmer.soc, swimmer.distance_m, swimmer.energy_j
+    if isinstance(drive, OptimisingDrive):
+        events += drive.loop.events
+    return Trace(**out, events=events)  # type: ignore[arg-type]
+
+
+#: The benchmark's drives (:func:`drive_for`).
+STRATEGIES = (
+    "ours (supply watt)",
+    "ours (fin watt)",
+    "resonance, voltage from the loop",
+    "grid, point from the loop",
+    "resonance, full voltage",
+    "paper (5.5 Hz, 800 Vpp)",
+)
+
+
+def drive_for(
+    name: str,
+    known: Model,
+    plant: Plant,
+    amplifier: Amplifier,
+    limits: OperatingBox | None = None,
+) -> Drive:
+    """The drive of strategy ``name`` (:data:`STRATEGIES`): ``known`` is the model the fish's builder
+    has (the controller's, the baselines' resonance), ``plant`` the fin in truth (what the grid's
+    tank campaign measures), ``amplifier`` the fish's (what the optimiser's supply watt models)."""
+    box = limits or OperatingBox(1.0, 30.0, 50.0, 800.0)
+    top = box.voltage_pp_max
+    freqs = np.geomspace(box.frequency_min_hz, box.frequency_max_hz, 400)
+    res = float(freqs[int(np.argmax(known.predict(freqs, np.full_like(freqs, top)).tip_velocity_rms))])
+    if name.startswith("ours"):
+        watt = "supply" if "supply" in name else "fin"
+        opt = Optimiser(known.fin, box, top, None, source="self", watt=watt, amplifier=amplifier, model=known)
+        return OptimisingDrive(opt)
+    if name == "resonance, voltage from the loop":
+        return VoltageDrive(res, top, thrust_at_max_n=float(known.predict(res, top).thrust_n))
+    if name == "grid, point from the loop":
+        f, v = np.meshgrid(np.arange(1.0, 12.0), np.array([400.0, 600.0, 800.0]))
+        r = plant.steady(f.ravel(), v.ravel())
+        supply = r.power("supply", plant.amplifier)
+        table = tuple(zip(f.ravel(), v.ravel(), np.asarray(r.thrust_n), np.asarray(supply), strict=True))
+        return TableDrive(float(f.ravel()[0]), top, table=tuple(tuple(map(float, p)) for p in table))
+    if name == "resonance, full voltage":
+        return FixedDrive(res, top)
+    if name == "paper (5.5 Hz, 800 Vpp)":
+        return FixedDrive(5.5, min(800.0, top))
+    raise ControlError(f"unknown strategy {name!r}: one of {', '.join(STRATEGIES)}")
