@@ -60,7 +60,9 @@ def fastest_m_s(f: Fish) -> float:
 
 def least_supply_w(f: Fish, speed_m_s: float) -> float:
     """The least supply power (all fins) at which the model's fish holds ``speed_m_s``."""
-    grid = f.at(*np.meshgrid(np.geomspace(1.0, 30.0, 300), np.linspace(50.0, f.voltage_pp_max, 300)), ranges=False)
+    grid = f.at(
+        *np.meshgrid(np.geomspace(1.0, 30.0, 300), np.linspace(50.0, f.voltage_pp_max, 300)), ranges=False
+    )
     ok = grid["speed_m_s"] >= speed_m_s
     return float(np.min(grid["supply_w"][ok])) if ok.any() else math.nan
 
@@ -139,8 +141,12 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     ours: Trace = next(r["trace"] for r in mine if r["strategy"] == "ours (supply watt)")
     for r in mine:
         tr: Trace = r["trace"]
-        ax[0].plot(tr.t, tr.speed_m_s * 100, lw=1.6 if r["strategy"].startswith("ours (s") else 0.9,
-                   label=r["strategy"])
+        ax[0].plot(
+            tr.t,
+            tr.speed_m_s * 100,
+            lw=1.6 if r["strategy"].startswith("ours (s") else 0.9,
+            label=r["strategy"],
+        )
     ax[0].plot(ours.t, ours.setpoint_m_s * 100, "k--", lw=1, label="set-point")
     ax[0].set_ylabel("speed, cm/s (in truth)")
     ax[0].set_title(f"{fin} (paper twin) in body mfc-fish, set-point stepped: speed per strategy")
@@ -162,7 +168,10 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     width = 0.8 / len(STRATEGIES)
     for j, name in enumerate(STRATEGIES):
         ranges = [
-            next((r["steps"][-1]["range_m"] / 1e3 for r in results if r["fin"] == f and r["strategy"] == name), 0)
+            next(
+                (r["steps"][-1]["range_m"] / 1e3 for r in results if r["fin"] == f and r["strategy"] == name),
+                0,
+            )
             for f in fins
         ]
         ax[3].bar(np.arange(len(fins)) + j * width, ranges, width, label=name)
@@ -188,13 +197,19 @@ def main(argv: list[str] | None = None) -> int:
     tasks = [(fin, s, a.duration) for fin in a.fins for s in a.strategies]
     t0 = time.perf_counter()
     results = workers.run_tasks(
-        run, tasks, workers=a.workers, ray_address=a.ray, say=lambda m: print(m, file=sys.stderr, flush=True),
+        run,
+        tasks,
+        workers=a.workers,
+        ray_address=a.ray,
+        say=lambda m: print(m, file=sys.stderr, flush=True),
         label=lambda t: f"{t[0]} {t[1]}",
     )
     print(table(results))
     print(f"\n{len(tasks)} runs of {a.duration:g} s of fish time in {time.perf_counter() - t0:.0f} s")
     if a.json:
-        a.json.write_text(json.dumps([{k: v for k, v in r.items() if k != "trace"} for r in results], indent=1))
+        a.json.write_text(
+            json.dumps([{k: v for k, v in r.items() if k != "trace"} for r in results], indent=1)
+        )
     if a.plot:
         plot(results, a.plot)
         print(f"plot: {a.plot}")

@@ -4,8 +4,9 @@
 
 ``fin_sim`` streams at 1 kHz in real time (its 50-sample blocks, 20 per second per topic) in its
 own process; ``thrust_estimator``, ``controller`` (``mode:=optimise``) and ``speed_loop`` (a
-set-point, 10 Hz) run as ``ros2 run`` starts them, each in its own process.  The baseline, in the same run: the least a competent user would
-write, an rclpy node that subscribes the same drive topic and does nothing with it.  Measured from
+set-point, 10 Hz) run as ``ros2 run`` starts them, each in its own process.  The baseline, in the
+same run: the least a competent user would write, an rclpy node that subscribes the same drive
+topic and does nothing with it.  Measured from
 ``/proc``: CPU time over ``--seconds`` after a warm-up, the resident set at the end and its peak.
 
 Run with the project's environment (``source tools/env.sh``); DDS stays on loopback.

@@ -194,8 +194,15 @@ class Trace:
 
 
 def _window(
-    plant: Plant, fin_of_estimator: Any, amplifier: Amplifier, f: float, v: float, t0: float, t1: float,
-    rng: np.random.Generator, U: float,
+    plant: Plant,
+    fin_of_estimator: Any,
+    amplifier: Amplifier,
+    f: float,
+    v: float,
+    t0: float,
+    t1: float,
+    rng: np.random.Generator,
+    U: float,
 ) -> Estimate:
     """The estimator's window ``[t0, t1)`` at the drive's point: self-sensed thrust and the watts."""
     r = read(plant, f, v, t1, rng, "self", fin_of_estimator, "supply", amplifier)
@@ -242,7 +249,7 @@ def swim_run(
     loop = SpeedLoop(body, loop_config or SpeedLoopConfig())
     gate = DemandGate(deadband)
     steps = sorted(schedule)
-    n = int(round(duration_s / LOOP_DT_S))
+    n = round(duration_s / LOOP_DT_S)
     out = {k: np.full(n, np.nan) for k in Trace.__annotations__ if k != "events"}
     window_start, point = 0.0, (math.nan, math.nan)
     estimator = EstimatorConfig()
@@ -282,7 +289,11 @@ def swim_run(
         out["demand_n"][k], out["thrust_n"][k] = demand, thrust
         out["thrust_estimate_n"][k] = loop.thrust_estimate_n
         out["frequency_hz"][k], out["voltage_pp"][k], out["supply_w"][k] = f, v, supply * body.fins
-        out["soc"][k], out["distance_m"][k], out["energy_j"][k] = swimmer.soc, swimmer.distance_m, swimmer.energy_j
+        out["soc"][k], out["distance_m"][k], out["energy_j"][k] = (
+            swimmer.soc,
+            swimmer.distance_m,
+            swimmer.energy_j,
+        )
     if isinstance(drive, OptimisingDrive):
         events += drive.loop.events
     return Trace(**out, events=events)  # type: ignore[arg-type]
@@ -323,8 +334,11 @@ def drive_for(
         f, v = np.meshgrid(np.arange(1.0, 12.0), np.array([400.0, 600.0, 800.0]))
         r = plant.steady(f.ravel(), v.ravel())
         supply = r.power("supply", plant.amplifier)
-        table = tuple(zip(f.ravel(), v.ravel(), np.asarray(r.thrust_n), np.asarray(supply), strict=True))
-        return TableDrive(float(f.ravel()[0]), top, table=tuple(tuple(map(float, p)) for p in table))
+        table = tuple(
+            (float(a), float(b), float(c), float(d))
+            for a, b, c, d in zip(f.ravel(), v.ravel(), np.ravel(r.thrust_n), np.ravel(supply), strict=True)
+        )
+        return TableDrive(float(f.ravel()[0]), top, table=table)
     if name == "resonance, full voltage":
         return FixedDrive(res, top)
     if name == "paper (5.5 Hz, 800 Vpp)":

@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..physics.amplifier import Amplifier
+from ..physics.amplifier import Amplifier, LinearAmplifier, SwitchingAmplifier
 from ..physics.model import Model
 from ..physics.swim import Battery, Body, Swim
 
@@ -43,7 +43,9 @@ class Fish:
     amplifier: Amplifier
     voltage_pp_max: float = 800.0
 
-    def at(self, frequency_hz: FloatArray, voltage_pp: FloatArray, ranges: bool = True) -> dict[str, FloatArray]:
+    def at(
+        self, frequency_hz: FloatArray, voltage_pp: FloatArray, ranges: bool = True
+    ) -> dict[str, FloatArray]:
         """Everything a strategy is judged by, at these (broadcast) points (``ranges=False``: without
         the range, which integrates the battery's discharge at each point)."""
         f, v = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
@@ -124,7 +126,9 @@ class Fish:
         dense = np.geomspace(1.0, 30.0, 240)
         volts = np.arange(50.0, self.voltage_pp_max + 1e-9, 25.0)
         top = self.voltage_pp_max
-        quiet = replace(self.amplifier, quiescent_w=0.0)
+        quiet = self.amplifier
+        if isinstance(quiet, LinearAmplifier | SwitchingAmplifier):  # (every kind has a quiescent draw)
+            quiet = replace(quiet, quiescent_w=0.0)
 
         def beyond(fixed_w: float) -> float:
             fish = replace(self, battery=replace(self.battery, hotel_w=fixed_w), amplifier=quiet)

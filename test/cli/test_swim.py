@@ -56,7 +56,8 @@ def test_the_fixed_draw_below_which_the_range_strategy_goes_30_percent_further(t
     assert 1e-3 < g["fixed_draw_below_w"] < 0.03, g  # a few mW: well below any fish's electronics
     quiet = tmp_path / "quiet.yaml"  # the fish's amplifier without its quiescent draw
     quiet.write_text(
-        "amplifier:\n  kind: switching\n  efficiency: 0.85\n  recovered: 0.5\n  quiescent_w: 0.0\n  bus_v: 7.4\n"
+        "amplifier:\n  kind: switching\n  efficiency: 0.85\n  recovered: 0.5\n"
+        "  quiescent_w: 0.0\n  bus_v: 7.4\n"
     )
     for scale, reached in ((0.97, True), (1.2, False)):
         hotel = str(scale * g["fixed_draw_below_w"])

@@ -36,8 +36,8 @@ def test_a_node_loads_nothing_it_does_not_use(node: str, allowed: tuple[str, ...
 @pytest.mark.slow
 def test_estimator_and_controller_fit_a_fish_at_1_khz() -> None:
     """`benchmarks/bench_footprint.py` for 20 s: thrust_estimator, controller (optimising, drive
-    only) and speed_loop beside fin_sim at 1 kHz in real time, each in its own process, each under 10 % of a core
-    and 120 MB resident at its peak."""
+    only) and speed_loop beside fin_sim at 1 kHz in real time, each in its own process, each under
+    10 % of a core and 120 MB resident at its peak."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from bench_footprint import CPU_GOAL, RSS_GOAL_MB, measure
 
