@@ -125,6 +125,8 @@ def scratch_for(
             shutil.rmtree(here / "bags")
         for name in ("tools", "requirements.txt", "requirements-dev.txt", "setup.py"):
             (here / name).symlink_to(ROOT / name)  # tools/main.sh runs here, on the project's venv
+        if key not in FROM_THE_WORKSPACE:
+            (here / "benchmarks").symlink_to(ROOT / "benchmarks")  # (the clone's, as its lines say)
         scratches[key] = here
     return scratches[key]
 
