@@ -1,7 +1,8 @@
 """The fish swims: speed against set-point, settling, energy per metre and range, per strategy.
 
     python benchmarks/bench_fish.py [--fins M8528-P1 M8514-P1 M8507-P1] [--duration 400]
-                                    [--plot docs/fish.png] [--json out.json] [--workers 2]
+                                    [--unseen leakage drag_kc ...] [--plot docs/fish.png]
+                                    [--json out.json] [--workers 2]
 
 Each fin as the paper's twin (``config/models/paper-twin-<fin>.yaml``) carries the body
 ``mfc-fish`` with the battery ``li-ion-2s-500mah`` and the amplifier ``fish-switching``, and swims
@@ -18,6 +19,10 @@ within 5 % of the set-point from then on), the battery's energy per metre and th
 charge at that draw (the hotel load included), over the step's second half.  ``least`` is the
 fish's own bound: the range at the set-point's speed on the least supply power any point of the
 model gives it (:class:`~piezofin_ros.control.swimming.Fish`).
+
+``--unseen EFFECT ...``: each twin also carries, per effect, one the fish's builder is not told
+(``bench_unseen.py``'s library outside the optimiser's correction, its values drawn per fin): the
+drives still know the twin alone, the fin swims with both.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import json
 import math
 import sys
 import time
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +44,7 @@ from piezofin_ros.control.plants import Plant
 from piezofin_ros.control.speedloop import SpeedLoopConfig
 from piezofin_ros.control.swimming import Fish
 from piezofin_ros.physics.amplifier import load_amplifier
-from piezofin_ros.physics.model import load_model
+from piezofin_ros.physics.model import Model, load_model
 from piezofin_ros.physics.swim import load_battery, load_body
 
 FINS = ("M8528-P1", "M8514-P1", "M8507-P1")
@@ -46,11 +52,22 @@ STEPS = (0.65, 0.85)  # of the fin's fastest steady speed
 CAP_N = 0.008  # config/fish.yaml's loop.max_demand_n
 
 
-def fish(fin: str) -> tuple[Fish, Plant]:
+def fish(fin: str, unseen: str | None = None) -> tuple[Fish, Fish, Plant]:
+    """The fish its builder knows (the twin) and the fin in truth (the twin, with ``unseen``)."""
     model = load_model(f"paper-twin-{fin}")
     amp = load_amplifier("fish-switching")
     f = Fish(model, load_body("mfc-fish"), load_battery("li-ion-2s-500mah"), amp)
-    return f, Plant(model.fin, effects=model.effects, amplifier=amp, name=fin)
+    effects, name = tuple(model.effects), fin
+    if unseen is not None:
+        from bench_unseen import OUTSIDE  # (this folder's: the effects outside the correction)
+
+        from piezofin_ros.physics.effects import make
+
+        values = OUTSIDE[unseen](np.random.default_rng(zlib.crc32(f"{fin} {unseen}".encode())), model.fin)
+        effects += (make(unseen, values),)
+        name = f"{fin} + {unseen} {', '.join(f'{v:.3g}' for v in values)}"
+    truth = Fish(Model(model.fin, effects), f.body, f.battery, amp)
+    return f, truth, Plant(model.fin, effects=effects, amplifier=amp, name=name)
 
 
 def fastest_m_s(f: Fish) -> float:
@@ -67,10 +84,10 @@ def least_supply_w(f: Fish, speed_m_s: float) -> float:
     return float(np.min(grid["supply_w"][ok])) if ok.any() else math.nan
 
 
-def run(task: tuple[str, str, float]) -> dict[str, Any]:
-    fin, strategy, duration = task
-    f, plant = fish(fin)
-    top = fastest_m_s(f)
+def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
+    fin, strategy, duration, unseen = task
+    f, truth, plant = fish(fin, unseen)
+    top = fastest_m_s(truth)
     half = duration / 2
     schedule = [(0.0, STEPS[0] * top), (half, STEPS[1] * top)]
     t0 = time.perf_counter()
@@ -82,7 +99,7 @@ def run(task: tuple[str, str, float]) -> dict[str, Any]:
         duration,
         f.battery,
         loop_config=SpeedLoopConfig(max_demand_n=CAP_N),
-        seed=hash(fin) % 1000,
+        seed=zlib.crc32(plant.name.encode()) % 1000,
     )
     wall = time.perf_counter() - t0
     steps = []
@@ -91,7 +108,7 @@ def run(task: tuple[str, str, float]) -> dict[str, Any]:
         mid = 0.5 * (t_step + t_end)
         u = trace.mean("speed_m_s", mid, t_end)
         supply = trace.mean("supply_w", mid, t_end)
-        least = least_supply_w(f, u_set)
+        least = least_supply_w(truth, u_set)
         steps.append(
             {
                 "setpoint_m_s": u_set,
@@ -106,7 +123,7 @@ def run(task: tuple[str, str, float]) -> dict[str, Any]:
                 "cost_of_transport": float(f.body.cost_of_transport(supply + f.battery.hotel_w, u)),
             }
         )
-    return {"fin": fin, "strategy": strategy, "steps": steps, "wall_s": wall, "trace": trace}
+    return {"fin": plant.name, "strategy": strategy, "steps": steps, "wall_s": wall, "trace": trace}
 
 
 def table(results: list[dict[str, Any]]) -> str:
@@ -187,6 +204,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fins", nargs="+", default=list(FINS))
     ap.add_argument("--strategies", nargs="+", default=list(STRATEGIES))
     ap.add_argument("--duration", type=float, default=400.0, help="fish time per run, s")
+    ap.add_argument(
+        "--unseen", nargs="*", default=[], metavar="EFFECT", help="also each twin with each of these effects"
+    )
     ap.add_argument("--plot", type=Path)
     ap.add_argument("--json", type=Path)
     workers.add_arguments(ap)
@@ -194,7 +214,12 @@ def main(argv: list[str] | None = None) -> int:
     bad = [s for s in a.strategies if s not in STRATEGIES]
     if bad:
         ap.error(f"unknown strategy {bad[0]!r}: one of {', '.join(STRATEGIES)}")
-    tasks = [(fin, s, a.duration) for fin in a.fins for s in a.strategies]
+    if a.unseen:
+        from bench_unseen import OUTSIDE
+
+        if unknown := [e for e in a.unseen if e not in OUTSIDE]:
+            ap.error(f"unknown effect {unknown[0]!r}: one of {', '.join(OUTSIDE)}")
+    tasks = [(fin, s, a.duration, u) for fin in a.fins for u in [None, *a.unseen] for s in a.strategies]
     t0 = time.perf_counter()
     results = workers.run_tasks(
         run,
@@ -202,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
         workers=a.workers,
         ray_address=a.ray,
         say=lambda m: print(m, file=sys.stderr, flush=True),
-        label=lambda t: f"{t[0]} {t[1]}",
+        label=lambda t: f"{t[0]}{' + ' + t[3] if t[3] else ''} {t[1]}",
     )
     print(table(results))
     print(f"\n{len(tasks)} runs of {a.duration:g} s of fish time in {time.perf_counter() - t0:.0f} s")

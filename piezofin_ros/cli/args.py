@@ -5,6 +5,7 @@ command's module (never the other way round).
 
 from __future__ import annotations
 
+import argparse
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,6 +22,16 @@ EXIT_UNTRUSTED = 3
 
 class UsageError(CliError):
     """A user-facing error: printed as one line, exit status 2."""
+
+
+def add_fins(parser: argparse.ArgumentParser) -> None:
+    """``--fins``: fin presets or YAML files, the paper's three by default (the commands that compare
+    fins: ``swim``, ``watts``)."""
+    from ..diagnosis.paper import PAPER_FINS
+
+    parser.add_argument(
+        "--fins", nargs="+", default=list(PAPER_FINS), help="fin presets or YAML (default: the paper's)"
+    )
 
 
 def parse_frequencies(spec: Sequence[str], option: str = "--freq") -> np.ndarray:

@@ -17,13 +17,12 @@ from pathlib import Path
 from typing import Any
 
 from ..control.swimming import STRATEGIES, Fish
-from ..diagnosis.paper import PAPER_FINS
 from ..errors import PiezofinError
 from ..physics.amplifier import load_amplifier
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
 from ..physics.swim import battery_presets, body_presets, load_battery, load_body
-from .args import UsageError, writable_path
+from .args import UsageError, add_fins, writable_path
 
 #: The strategy every other is compared with: what a builder without a model does.
 BASELINE = "resonance, full voltage"
@@ -34,9 +33,7 @@ class SwimUsageError(UsageError):
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--fins", nargs="+", default=list(PAPER_FINS), help="fin presets or YAML (default: the paper's)"
-    )
+    add_fins(p)
     p.add_argument(
         "--nominal",
         action="store_true",

@@ -12,12 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from ..diagnosis.paper import PAPER_FINS, PAPER_MAX_TPW
+from ..diagnosis.paper import PAPER_MAX_TPW
 from ..errors import PiezofinError
 from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
-from .args import UsageError, parse_frequencies
+from .args import UsageError, add_fins, parse_frequencies
 
 
 class WattsError(UsageError):
@@ -25,9 +25,7 @@ class WattsError(UsageError):
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--fins", nargs="+", default=list(PAPER_FINS), help="fin presets or YAML (default: the paper's)"
-    )
+    add_fins(p)
     p.add_argument(
         "--amplifiers",
         nargs="+",

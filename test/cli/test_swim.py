@@ -5,24 +5,15 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-BIN = Path(sys.executable).parent
+from . import run
 
 
 def piezofin(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [str(BIN / "piezofin"), "swim", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        stdin=subprocess.DEVNULL,
-        cwd=cwd,
-        env={"MPLBACKEND": "Agg", "PATH": str(BIN)},
-    )
+    return run.piezofin("swim", *args, cwd=cwd)
 
 
 def test_a_fish_on_each_paper_fin_by_strategy(tmp_path: Path) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -13,19 +12,11 @@ import pytest
 from piezofin_ros.diagnosis.paper import PAPER_FINS, Fins, quantities
 from piezofin_ros.physics.model import Model
 
-BIN = Path(sys.executable).parent
+from . import run
 
 
 def piezofin(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [str(BIN / "piezofin"), "watts", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        stdin=subprocess.DEVNULL,
-        cwd=cwd,
-        env={"MPLBACKEND": "Agg", "PATH": str(BIN)},
-    )
+    return run.piezofin("watts", *args, cwd=cwd)
 
 
 def test_the_best_point_moves_with_the_watt(tmp_path: Path) -> None:
