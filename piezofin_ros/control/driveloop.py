@@ -241,6 +241,11 @@ class DriveLoop:
         self._next = self.optimiser.propose()
         self._learnt = self.optimiser.status()
 
+    def close(self) -> None:
+        """Drop the fits not yet begun (a stopping node's exit waits only for the one running)."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+
     def _worker(self) -> ThreadPoolExecutor:
         if self._executor is None:
             self._executor = ThreadPoolExecutor(1, thread_name_prefix="optimiser")

@@ -64,7 +64,8 @@ class Drive(Protocol):
 
 @dataclass
 class FixedDrive:
-    """One operating point, always (the speed loop's demands are ignored)."""
+    """One operating point, always (the speed loop's demands are ignored); the voltage slews to
+    ``_target`` (the subclasses move it)."""
 
     frequency_hz: float
     voltage_pp: float
@@ -72,10 +73,14 @@ class FixedDrive:
     _v: float = 0.0
     _t: float | None = None
 
+    def __post_init__(self) -> None:
+        self._target = self.voltage_pp
+
     def tick(self, t: float) -> tuple[float, float]:
         dt = 0.0 if self._t is None else t - self._t
         self._t = t
-        self._v = min(self._v + self.slew_vpp_per_s * dt, self.voltage_pp)
+        step = self.slew_vpp_per_s * dt
+        self._v += min(max(self._target - self._v, -step), step)
         return self.frequency_hz, self._v
 
     def add_estimate(self, t: float, e: Estimate) -> None:
@@ -98,14 +103,7 @@ class VoltageDrive(FixedDrive):
 
     def __post_init__(self) -> None:
         self.voltage_pp_max = self.voltage_pp
-        self._target = 0.0
-
-    def tick(self, t: float) -> tuple[float, float]:
-        dt = 0.0 if self._t is None else t - self._t
-        self._t = t
-        step = self.slew_vpp_per_s * dt
-        self._v += min(max(self._target - self._v, -step), step)
-        return self.frequency_hz, self._v
+        self._target = 0.0  # (until the first demand)
 
 
 @dataclass
@@ -121,14 +119,7 @@ class TableDrive(FixedDrive):
         self.frequency_hz, self._target = f, v
 
     def __post_init__(self) -> None:
-        self._target = 0.0
-
-    def tick(self, t: float) -> tuple[float, float]:
-        dt = 0.0 if self._t is None else t - self._t
-        self._t = t
-        step = self.slew_vpp_per_s * dt
-        self._v += min(max(self._target - self._v, -step), step)
-        return self.frequency_hz, self._v
+        self._target = 0.0  # (until the first demand)
 
 
 @dataclass

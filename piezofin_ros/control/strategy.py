@@ -71,6 +71,9 @@ class Strategy(Protocol):
     def progress(self) -> str:
         """One line for a progress display."""
 
+    def close(self) -> None:
+        """The node is stopping: let go of any work in the background."""
+
 
 @dataclass
 class TrialStrategy:
@@ -185,6 +188,9 @@ class TrialStrategy:
     def progress(self) -> str:
         return f"trial {self.runner.index}/{len(self.runner.plan.points)}"
 
+    def close(self) -> None:
+        pass
+
 
 @dataclass
 class OptimiseStrategy:
@@ -241,3 +247,6 @@ class OptimiseStrategy:
 
     def progress(self) -> str:
         return f"{self.loop.trials} optimiser trials"
+
+    def close(self) -> None:
+        self.loop.close()

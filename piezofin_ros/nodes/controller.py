@@ -306,6 +306,7 @@ class Controller(Node):
     def close(self) -> None:
         if self.context.ok():
             self._send(0.0, 0.0, 0.0)  # leave the drive off
+        self.strategy.close()  # (a fit queued behind the running one would hold the exit)
 
 
 def main(args: list[str] | None = None) -> int:

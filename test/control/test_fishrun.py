@@ -64,7 +64,7 @@ def test_a_demand_waits_for_the_trial_it_would_cut_short(m8528: Fin) -> None:
     """A speed loop's demand moves all the time: a small change waits until the running trial has
     been learnt, a jump (a new set-point) or one that waited ``demand_wait_s`` goes at once.  Taken
     at once, every demand moved the drive before its trial ended and the optimiser learnt nothing."""
-    loop = DriveLoop(Optimiser(m8528, LIMITS), slew_vpp_per_s=4000.0)
+    loop = DriveLoop(Optimiser(m8528, LIMITS, n_grid=40), slew_vpp_per_s=4000.0)  # (a coarse map: fast)
     loop.set_demand(3e-3)  # the first: at once
     assert loop.optimiser.demand_n == 3e-3
     t = _settle_on_a_point(loop, 0.0)
