@@ -47,7 +47,7 @@ class DriveLoop:
     command_v: float = 0.0
     trials: int = 0
     skipped: int = 0  # trials that agreed while a fit ran, replaced by a later one before learnt
-    discrepancy: float = math.nan  # self-sensed vs vibrometer thrust, relative, last window
+    discrepancy: float = math.nan  # self-sensed vs vibrometer thrust, relative, last settled window
     events: list[str] = field(default_factory=list)
     _t_last: float | None = None
     _t_settled_from: float | None = None
@@ -140,13 +140,14 @@ class DriveLoop:
             self.state = "driving"
             self._stopped_since = None
         thrust = e.thrust_self_n if self.source == "self" else e.thrust_n
-        if math.isfinite(e.thrust_n) and math.isfinite(e.thrust_self_n) and e.thrust_n > 0:
-            self.discrepancy = e.thrust_self_n / e.thrust_n - 1.0
         if self.target is None or self._t_settled_from is None:
             return False
         f, _ = self.target
         if e.final or e.t_start < self._t_settled_from or abs(e.frequency_hz - f) > 0.02 * f:
             return False  # a window from before the drive reached this point
+        if math.isfinite(e.thrust_n) and math.isfinite(e.thrust_self_n) and e.thrust_n > 0:
+            # (at the settled point only: a window over a ramp compares two transients)
+            self.discrepancy = e.thrust_self_n / e.thrust_n - 1.0
         power = e.power_w
         if not (math.isfinite(thrust) and math.isfinite(power)):
             return False
