@@ -505,7 +505,9 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
         sim.trigger_activate()
         g.spin_until(lambda: ctl.loop.trials >= 2, timeout=60.0, what="two optimiser trials")
         assert max(v for _, v, _ in sent) <= 800.0
-        assert ctl.status()["self_vs_vibrometer"] == pytest.approx(0.0, abs=0.01)
+        # one 2 s running window at a settled point: its noise, as test_selfsense's windows (a
+        # whole segment agrees within 0.5 %, test_live_estimates_match_the_steady_state)
+        assert ctl.status()["self_vs_vibrometer"] == pytest.approx(0.0, abs=0.02)
         g.executor.remove_node(est)  # the estimator dies
         est.destroy_node()
         t_kill = sent[-1][0]

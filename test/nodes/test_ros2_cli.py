@@ -81,8 +81,11 @@ def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
     assert summary is not None and summary.statistics.message_count > 100
 
 
-#: fish time the live fish is given after its set-point step (the controller's trials: a few of 13 s)
-HOLD_S = 240.0
+#: fish time the live fish is given after its set-point step (the controller's trials: a few of 13 s;
+#: on a loaded machine its fits take more fish time at x10, measured: about 400 s to within 5 %)
+HOLD_S = 480.0
+#: the span at the end of the run over which the speed is averaged, s of fish time
+LAST_S = 60.0
 
 
 def fish_time(env: dict[str, str]) -> float:
@@ -96,9 +99,9 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
     """Issue 27's example, as a user runs it: `ros2 launch piezofin_ros fish.launch.py`, each node in
     its own process; the set-point set live with `ros2 param set` (a speed that is no speed and any
     other parameter refused), the battery read with `ros2 topic echo`; the bag holds the speed, the
-    demand and the battery, and the fish swam, and holds its new set-point within 5 % 160-240 s of
-    fish time after the step (it held 3.4 cm/s for 700 s at 5 cm/s when the speed loop's every
-    demand moved the drive before a trial ended)."""
+    demand and the battery, and the fish swam, and holds its new set-point within 5 % over the last
+    minute of at least 480 s of fish time after the step (it held 3.4 cm/s for 700 s at 5 cm/s
+    when the speed loop's every demand moved the drive before a trial ended)."""
     from piezofin_ros.bags import decode, read_messages
 
     launch = Launch(ros_env, tmp_path, "realtime_factor:=10", "speed_m_s:=0.04", file="fish.launch.py")
@@ -119,7 +122,7 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
         assert "percentage:" in battery.stdout and "voltage:" in battery.stdout, (
             battery.stdout + battery.stderr
         )
-        deadline = time.monotonic() + 150.0  # (x10 alone: 30 s of wall time; a loaded machine is slower)
+        deadline = time.monotonic() + 300.0  # (x10 alone: 50 s of wall time; a loaded machine is slower)
         while fish_time(ros_env) < t_set + HOLD_S and time.monotonic() < deadline:
             time.sleep(3.0)
         assert launch.proc.poll() is None
@@ -139,10 +142,10 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
     assert counts.get("/fish/swim_speed", 0) > 100 and counts.get("/fish/battery", 0) > 10, counts
     assert counts.get("/fish/thrust_demand", 0) > 3, counts
     assert max(speeds) > 0.005, max(speeds)  # it swam
-    # and holds the new set-point: the speed sensor's mean over the last third, in fish time
+    # and holds the new set-point: the speed sensor's mean over the run's last minute of fish time
     t, u = np.array(speed_times), np.array(speeds)
     assert t[-1] >= t_set + HOLD_S, f"only {t[-1] - t_set:.0f} s of fish time after the step"
-    last = t >= t_set + 2 * HOLD_S / 3
+    last = t >= t[-1] - LAST_S
     assert abs(float(np.mean(u[last])) / 0.06 - 1.0) < 0.05, float(np.mean(u[last]))
 
 
