@@ -508,8 +508,9 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
         # one 2 s running window at a settled point: its noise, as test_selfsense's windows (a
         # whole segment agrees within 0.5 %, test_live_estimates_match_the_steady_state)
         assert ctl.status()["self_vs_vibrometer"] == pytest.approx(0.0, abs=0.02)
-        g.executor.remove_node(est)  # the estimator dies
-        est.destroy_node()
+        # the estimator dies: out of the executor (destroyed only at the end: the executor may still
+        # run a callback it had queued, which a destroyed node's publisher answers with InvalidHandle)
+        g.executor.remove_node(est)
         t_kill = sent[-1][0]
         g.spin_until(lambda: ctl.loop.state == "stopped", timeout=60.0, what="ramp down")
         g.spin_for(0.2)
@@ -518,6 +519,7 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
         assert all(b <= a + 1e-9 for a, b in itertools.pairwise(after))  # holds, then only down
         t_zero = next(t for t, v, _ in sent if t > t_kill and v == 0.0)
         assert t_zero - t_kill <= 2 * 3.0 + 800.0 / 400.0 + 1.0  # bounded: 2 x timeout + a full ramp
+        est.destroy_node()
 
 
 def test_player_offers_every_topic_before_its_first_message(tmp_path: Any) -> None:
