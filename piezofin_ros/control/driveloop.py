@@ -17,9 +17,14 @@ class DriveLoop:
     ``tick(t)`` returns the command to send at time ``t``; ``add_estimate(t, e)`` takes each
     running-window estimate.  A trial is settled when two consecutive windows at the point agree
     within ``settle_tolerance`` (or after ``max_windows``); its last window is the observation.
-    The commanded voltage moves at most ``slew_vpp_per_s`` and never leaves the limits.  When
-    estimates stop for ``estimate_timeout_s`` the loop holds its point; after twice that it ramps
-    the drive down to zero (each with a message in ``events``), and resumes if they come back.
+    The commanded voltage moves at most ``slew_vpp_per_s`` and never leaves the limits.  When no
+    estimate comes for ``estimate_timeout_s`` at a point the drive has reached, the loop holds that
+    point (it takes no new one); after twice that it ramps the drive down to zero (each with a
+    message in ``events``), and resumes if they come back.  The loop's own moves (a demand taken
+    before the estimator's settling and first window at the last point) restart that clock: they
+    starved a live estimator, which the loop then took for a dead one (issue 27: a fish ramped to
+    0 V for 30 s after each set-point step).  After three times the timeout with no estimate at all,
+    whatever the moves, it holds.
 
     Stopped for want of estimates, it tries the drive again after ``retry_s`` (doubling each time
     up to 8 times that, back to ``retry_s`` once an estimate comes): the off-commands it sent while
@@ -88,26 +93,28 @@ class DriveLoop:
         dt = max(0.0, t - self._t_last)
         self._t_last = t
         self._submit_demand(t)
-        self._take_next()
+        if self.state != "holding":  # (holding: the point stays, whatever the fits propose)
+            self._take_next()
         if self.target is None:
             self.target = self.optimiser.propose()
         f, v_target = self.target
         # (a new point needs the estimator's settling and a window from when the drive got there:
-        # silence counts from then, so a slow fit or a long ramp is not taken for a dead estimator)
-        since = (
-            self._last_estimate_t
-            if self._t_settled_from is None
-            else max(self._last_estimate_t, self._t_settled_from)
-        )
-        silence = t - since
-        if self.state in ("driving", "holding") and silence > 2 * self.estimate_timeout_s:
+        # the estimator is silent only at a point the drive has reached, so that the loop's own moves,
+        # a slow fit or a long ramp are not taken for a dead estimator; and blind, whatever the moves)
+        blind = t - self._last_estimate_t
+        settled = self._t_settled_from
+        quiet = 0.0 if settled is None else t - max(self._last_estimate_t, settled)
+        if self.state in ("driving", "holding") and quiet > 2 * self.estimate_timeout_s:
             self.state = "ramping down"
-            self.events.append(f"no estimate for {silence:.1f} s: ramping the drive down to 0 V")
-        elif self.state == "driving" and silence > self.estimate_timeout_s:
+            self.events.append(f"no estimate for {quiet:.1f} s at {f:.2f} Hz: ramping the drive down to 0 V")
+        elif self.state == "driving" and max(quiet, blind / 3) > self.estimate_timeout_s:
             self.state = "holding"
-            self.events.append(
-                f"no estimate for {silence:.1f} s: holding {f:.2f} Hz, {self.command_v:.0f} Vpp"
+            why = (
+                f"{quiet:.1f} s at {f:.2f} Hz"
+                if quiet > self.estimate_timeout_s
+                else f"{blind:.1f} s of moves"
             )
+            self.events.append(f"no estimate for {why}: holding {f:.2f} Hz, {v_target:.0f} Vpp")
         if self.state == "stopped" and not self.halted and self._stopped_since is not None:
             wait = self.retry_s * 2 ** min(self._retries, 3)
             if t - self._stopped_since >= wait:
@@ -127,7 +134,7 @@ class DriveLoop:
         if self.state == "ramping down" and self.command_v == 0.0:
             self.state = "stopped"
             self._stopped_since = t
-        if self._t_settled_from is None and self.command_v == v_target and self.state == "driving":
+        if settled is None and self.command_v == v_target and self.state in ("driving", "holding"):
             self._t_settled_from = t
         return (f, self.command_v, 1.0 if self.command_v > 0 else 0.0)
 

@@ -52,6 +52,13 @@ FloatArray = NDArray[np.float64]
 
 #: the speed loop's period (s), as the node's default ``rate_hz``
 LOOP_DT_S = 0.1
+#: The fish's controller (``config/fish.yaml``'s ``demand_margin_z`` and ``trial_overshoot``; a test
+#: checks they agree).  Its demand comes from a speed loop, which closes on the speed: a margin on
+#: the thrust only makes the fish fast (2 sigma of a 16 % self-sensing bound: +19 % of thrust), and
+#: the loop's feedback takes what the self-sensing misses.  And a trial's thrust moves the speed: no
+#: trial at a measured point more than 10 % above the demand (with drag as U^2, 5 % of speed).
+FISH_DEMAND_MARGIN_Z = 0.0
+FISH_TRIAL_OVERSHOOT = 0.1
 
 
 class Drive(Protocol):
@@ -317,7 +324,18 @@ def drive_for(
     res = float(freqs[int(np.argmax(known.predict(freqs, np.full_like(freqs, top)).tip_velocity_rms))])
     if name.startswith("ours"):
         watt = "supply" if "supply" in name else "fin"
-        opt = Optimiser(known.fin, box, top, None, source="self", watt=watt, amplifier=amplifier, model=known)
+        opt = Optimiser(
+            known.fin,
+            box,
+            top,
+            None,
+            source="self",
+            watt=watt,
+            amplifier=amplifier,
+            model=known,
+            z_demand=FISH_DEMAND_MARGIN_Z,
+            overshoot=FISH_TRIAL_OVERSHOOT,
+        )
         return OptimisingDrive(opt)
     if name == "resonance, voltage from the loop":
         return VoltageDrive(res, top, thrust_at_max_n=float(known.predict(res, top).thrust_n))

@@ -320,6 +320,9 @@ class Optimiser:
     amplifier: Amplifier = PAPER_BENCH
     noise: EstimateNoise = field(default_factory=EstimateNoise)
     z_demand: float = 2.0  # the demand is met with this many standard deviations of margin
+    #: with a demand, no trial goes to a measured point whose thrust exceeded it by more than this
+    #: (relative): a fish's speed follows each trial's thrust (inf: any point)
+    overshoot: float = math.inf
     search_chi2: float = 4.0  # the model mispredicts when its residuals exceed this (per datum)
     kappa: float = 1.0  # the search's optimism, in standard deviations of the map
     trust_region: float = 0.15  # the search stays within f (1 +- this) of the incumbent
@@ -701,7 +704,8 @@ class Optimiser:
         """The best point whose one trial meets the task and would beat the incumbent, if any, and
         that the map does not expect to beat by more than 5 % (the map's choice is tried first)."""
         inc = self._incumbent()
-        better = [c for c in self._counted(confirmed=False) if inc is None or c[0] > inc[0]]
+        cap = math.inf if self.demand_n is None else self.demand_n * (1.0 + self.overshoot)
+        better = [c for c in self._counted(confirmed=False) if (inc is None or c[0] > inc[0]) and c[2] <= cap]
         if not better or self.choice is None:
             return None
         value, o, _ = max(better, key=lambda c: c[0])

@@ -102,6 +102,20 @@ class ControllerConfig:
         "", "optimise: augmented model YAML from `piezofin diagnose --report` (replaces fin)"
     )
     demand_n: float = setting(0.0, "optimise: thrust demand, N (0: none)", 0.0, 10.0)
+    demand_margin_z: float = setting(
+        2.0,
+        "optimise: a point meets the demand when its thrust less this many sigma of its uncertainty "
+        "does (2: met in truth; 0: at the estimate, for a speed loop that closes on the speed)",
+        0.0,
+        5.0,
+    )
+    trial_overshoot: float = setting(
+        0.0,
+        "optimise: no trial at a measured point whose thrust exceeded the demand by more than this, "
+        "relative (0: no limit; a fish's speed follows each trial's thrust)",
+        0.0,
+        10.0,
+    )
     voltage_pp: float = setting(
         800.0, "optimise, no demand: the drive voltage, Vpp", 1.0, HARD_VOLTAGE_PP_MAX
     )
@@ -159,6 +173,8 @@ class Controller(Node):
                 watt=c.watt,
                 amplifier=self.amplifier,
                 model=model,
+                z_demand=c.demand_margin_z,
+                overshoot=c.trial_overshoot or math.inf,
             )
         except PiezofinError as exc:
             raise StartupError(f"optimiser: {exc}") from None

@@ -4,6 +4,9 @@ on the optimising controller."""
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -139,3 +142,81 @@ def test_the_fish_holds_its_set_point_on_the_optimising_controller_at_the_least_
         assert supply <= 1.03 * least_supply_w(fish, u), (supply, least_supply_w(fish, u))
     # (from rest the controller first calibrates: its identification trial and its first map)
     assert trace.settling_s(*steps[1][:1], 300.0) <= 30.0, trace.settling_s(steps[1][0], 300.0)
+
+
+def _ticks(loop: DriveLoop, t: float, seconds: float) -> float:
+    for _ in range(round(seconds / 0.1)):
+        t += 0.1
+        loop.tick(t)
+    return t
+
+
+def test_the_loops_own_moves_are_not_taken_for_a_dead_estimator(m8528: Fin) -> None:
+    """A set-point step makes the speed loop's demand jump again and again while the fish speeds up:
+    each jump moved the drive before the estimator's first window at the last point (3 s settling,
+    5 s window), and the watchdog, counting from the last estimate, held and then ramped the fish to
+    0 V for 30 s.  Silence counts only at a point the drive has reached; the estimator here is alive
+    and gives its window 8 s after each arrival."""
+    loop = DriveLoop(Optimiser(m8528, LIMITS, n_grid=40, identify=False), slew_vpp_per_s=4000.0)
+    loop.set_demand(3e-3)
+    t, demand = _ticks(loop, 0.0, 2.0), 3e-3
+    for _ in range(3):
+        for wait in (2.0, 7.0):  # two jumps, each before the window at the point (8 s after arrival)
+            t = _ticks(loop, t, wait)
+            demand = 5e-3 if demand == 3e-3 else 3e-3
+            loop.set_demand(demand)
+            before = loop.target
+            t = _ticks(loop, t, 1.1)
+            assert loop.target != before
+        t = _ticks(loop, t, 8.0)  # arrived, then the window
+        assert loop.target is not None
+        loop.add_estimate(t, estimate(t, *loop.target, demand, 1e-2))
+    assert not [e for e in loop.events if "no estimate" in e], loop.events
+    assert loop.state == "driving" and loop.command_v > 0
+
+
+def test_moves_without_any_estimate_still_end_in_a_hold_then_a_ramp_down(m8528: Fin) -> None:
+    """The other side of the same clock: an estimator that is dead while demands keep jumping (an
+    attacker's flip every 2 s) would restart it for ever; after three timeouts with no estimate at
+    all the loop holds its point whatever the demands, and ramps down two timeouts later."""
+    loop = DriveLoop(Optimiser(m8528, LIMITS, n_grid=40), slew_vpp_per_s=4000.0, estimate_timeout_s=5.0)
+    t, log = 0.0, []
+    for k in range(300):  # 60 s, a demand flip every 2 s, no estimate
+        if k % 10 == 0:
+            loop.set_demand(5e-3 if k % 20 else 2e-3)
+        t = _ticks(loop, t, 0.2)
+        log.append((t, loop.state, loop.target, loop.command_v))
+    held = [(t, target) for t, state, target, _ in log if state == "holding"]
+    assert held and held[0][0] <= 3 * 5.0 + 0.3, loop.events
+    assert len({target for _, target in held}) == 1  # held: the demands move it no more
+    stopped = [t for t, state, _, v in log if state == "stopped" and v == 0.0]
+    assert stopped and stopped[0] <= held[0][0] + 2 * 5.0 + 0.5 + 2.0, loop.events
+
+
+@pytest.mark.parametrize("overshoot", [math.inf, 0.1])
+def test_no_trial_goes_to_a_point_measured_far_above_the_demand(m8528: Fin, overshoot: float) -> None:
+    """A point whose one trial gave twice the demand at a low power is worth a confirming trial to a
+    fin on a rig (the demand met at the least power); to a fish its thrust is speed: with
+    ``overshoot`` 0.1 (``config/fish.yaml``'s ``trial_overshoot``) it is not driven again."""
+    opt = Optimiser(m8528, LIMITS, demand_n=3e-3, identify=False, n_grid=40, overshoot=overshoot)
+    f, v = opt.propose()
+    p = float(opt.correction.response(m8528, f, v).power_w)
+    assert opt.observe(10.0, f, v, 6e-3, 0.5 * p)  # twice the demand, for half the map's power
+    again = _close_point(opt.propose(), (f, v))
+    assert (opt.rule == "confirm" and again) == (overshoot == math.inf), (opt.rule, opt.status())
+
+
+def _close_point(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    return abs(a[0] / b[0] - 1) < 1e-3 and abs(a[1] / b[1] - 1) < 1e-3
+
+
+def test_the_benchmarks_fish_controller_is_config_fish_yamls() -> None:
+    """``fishrun``'s fish controller settings are the ones the fish's launch gives its controller."""
+    import yaml
+
+    from piezofin_ros.control import fishrun
+
+    root = Path(__file__).resolve().parents[2]
+    params = yaml.safe_load((root / "config" / "fish.yaml").read_text())["/**/controller"]["ros__parameters"]
+    assert params["demand_margin_z"] == fishrun.FISH_DEMAND_MARGIN_Z
+    assert params["trial_overshoot"] == fishrun.FISH_TRIAL_OVERSHOOT

@@ -518,7 +518,9 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
         after = [v for t, v, _ in sent if t > t_kill + 0.5]  # (a trial change may be in flight at the kill)
         assert all(b <= a + 1e-9 for a, b in itertools.pairwise(after))  # holds, then only down
         t_zero = next(t for t, v, _ in sent if t > t_kill and v == 0.0)
-        assert t_zero - t_kill <= 2 * 3.0 + 800.0 / 400.0 + 1.0  # bounded: 2 x timeout + a full ramp
+        # bounded: a move in flight at the kill reaches its point (a full ramp), 2 x timeout of silence
+        # there, then a full ramp down
+        assert t_zero - t_kill <= 2 * 3.0 + 2 * 800.0 / 400.0 + 1.0
         est.destroy_node()
 
 
