@@ -137,6 +137,9 @@ class Run:
     method: str
     fractions: list[float]  # after each trial
     trial_s: float
+    #: ours, from the drive alone: the calibrated self-sensed thrust of the held point against the
+    #: truth there, relative, after the last trial (NaN otherwise)
+    sensed_error: float = math.nan
 
     def trials_to(self, level: float = 0.98) -> int | None:
         """First trial after which the fraction stays >= level (None: never)."""
@@ -250,8 +253,12 @@ def run_ours(
     fin: Fin, plant: Plant, demand: float | None, best: float, source: str, seed: int, watt: str = "fin"
 ) -> Run:
     opt = Optimiser(fin, LIMITS, demand_n=demand, source=source, watt=watt, amplifier=TOLD)
-    fr, _ = campaign(opt, plant, N_TRIALS, np.random.default_rng(seed), best=best)
-    return Run("ours", fr, TRIAL_S_CONTINUOUS)
+    fr, t = campaign(opt, plant, N_TRIALS, np.random.default_rng(seed), best=best)
+    error = math.nan
+    if source == "self" and (held := opt.status().get("held")):
+        truth = float(plant.steady(held["frequency_hz"], held["voltage_pp"], t=t).thrust_n)
+        error = held["thrust_n"] / truth - 1.0 if truth > 0 else math.nan
+    return Run("ours", fr, TRIAL_S_CONTINUOUS, error)
 
 
 def plant_task(
@@ -297,6 +304,11 @@ def plant_runs(
                 failures.append(
                     f"{fin_name} {plant.name} {task} {source}: "
                     + " ".join(f"{x:.2f}" for x in runs[0].fractions)
+                )
+            if abs(runs[0].sensed_error) > 0.05:
+                failures.append(
+                    f"{fin_name} {plant.name} {task} {source}: the held point's self-sensed thrust "
+                    f"{100 * runs[0].sensed_error:+.1f} % against the truth, after calibration"
                 )
     return out, failures
 
@@ -355,6 +367,14 @@ def main() -> int:
             f"| {source} | {task} | {method} | {ok}/{len(runs)} ({100 * ok / len(runs):.0f} %) | {median} | "
             f"{np.median(final):.3f} [{min(final):.3f}] | {missed} |"
         )
+    for (source, task, method), runs in results.items():
+        errors = np.abs([r.sensed_error for r in runs if math.isfinite(r.sensed_error)])
+        if errors.size:
+            print(
+                f"{source}, {task}, {method}: the held point's calibrated self-sensed thrust against the "
+                f"truth: within 5 % in {np.sum(errors <= 0.05)}/{errors.size}, "
+                f"median {100 * np.median(errors):.1f} %, worst {100 * errors.max():.1f} %"
+            )
     print(f"ours, runs that missed the goal ({len(failures)}):")
     for line in failures:
         print("  " + line)

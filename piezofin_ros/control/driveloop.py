@@ -171,7 +171,7 @@ class DriveLoop:
         # trials group by it): the measured amplitude drifts with the monitor's gain and noise
         watt = self.optimiser.watt
         named = e.power(watt) if watt != "fin" else math.nan
-        args = (e.t_end, f, self.target[1], thrust, power, admittance, named)
+        args = (e.t_end, f, self.target[1], thrust, power, admittance, named, e.voltage_pp)
         if self.background:
             # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
             # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, the latest

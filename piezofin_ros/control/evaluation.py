@@ -30,7 +30,7 @@ def run_trial(opt: Optimiser, plant: Plant, t: float, rng: np.random.Generator) 
     f, v = opt.propose()
     r = read(plant, f, v, t, rng, opt.source, opt.fin, opt.watt, opt.amplifier)
     t += TRIAL_S_CONTINUOUS
-    opt.observe(t, f, v, r.thrust_n, r.power_w, r.admittance, r.power_named_w)
+    opt.observe(t, f, v, r.thrust_n, r.power_w, r.admittance, r.power_named_w, r.voltage_pp)
     return t
 
 

@@ -212,7 +212,7 @@ def _window(
             "t_end": t1,
             "final": 0.0,
             "frequency_hz": f,
-            "voltage_pp": v,
+            "voltage_pp": r.voltage_pp,  # (as the monitor reads it)
             "power_w": r.power_w,
             "thrust_self_n": r.thrust_n,
             "swim_speed_m_s": U,

@@ -270,6 +270,16 @@ class Observation:
     source: str = "vibrometer"
     admittance: complex = complex(math.nan, math.nan)  # I_1 / V_1, S
     power_named_w: float = math.nan  # the optimiser's watt (NaN: the fin's)
+    #: the drive's voltage as its monitor read it (NaN: the commanded ``voltage_pp``); an amplifier
+    #: that sags or clips gives less than commanded, and the self-sensed thrust is the current's
+    #: motional part at the voltage the fin got
+    voltage_pp_drive: float = math.nan
+
+    @property
+    def drive_vpp(self) -> float:
+        """The voltage the fin got: the monitor's reading, else the commanded one."""
+        ok = math.isfinite(self.voltage_pp_drive) and self.voltage_pp_drive > 0
+        return self.voltage_pp_drive if ok else self.voltage_pp
 
     @property
     def named_w(self) -> float:
@@ -386,16 +396,24 @@ class Optimiser:
         power_w: float,
         admittance: complex = complex(math.nan, math.nan),
         power_named_w: float = math.nan,
+        voltage_pp_drive: float = math.nan,
     ) -> bool:
         """Add one trial's estimate (``thrust_n`` from ``source``, ``power_w`` the fin's watt and
-        ``power_named_w`` the optimiser's ``watt``); False (and ignored) if unusable."""
+        ``power_named_w`` the optimiser's ``watt``; ``voltage_pp`` as commanded, which names the
+        point, ``voltage_pp_drive`` as the monitor read it); False (and ignored) if unusable."""
         values = (t, frequency_hz, voltage_pp, thrust_n, power_w)
         if not all(math.isfinite(x) for x in values) or thrust_n <= 0 or power_w <= 0 or voltage_pp <= 0:
             return False
         if self.watt != "fin" and not (math.isfinite(power_named_w) and power_named_w > 0):
             return False  # (no measure of the watt it optimises: a trial it cannot rank)
         named = power_named_w if self.watt != "fin" else math.nan
-        new = Observation(*values, source=self.source, admittance=complex(admittance), power_named_w=named)
+        new = Observation(
+            *values,
+            source=self.source,
+            admittance=complex(admittance),
+            power_named_w=named,
+            voltage_pp_drive=float(voltage_pp_drive),
+        )
         if self._repeat_disagrees(new) > self.change_sigma or (
             # (against the map only once it has settled: before that, every trial teaches it something)
             self.converged and len(self.observations) >= 3 and self._surprise(new) > self.change_sigma
@@ -428,7 +446,7 @@ class Optimiser:
         noise = np.array(noise, float, ndmin=1)
         for k, o in enumerate(obs):
             if o.source == "self" and o.has_admittance:
-                cal = c.calibration(self.fin, o.frequency_hz, o.voltage_pp)
+                cal = c.calibration(self.fin, o.frequency_hz, o.drive_vpp)
                 w = 2 * math.pi * o.frequency_hz
                 motional = abs(
                     o.admittance
@@ -452,7 +470,7 @@ class Optimiser:
         out[vib] *= c.added_mass
         if selfs:
             f = np.array([obs[k].frequency_hz for k in selfs])
-            v_amp = 0.5 * np.array([obs[k].voltage_pp for k in selfs])
+            v_amp = 0.5 * np.array([obs[k].drive_vpp for k in selfs])
             y = np.array([obs[k].admittance for k in selfs])
             cal = c.calibration(self.fin, f, 2 * v_amp)
             tip = self_sensed_tip(self.fin, y * v_amp, v_amp, 2 * math.pi * f, cal)
@@ -463,9 +481,11 @@ class Optimiser:
         self, c: Correction, obs: list[Observation], model_error: float = MODEL_ERROR
     ) -> FloatArray:
         """Each trial's misfit in noise units: log power, the thrust reading (vibrometer: Lighthill
-        with the base fin's ``c_m``; load cell: as read) and the admittance's susceptance."""
+        with the base fin's ``c_m``; load cell: as read) and the admittance's susceptance, each at
+        the voltage the fin got (the correction is the fin's; an amplifier that clips is the residual
+        process's, on the commanded map)."""
         f = np.array([o.frequency_hz for o in obs])
-        v = np.array([o.voltage_pp for o in obs])
+        v = np.array([o.drive_vpp for o in obs])
         t_meas = np.array([o.thrust_n for o in obs])
         p_meas = np.array([o.power_w for o in obs])
         pred = c.predict(self.fin, f, v)

@@ -106,6 +106,7 @@ class Reading:
     power_w: float
     admittance: complex
     power_named_w: float = math.nan  # in the watt asked for (``read``'s ``watt``)
+    voltage_pp: float = math.nan  # the drive's, as the voltage monitor reads it
 
 
 def read(
@@ -152,4 +153,4 @@ def read(
             named = truth * (1 + n.power_rel * rng.standard_normal())
         else:
             named = float(power_in(watt, 2 * v_amp, i_rms, power, amplifier or plant.amplifier))
-    return Reading(thrust, power, y, named)
+    return Reading(thrust, power, y, named, 2 * v_amp)

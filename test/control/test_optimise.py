@@ -328,3 +328,28 @@ def test_the_proposal_says_which_rule_chose_each_point(m8528: Fin) -> None:
         seen.append(opt.rule)
         assert opt.mode in (Mode.MODEL, Mode.SEARCH) and opt.status()["optimiser_mode"] in ("model", "search")
     assert seen[0] != "identify" and "map" in seen, seen  # the quiet trial once, then the map's points
+
+
+@pytest.mark.parametrize("effect", ["amplifier_limit", "amplifier_sag"])
+def test_the_self_sensed_thrust_is_taken_at_the_voltage_the_fin_got(m8528: Fin, effect: str) -> None:
+    """An amplifier that clips or sags gives the fin less than commanded.  The optimiser re-estimates
+    each trial's self-sensed thrust from the drive's admittance: taken at the commanded voltage it
+    read the motional current (V_cmd / V_drive) times too strong, and the thrust that squared (+227 %
+    on M8514-P1 with a current limit in ``bench_unseen``); at the monitor's voltage it is the truth."""
+    from piezofin_ros.control.plants import read
+    from piezofin_ros.physics.effects import make
+
+    plant = Plant(m8528, effects=(make(effect, [4.0]),))  # (1/mA: 0.25 mA, below the 0.39 mA at 8 Hz)
+    f, v = 8.0, 800.0
+    r = read(plant, f, v, 0.0, np.random.default_rng(1), "self")
+    assert r.voltage_pp < 0.9 * v  # (the amplifier gives less than commanded)
+    truth = float(plant.steady(f, v).thrust_n)
+    opt = Optimiser(m8528, LIMITS, source="self", identify=False)
+    assert opt.observe(6.0, f, v, r.thrust_n, r.power_w, r.admittance, math.nan, r.voltage_pp)
+    o = opt.observations[-1]
+    assert (o.voltage_pp, o.drive_vpp) == (v, r.voltage_pp)  # known by the point commanded
+    from piezofin_ros.control.optimise import Correction
+
+    estimated = float(opt._thrust_estimates(Correction(), [o])[0])  # (the paper's calibration)
+    assert estimated == pytest.approx(truth, rel=0.02)
+    assert r.thrust_n == pytest.approx(truth, rel=0.02)  # (as the estimator read it)
