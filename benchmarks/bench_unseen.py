@@ -368,6 +368,12 @@ def main() -> int:
             f"{np.median(final):.3f} [{min(final):.3f}] | {missed} |"
         )
     for (source, task, method), runs in results.items():
+        if method == "ours":
+            at8 = [r.fractions[min(7, len(r.fractions) - 1)] for r in runs]
+            print(
+                f"{source}, {task}, {method}: after 8 trials, median {np.median(at8):.3f} "
+                f"[worst {min(at8):.3f}]"
+            )
         errors = np.abs([r.sensed_error for r in runs if math.isfinite(r.sensed_error)])
         if errors.size:
             print(
