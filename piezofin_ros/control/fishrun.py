@@ -106,10 +106,9 @@ class VoltageDrive(FixedDrive):
 
     def set_demand(self, demand_n: float) -> None:
         ratio = max(demand_n, 0.0) / self.thrust_at_max_n
-        self._target = min(self.voltage_pp_max * math.sqrt(ratio), self.voltage_pp_max)
+        self._target = min(self.voltage_pp * math.sqrt(ratio), self.voltage_pp)  # (V_max: ``voltage_pp``)
 
     def __post_init__(self) -> None:
-        self.voltage_pp_max = self.voltage_pp
         self._target = 0.0  # (until the first demand)
 
 
