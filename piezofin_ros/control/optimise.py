@@ -373,6 +373,10 @@ class Optimiser:
             raise ControlError(f"source must be one of {', '.join(SOURCES)}, got {self.source!r}")
         if self.watt not in WATTS:
             raise ControlError(f"watt must be one of {', '.join(WATTS)}, got {self.watt!r}")
+        if not (self.z_demand >= 0 and math.isfinite(self.z_demand)) or not self.overshoot >= 0:
+            raise ControlError(
+                f"z_demand must be finite and >= 0 and overshoot >= 0, got {self.z_demand}, {self.overshoot}"
+            )
         if self.model is not None:
             self.fin = self.model.fin
             self.correction = replace(self.correction, base=self.model)

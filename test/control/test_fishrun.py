@@ -220,3 +220,11 @@ def test_the_benchmarks_fish_controller_is_config_fish_yamls() -> None:
     params = yaml.safe_load((root / "config" / "fish.yaml").read_text())["/**/controller"]["ros__parameters"]
     assert params["demand_margin_z"] == fishrun.FISH_DEMAND_MARGIN_Z
     assert params["trial_overshoot"] == fishrun.FISH_TRIAL_OVERSHOOT
+
+
+@pytest.mark.parametrize(
+    "bad", [{"z_demand": -1.0}, {"z_demand": math.nan}, {"overshoot": -0.1}, {"overshoot": math.nan}]
+)
+def test_an_impossible_margin_or_overshoot_is_one_clear_error(m8528: Fin, bad: dict[str, float]) -> None:
+    with pytest.raises(ControlError, match="z_demand must be finite"):
+        Optimiser(m8528, LIMITS, demand_n=3e-3, n_grid=40, **bad)
