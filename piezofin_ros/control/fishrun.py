@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,16 +72,17 @@ class Drive(Protocol):
 @dataclass
 class FixedDrive:
     """One operating point, always (the speed loop's demands are ignored); the voltage slews to
-    ``_target`` (the subclasses move it)."""
+    ``_target`` (the subclasses move it, from 0 V until their first demand)."""
 
     frequency_hz: float
     voltage_pp: float
     slew_vpp_per_s: float = 400.0
     _v: float = 0.0
     _t: float | None = None
+    takes_demand: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
-        self._target = self.voltage_pp
+        self._target = 0.0 if self.takes_demand else self.voltage_pp
 
     def tick(self, t: float) -> tuple[float, float]:
         dt = 0.0 if self._t is None else t - self._t
@@ -103,13 +104,11 @@ class VoltageDrive(FixedDrive):
     there at ``voltage_pp``, the most it may apply): ``V = V_max sqrt(T_d / T_max)``."""
 
     thrust_at_max_n: float = math.nan
+    takes_demand: ClassVar[bool] = True
 
     def set_demand(self, demand_n: float) -> None:
         ratio = max(demand_n, 0.0) / self.thrust_at_max_n
         self._target = min(self.voltage_pp * math.sqrt(ratio), self.voltage_pp)  # (V_max: ``voltage_pp``)
-
-    def __post_init__(self) -> None:
-        self._target = 0.0  # (until the first demand)
 
 
 @dataclass
@@ -118,14 +117,12 @@ class TableDrive(FixedDrive):
     (the most thrust when none does); it moves only when the demand does."""
 
     table: tuple[tuple[float, float, float, float], ...] = ()
+    takes_demand: ClassVar[bool] = True
 
     def set_demand(self, demand_n: float) -> None:
         meets = [p for p in self.table if p[2] >= demand_n]
         f, v, _, _ = min(meets, key=lambda p: p[3]) if meets else max(self.table, key=lambda p: p[2])
         self.frequency_hz, self._target = f, v
-
-    def __post_init__(self) -> None:
-        self._target = 0.0  # (until the first demand)
 
 
 @dataclass
