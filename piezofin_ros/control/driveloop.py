@@ -85,6 +85,10 @@ class DriveLoop:
 
     def __post_init__(self) -> None:
         self.optimiser.source = self.source  # (it reads the same estimate)
+        if self.background:
+            # the fit's thread is started here, not by the first heartbeat's submit: starting a
+            # thread and handing it the GIL cost that heartbeat up to 50 ms (the CI run of stop 33)
+            self._worker().submit(lambda: None).result()
 
     def tick(self, t: float) -> tuple[float, float, float]:
         if self._t_last is None:
