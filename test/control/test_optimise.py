@@ -353,3 +353,30 @@ def test_the_self_sensed_thrust_is_taken_at_the_voltage_the_fin_got(m8528: Fin, 
     estimated = float(opt._thrust_estimates(Correction(), [o])[0])  # (the paper's calibration)
     assert estimated == pytest.approx(truth, rel=0.02)
     assert r.thrust_n == pytest.approx(truth, rel=0.02)  # (as the estimator read it)
+
+
+@pytest.mark.parametrize("quiescent_w", [0.0, 0.1])
+def test_a_point_is_confirmed_whatever_amplifier_the_supply_meter_reads(quiescent_w: float) -> None:
+    """In a measured supply's watts the map's power comes through the amplifier it is told (the
+    paper's bench) and the trials' through the one the meter reads.  Whether a point is worth a
+    confirming trial is judged on the map at both points: judged as a measured objective against the
+    map's choice, a switching drive's 0.1 W quiescent draw (7 times the fin's at the demand) made
+    every point look 7 times worse than the map expected, no point was ever confirmed, and the
+    controller held the map's unmeasured choice, which missed the demand in truth (``bench_unseen
+    --watt supply_measured``, M8507-P1 with a current limit: 0.987 of the demand)."""
+    from piezofin_ros.control.plants import read
+    from piezofin_ros.physics.amplifier import SwitchingAmplifier, load_amplifier
+
+    fin = load_fin("M8507-P1")
+    amp = SwitchingAmplifier(efficiency=0.77, recovered=0.69, quiescent_w=quiescent_w)
+    plant = Plant(fin, softening=0.03, loss_tan_delta=0.09, amplifier=amp)
+    demand = 0.3 * float(np.max(Plant(fin).steady(np.linspace(1, 20, 400), 800.0).thrust_n))
+    told = load_amplifier("paper-bench")
+    opt = Optimiser(fin, LIMITS, demand_n=demand, source="vibrometer", watt="supply_measured", amplifier=told)
+    rng, t, rules = np.random.default_rng(1), 0.0, []
+    for _ in range(10):
+        t = evaluation.run_trial(opt, plant, t, rng)
+        rules.append(opt.rule)
+    assert "confirm" in rules and opt.incumbent() is not None, (rules, opt.status())
+    f, v = opt.held()
+    assert float(plant.steady(f, v).thrust_n) >= demand  # (a measured point, twice)
