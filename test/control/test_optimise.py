@@ -374,7 +374,7 @@ def test_a_point_is_confirmed_whatever_amplifier_the_supply_meter_reads(quiescen
     told = load_amplifier("paper-bench")
     opt = Optimiser(fin, LIMITS, demand_n=demand, source="vibrometer", watt="supply_measured", amplifier=told)
     rng, t, rules = np.random.default_rng(1), 0.0, []
-    for _ in range(10):
+    for _ in range(8):
         t = evaluation.run_trial(opt, plant, t, rng)
         rules.append(opt.rule)
     assert "confirm" in rules and opt.incumbent() is not None, (rules, opt.status())
