@@ -737,7 +737,8 @@ class Optimiser:
         # (both on the map, as :meth:`_gain`: a measured objective against the map's is off by the
         # map's bias, which an amplifier the optimiser is not told makes several-fold in a measured
         # supply's watts, and then no point was ever confirmed: stop 33's vibrometer demand miss)
-        return point if self._gain(point, (self.choice.frequency_hz, self.choice.voltage_pp)) <= 0.05 else None
+        choice = (self.choice.frequency_hz, self.choice.voltage_pp)
+        return point if self._gain(point, choice) <= 0.05 else None
 
     def incumbent(self) -> tuple[float, float] | None:
         """The best measured point that counts (what the controller holds), or None."""

@@ -364,7 +364,6 @@ def test_a_point_is_confirmed_whatever_amplifier_the_supply_meter_reads(quiescen
     every point look 7 times worse than the map expected, no point was ever confirmed, and the
     controller held the map's unmeasured choice, which missed the demand in truth (``bench_unseen
     --watt supply_measured``, M8507-P1 with a current limit: 0.987 of the demand)."""
-    from piezofin_ros.control.plants import read
     from piezofin_ros.physics.amplifier import SwitchingAmplifier, load_amplifier
 
     fin = load_fin("M8507-P1")
