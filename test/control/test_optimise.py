@@ -360,7 +360,7 @@ def test_a_point_is_confirmed_whatever_amplifier_the_supply_meter_reads(quiescen
     """In a measured supply's watts the map's power comes through the amplifier it is told (the
     paper's bench) and the trials' through the one the meter reads.  Whether a point is worth a
     confirming trial is judged on the map at both points: judged as a measured objective against the
-    map's choice, a switching drive's 0.1 W quiescent draw (7 times the fin's at the demand) made
+    map's choice, a switching drive's 0.1 W quiescent draw (7 times the draw the map expected) made
     every point look 7 times worse than the map expected, no point was ever confirmed, and the
     controller held the map's unmeasured choice, which missed the demand in truth (``bench_unseen
     --watt supply_measured``, M8507-P1 with a current limit: 0.987 of the demand)."""
