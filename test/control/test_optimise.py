@@ -239,6 +239,41 @@ def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypa
     assert len(threads) == 3 and all(name.startswith("optimiser") for name in threads), threads
 
 
+def test_a_fit_slower_than_a_trial_does_not_hold_the_drive_at_the_point_it_learnt(
+    m8528: Fin, monkeypatch: Any
+) -> None:
+    """A fit that takes longer than a trial (fin time at x10 on a loaded machine): each trial that
+    agreed while it ran waited and was learnt next, and the loop took that trial before it moved to
+    the point the finished fit proposed, so it never moved while trials kept coming.  A live fish
+    learnt 4 to 7 trials at its quiet identification point, and the CI run of stop 33 asserted on a
+    fit that had seen one other point.  Now it moves as soon as a fit ends: at most the trial and
+    the one that waited are learnt at a point."""
+    update = Optimiser._update
+
+    def slow_update(self: Optimiser) -> None:
+        time.sleep(0.3)  # (longer than the trial below: two windows of 2 s fin time at 0.01 s each)
+        update(self)
+
+    monkeypatch.setattr(Optimiser, "_update", slow_update)
+    plant = Plant(m8528, loss_tan_delta=0.08)
+    loop = DriveLoop(Optimiser(m8528, LIMITS, demand_n=3e-3), slew_vpp_per_s=4000.0, background=True)
+    rng = np.random.default_rng(1)
+    t, last_window = 0.0, 0.0
+    deadline = time.monotonic() + 60.0
+    while loop.trials < 5 and time.monotonic() < deadline:
+        time.sleep(0.001)
+        t += 0.1
+        f, v, _ = loop.tick(t)
+        if loop._t_settled_from is not None and v > 0 and t - last_window >= 1.0:
+            last_window = t
+            thrust, power = plant.measure(f, v, t, rng)
+            loop.add_estimate(t, estimate(t, f, v, thrust, power))
+    assert loop.trials >= 5
+    points = [(o.frequency_hz, o.voltage_pp) for o in loop.optimiser.observations]
+    assert max(points.count(p) for p in points) <= 2, points
+    assert len(set(points)) >= 3, points
+
+
 @pytest.mark.slow
 def test_trials_are_known_by_the_point_commanded_not_the_amplitude_measured(m8528: Fin) -> None:
     """The estimator measures the drive's amplitude with its monitor's noise and gain (here 0.3 % off,
