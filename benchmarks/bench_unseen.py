@@ -140,6 +140,7 @@ class Run:
     #: ours, from the drive alone: the calibrated self-sensed thrust of the held point against the
     #: truth there, relative, after the last trial (NaN otherwise)
     sensed_error: float = math.nan
+    plant: str = ""  # (ours: the fin and its plant, to name the worst run)
 
     def trials_to(self, level: float = 0.98) -> int | None:
         """First trial after which the fraction stays >= level (None: never)."""
@@ -299,6 +300,7 @@ def plant_runs(
                     watt,
                 ),
             ]
+            runs[0] = replace(runs[0], plant=f"{fin_name} {plant.name}")
             out += [((source, task, r.method), r) for r in runs]
             if not runs[0].success():
                 failures.append(
@@ -372,7 +374,7 @@ def main() -> int:
             at8 = [r.fractions[min(7, len(r.fractions) - 1)] for r in runs]
             print(
                 f"{source}, {task}, {method}: after 8 trials, median {np.median(at8):.3f} "
-                f"[worst {min(at8):.3f}]"
+                f"[worst {min(at8):.3f}, {runs[int(np.argmin(at8))].plant}]"
             )
         errors = np.abs([r.sensed_error for r in runs if math.isfinite(r.sensed_error)])
         if errors.size:

@@ -14,17 +14,19 @@ Choose the drive frequency ``f`` and peak-to-peak voltage ``V`` within :class:`O
 How it learns
 -------------
 1. **The model, corrected.**  The map is the harmonic balance of the fin model (or of a diagnosed
-   model, ``model``) plus a :class:`Correction`: eight effects of the one library that real fins
+   model, ``model``) plus a :class:`Correction`: nine effects of the one library that real fins
    show (a resonance off, an added mass off ``c_m(psi)``, electroelastic softening, extra drag, a
-   coupling that grows with the field, dielectric loss, a capacitance off ``C_eq``, and a load-cell
-   gain).  After each trial they are fitted, with weak priors around the nominal fin, to everything
+   coupling that grows with the field, dielectric loss, a leak beside the piezo, a capacitance off
+   ``C_eq``, and a load-cell gain).  After each trial they are fitted, with weak priors around the nominal fin, to everything
    the trial measured: the power, the thrust estimate (vibrometer or load cell) and the drive's
    admittance ``I_1 / V_1``.  The admittance carries the capacitance and loss conductance (its
    static part) and ``theta^2`` times the mechanical response (its motional part), so on a fish
    (``source = "self"``, drive only) the same fit *calibrates the self-sensing*: the thrust is
    re-estimated from each trial's admittance with the fitted ``C_eq``, loss conductance, coupling
    at that field and ``c_m`` (:mod:`piezofin_ros.estimation.selfsense`), and the fit's covariance
-   gives its error bound.
+   gives its error bound.  When that bound keeps every trial from counting and the map's choice
+   has been measured already, a *calibrating* trial goes where it shrinks the bound most (a leak
+   and the loss, which one frequency cannot tell apart, are told apart by another).
 2. **What the model misses.**  Residuals of the measured log thrust and log power against the
    corrected map are interpolated by a Gaussian process (:mod:`.gp`): near the trials the map
    follows the measurements, far from them it reverts to the model.  When the corrected model keeps
@@ -73,6 +75,7 @@ from ..physics.effects import (
     Effect,
     Electroelastic,
     FieldCoupling,
+    Leakage,
     LoadcellGain,
     ResonanceOffset,
 )
@@ -154,6 +157,7 @@ class Correction:
     drag_scale: float = 1.0  # c_d x
     coupling_k: float = 0.0  # theta x (1 + k Vpp / 800)
     loss_tan_delta: float = 0.0
+    leakage_us: float = 0.0  # a conductance beside the piezo, uS: a current in phase with the voltage
     capacitance: float = 1.0  # C_eq x
     thrust_gain: float = 1.0
 
@@ -173,6 +177,7 @@ class Correction:
             DragOffset(self.drag_scale),
             FieldCoupling(self.coupling_k, 1.0),
             DielectricLoss(self.loss_tan_delta),
+            Leakage(self.leakage_us),
             CapacitanceOffset(self.capacitance),
         )
 
@@ -230,6 +235,7 @@ _PARAMS = (
     Fitted("drag_scale", DragOffset, "scale", True, 0.7, (0.1, 10.0)),  # (log: not down to 0)
     Fitted("coupling_k", FieldCoupling, "k", False, 0.3),
     Fitted("loss_tan_delta", DielectricLoss, "tan_delta", False, 0.3),
+    Fitted("leakage_us", Leakage, "conductance", False, 0.1),
     Fitted("capacitance", CapacitanceOffset, "scale", True, 0.05),
     Fitted("thrust_gain", LoadcellGain, "gain", True, 0.3, (0.2, 5.0)),
 )
@@ -446,18 +452,22 @@ class Optimiser:
         """Noise of each trial's log thrust estimate: the estimate's own, and for a self-sensed one the
         admittance's noise magnified by the ratio of the whole current to its motional part."""
         power = np.array([o.power_w for o in obs])
-        noise, _ = self._noise(np.maximum(thrust, 1e-300), power)
+        noise, noise_p = self._noise(np.maximum(thrust, 1e-300), power)
         noise = np.array(noise, float, ndmin=1)
+        noise_p = np.array(noise_p, float, ndmin=1)
         for k, o in enumerate(obs):
             if o.source == "self" and o.has_admittance:
                 cal = c.calibration(self.fin, o.frequency_hz, o.drive_vpp)
                 w = 2 * math.pi * o.frequency_hz
-                motional = abs(
-                    o.admittance
-                    - (complex(float(cal.conductance_s), w * self.fin.C_eq * float(cal.capacitance)))
-                )
-                ratio = abs(o.admittance) / max(motional, 1e-300)
-                noise[k] = math.hypot(noise[k], 2.0 * self.noise.admittance_rel * ratio)
+                y = o.admittance
+                m = y - complex(float(cal.conductance_s), w * self.fin.C_eq * float(cal.capacitance))
+                # the thrust goes as |m|^2: its log moves by 2 (Re m dG + Im m dB) / |m|^2, where the
+                # conductance is the power's (2 P / V^2, the power's noise) and the susceptance the
+                # admittance's own
+                d_g = float(noise_p[k]) * abs(y.real)
+                d_b = self.noise.admittance_rel * abs(y)
+                spread = 2.0 * math.hypot(m.real * d_g, m.imag * d_b) / max(abs(m) ** 2, 1e-300)
+                noise[k] = math.hypot(noise[k], spread)
         return noise
 
     def _thrust_estimates(self, c: Correction, obs: list[Observation]) -> FloatArray:
@@ -828,6 +838,9 @@ class Optimiser:
     def _rule_confirm(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
         return self._candidate()
 
+    def _rule_calibrate(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
+        return self._calibration_point(inc)
+
     def _rule_map(self, inc: tuple[float, float] | None) -> tuple[float, float]:
         assert self.choice is not None
         point = (self.choice.frequency_hz, self.choice.voltage_pp)
@@ -848,8 +861,80 @@ class Optimiser:
     RULES: ClassVar[tuple[tuple[str, Callable[..., tuple[float, float] | None]], ...]] = (
         ("identify", _rule_identify),
         ("confirm", _rule_confirm),
+        ("calibrate", _rule_calibrate),
         ("map", _rule_map),
     )
+
+    #: a calibrating trial is taken when it shrinks the calibration's variance at the map's choice to
+    #: less than this fraction of what one more trial at the choice would
+    calibrate_gain: ClassVar[float] = 0.5
+
+    def _calibration_point(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
+        """On a fish under a demand, while no trial counts and the map's choice was measured before:
+        the trial that shrinks the self-sensing's calibration bound at the choice the most, if it
+        shrinks its variance below ``calibrate_gain`` of what a repeat of the choice would.  Without
+        it, a leak and the dielectric loss that trade off at one frequency kept M8528-P1 at the
+        map's 9.87 Hz, 800 Vpp for every trial, its bound at 115 % and nothing counted (the trials
+        repeat the choice's admittance, which does not tell the two apart; one elsewhere does).
+
+        A first-order design: each candidate's trial is the corrected model's prediction there, its
+        information (its residuals' Jacobian, as the fit weighs it) is added to the fit's, and the
+        variance of the choice's log thrust estimate is propagated through the sum."""
+        if (
+            self.source != "self"
+            or self.demand_n is None
+            or inc is not None
+            or self.choice is None
+            or self._covariance is None
+        ):
+            return None
+        choice = (self.choice.frequency_hz, self.choice.voltage_pp)
+        if not any(_close(_point(o), choice, self.tolerance) for o in self.observations):
+            return None
+        lim = self.limits
+        f = np.geomspace(lim.frequency_min_hz, lim.frequency_max_hz, 16)
+        v = np.array([0.5 * (lim.voltage_pp_min + lim.voltage_pp_max), lim.voltage_pp_max])
+        ff, vv = (a.ravel() for a in np.meshgrid(f, v))
+        ff, vv = np.concatenate([[choice[0]], ff]), np.concatenate([[choice[1]], vv])
+        pred = self.correction.predict(self.fin, ff, vv)
+        thrust = np.asarray(pred.thrust_n, float)
+        if math.isfinite(self.overshoot):  # (a fish's speed follows the trial's thrust)
+            keep = thrust <= self.demand_n * (1.0 + self.overshoot)
+            keep[0] = True
+            ff, vv, thrust = ff[keep], vv[keep], thrust[keep]
+            pred = self.correction.predict(self.fin, ff, vv)
+        admittance = np.asarray(pred.admittance, complex)
+        power = np.asarray(pred.power_w, float)
+        trials = [
+            Observation(0.0, float(a), float(b), float(t), float(p), source="self", admittance=complex(y))
+            for a, b, t, p, y in zip(ff, vv, thrust, power, admittance, strict=True)
+        ]
+        if not all(math.isfinite(o.thrust_n) and o.thrust_n > 0 and o.power_w > 0 for o in trials):
+            return None
+        x = _vector(self.correction)
+        n = len(trials)
+        r0 = self._residuals(self.correction, trials, 0.0)
+        e0 = np.log(self._thrust_estimates(self.correction, trials[:1]))
+        jac = np.empty((3, n, len(x)))
+        grad = np.empty(len(x))
+        for k in range(len(x)):
+            step = 1e-4 * _PRIOR_SIGMA[k]
+            xk = x.copy()
+            xk[k] += step if xk[k] + step <= _UPPER[k] else -step
+            ck = _correction(xk, self.model)
+            jac[:, :, k] = ((self._residuals(ck, trials, 0.0) - r0) / (xk[k] - x[k])).reshape(3, n)
+            grad[k] = (np.log(self._thrust_estimates(ck, trials[:1]))[0] - e0[0]) / (xk[k] - x[k])
+        try:
+            info = np.linalg.inv(self._covariance)
+            var = np.array(
+                [grad @ np.linalg.solve(info + jac[:, i, :].T @ jac[:, i, :], grad) for i in range(n)]
+            )
+        except np.linalg.LinAlgError:
+            return None
+        best = int(np.argmin(var))
+        if best == 0 or not var[best] < self.calibrate_gain * var[0]:
+            return None
+        return float(ff[best]), float(vv[best])
 
     def _gain(self, here: tuple[float, float], there: tuple[float, float]) -> float:
         """The map's relative gain in the task's objective from ``here`` to ``there`` (both on the map,
