@@ -419,7 +419,9 @@ def test_a_point_is_confirmed_whatever_amplifier_the_supply_meter_reads(quiescen
 
 
 @pytest.mark.parametrize("frequency_hz", [5.0, 8.0, 9.9, 12.0])
-def test_a_self_sensed_thrusts_noise_is_what_its_admittance_and_power_give(m8528: Fin, frequency_hz: float) -> None:
+def test_a_self_sensed_thrusts_noise_is_what_its_admittance_and_power_give(
+    m8528: Fin, frequency_hz: float
+) -> None:
     """The noise the optimiser gives a self-sensed thrust is the scatter of 600 trials' estimates,
     within -5/+25 % (the estimate's own floor adds a little), below, at and above the resonance.
     The admittance's conductance is the power's (0.5 %), not the susceptance's 0.1 %: with 0.1 % on
@@ -433,7 +435,9 @@ def test_a_self_sensed_thrusts_noise_is_what_its_admittance_and_power_give(m8528
     for _ in range(600):
         r = read(plant, frequency_hz, 600.0, 0.0, rng, "self", m8528)
         trials.append(
-            Observation(0.0, frequency_hz, 600.0, r.thrust_n, r.power_w, "self", r.admittance, math.nan, r.voltage_pp)
+            Observation(
+                0.0, frequency_hz, 600.0, r.thrust_n, r.power_w, "self", r.admittance, math.nan, r.voltage_pp
+            )
         )
     estimates = opt._thrust_estimates(opt.correction, trials)
     predicted = float(np.mean(opt._thrust_noise(opt.correction, trials, estimates)))
