@@ -7,13 +7,13 @@ Plants: each fin with one effect of the library that the optimiser's correction 
 (amplitude-dependent damping, a Duffing spring, drag and added mass that vary with KC, a coupling
 growing as the field squared, an amplifier that sags or clips under its current limit) or a
 frequency-independent leak (outside it until the correction took a leak term, 2026-11-25: kept, as
-the check that the fit finds it), drawn per seed, on a background of the effects it does contain (softening up to 0.3,
-dielectric loss up to tan delta 0.1), with measurement noise (0.5 % + 5 uN / 5 uW, each plant its own
-draws); and the issue's three hidden fins.  Two tasks (a demand of 30 % of the fin's nominal maximum
-thrust; the best frequency at 800 Vpp) and three sources: ``loadcell`` (a rig's load cell: the thrust
-itself, with noise), ``vibrometer`` (Lighthill on the tip velocity with the paper's ``c_m``) and
-``self`` (a fish: the drive's voltage and current alone, self-sensed with the paper's ``C_eq`` and
-``theta``).
+the check that the fit finds it), drawn per seed, on a background of the effects it does contain
+(softening up to 0.3, dielectric loss up to tan delta 0.1), with measurement noise (0.5 % + 5 uN / 5
+uW, each plant its own draws); and the issue's three hidden fins. Two tasks (a demand of 30 % of the
+fin's nominal maximum thrust; the best frequency at 800 Vpp) and three sources: ``loadcell`` (a
+rig's load cell: the thrust itself, with noise), ``vibrometer`` (Lighthill on the tip velocity with
+the paper's ``c_m``) and ``self`` (a fish: the drive's voltage and current alone, self-sensed with
+the paper's ``C_eq`` and ``theta``).
 
 Methods on the same plants and noise, each holding the best measured point that meets the task with
 the same margin (measured thrust less 2 standard deviations of its noise):

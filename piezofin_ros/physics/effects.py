@@ -51,6 +51,8 @@ from .knobs import Knobs
 
 FloatArray = NDArray[Any]
 V_REF = 800.0  # Vpp: voltage-dependent effects are quoted at this drive
+AMPLIFIER = "amplifier"  # the family of the effects between the command and the fin (applied first)
+VOLTAGE_MONITOR = "voltage monitor"  # the family of the instrument that reads the drive
 #: Describing functions: |x| x (quadratic drag) -> 8/(3 pi) X, |x| x' -> 4/(3 pi) X, x^3 -> 3/4 X^2.
 DF_ABS_DAMPING = 4.0 / (3.0 * math.pi)
 DF_CUBIC = 0.75
@@ -200,10 +202,30 @@ class Effects(tuple[Effect, ...]):
     def amplitude_dependent(self) -> bool:
         return any(e.amplitude_dependent for e in self)
 
-    def describe(self, op: OperatingPoint) -> Knobs:
+    # The amplifier's effects come first, at the voltage commanded; every other effect sees the
+    # fundamental the fin gets: a field softens the fin and strengthens its coupling as it is applied.
+    # (Each once saw the command: under a sagging amplifier a fit at the monitor's voltage, as the
+    # optimiser's, then read its softening as added mass, and a fish's self-sensed thrust 15-25 % high.)
+
+    def describe(self, op: OperatingPoint, drive_pp: FloatArray | None = None) -> Knobs:
+        """The knobs at ``op``; ``drive_pp``: the drive as its monitor read it, which the fin gets
+        (over the monitor's gain) in place of the amplifier's output."""
         k = Knobs()
         for e in self:
-            k = e.describe(k, op)
+            if e.family == AMPLIFIER:
+                k = e.describe(k, op)
+        if drive_pp is None:
+            v_fin = op.voltage_pp * np.asarray(k.voltage) * np.asarray(k.voltage_scale)
+        else:
+            monitor = Knobs()
+            for e in self:
+                if e.family == VOLTAGE_MONITOR:
+                    monitor = e.describe(monitor, op)
+            v_fin = np.asarray(drive_pp, float) / np.asarray(monitor.voltage_gain)
+        at_fin = replace(op, voltage_pp=np.broadcast_to(v_fin, np.shape(op.voltage_pp)))
+        for e in self:
+            if e.family != AMPLIFIER:
+                k = e.describe(k, at_fin)
         return k
 
     def law(
@@ -211,7 +233,16 @@ class Effects(tuple[Effect, ...]):
     ) -> TimeLaw:
         law = TimeLaw()
         for e in self:
-            law = e.law(law, fin, frequency_hz, voltage_pp, time_s)
+            if e.family == AMPLIFIER:
+                law = e.law(law, fin, frequency_hz, voltage_pp, time_s)
+        # (the time domain scales the command, then clips it: the fundamental of that)
+        amplitude = 0.5 * np.asarray(voltage_pp, float) * np.asarray(law.voltage_scale, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(amplitude > 0, np.asarray(law.voltage_clip, float) / amplitude, 1.0)
+        at_fin = 2.0 * amplitude * clipped_fundamental(r)
+        for e in self:
+            if e.family != AMPLIFIER:
+                law = e.law(law, fin, frequency_hz, at_fin, time_s)
         return law
 
 
@@ -552,7 +583,7 @@ class AmplifierLimit(Effect):
 
     name = "amplifier_limit"
     title = "amplifier current limit (the drive clips at high f x V)"
-    family = "amplifier"
+    family = AMPLIFIER
     inv_i_max: float = param(
         "1/mA",
         0.0,
@@ -656,7 +687,7 @@ class AmplifierSag(Coefficient):
 
     name = "amplifier_sag"
     title = "amplifier sags its output under a current limit (no clipping)"
-    family = "amplifier"
+    family = AMPLIFIER
     inv_i_max: float = param(
         "1/mA",
         0.0,
@@ -716,7 +747,7 @@ class _Instrument(Coefficient):
 class VoltageMonitorGain(_Instrument):
     name = "voltage_monitor_gain"
     title = "voltage monitor calibration (gain: the drive is not what it reads)"
-    family = "voltage monitor"
+    family = VOLTAGE_MONITOR
     gain: float = param("-", 1.0, 0.3, 3.0, 0.05, "drive reading x gain")
     target = "voltage_gain"
 

@@ -246,14 +246,14 @@ def steady_knobs(
 
     t_all = np.broadcast_to(np.asarray(time_s, float), f.shape)
 
-    def knobs(ff: FloatArray, vv: FloatArray, tt: FloatArray, x: FloatArray) -> Knobs:
-        return effects.describe(OperatingPoint(fin, ff, vv, x, tt))
+    def knobs(ff: FloatArray, vv: FloatArray, tt: FloatArray, x: FloatArray, mm: FloatArray | None) -> Knobs:
+        return effects.describe(OperatingPoint(fin, ff, vv, x, tt), mm)
 
     def solve(
         ff: FloatArray, vv: FloatArray, tt: FloatArray, mm: FloatArray | None, amp: FloatArray
     ) -> FloatArray:
         """The linear steady amplitude with the knobs frozen at amplitude ``amp``."""
-        k = knobs(ff, vv, tt, phi * amp)
+        k = knobs(ff, vv, tt, phi * amp, mm)
         return solve_amplitude(*coefficients(fin, 2 * math.pi * ff, k), _force(fin, k, vv, mm), guess=amp)
 
     amp = solve(f, vpp, t_all, measured, np.zeros_like(f))
@@ -267,7 +267,7 @@ def steady_knobs(
             amp[bad] = _lowest_root(
                 lambda x, j: solve(fb[j], vb[j], tb[j], None if mb is None else mb[j], x), amp[bad]
             )
-    k = knobs(f, vpp, t_all, phi * amp)
+    k = knobs(f, vpp, t_all, phi * amp, None if measured is None else np.broadcast_to(measured, f.shape))
     kk = Knobs(
         **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
     )
