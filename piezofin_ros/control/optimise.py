@@ -870,8 +870,9 @@ class Optimiser:
     calibrate_gain: ClassVar[float] = 0.5
 
     def _calibration_point(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
-        """On a fish under a demand, while no trial counts and the map's choice was measured before:
-        the trial that shrinks the self-sensing's calibration bound at the choice the most, if it
+        """On a fish under a demand, while no trial counts, the map's choice was measured before, and
+        the calibration's share of the demand's margin exceeds the trial's noise there: the trial
+        that shrinks the self-sensing's calibration bound at the choice the most, if it
         shrinks its variance below ``calibrate_gain`` of what a repeat of the choice would.  Without
         it, a leak and the dielectric loss that trade off at one frequency kept M8528-P1 at the
         map's 9.87 Hz, 800 Vpp for every trial, its bound at 115 % and nothing counted (the trials
@@ -889,7 +890,14 @@ class Optimiser:
         ):
             return None
         choice = (self.choice.frequency_hz, self.choice.voltage_pp)
-        if not any(_close(_point(o), choice, self.tolerance) for o in self.observations):
+        there = [o for o in self.observations if _close(_point(o), choice, self.tolerance)]
+        if not there:
+            return None
+        # only where the calibration is what keeps a trial from counting: its share of the margin
+        # exceeds the trial's noise (with no margin, a speed loop's, it never does)
+        estimate = self._thrust_estimates(self.correction, there[-1:])
+        noise = float(self._thrust_noise(self.correction, there[-1:], estimate)[0])
+        if not self.z_demand * 0.5 * np.nan_to_num(self.self_sensing_bound) > self.z_demand * noise:
             return None
         lim = self.limits
         f = np.geomspace(lim.frequency_min_hz, lim.frequency_max_hz, 16)
