@@ -467,3 +467,21 @@ def test_a_fish_tells_a_leak_from_the_dielectric_loss_and_holds_its_demand(m8528
     assert truth >= demand
     assert held["thrust_n"] == pytest.approx(truth, rel=0.05)
     assert opt.self_sensing_bound < 0.1
+
+
+def test_a_fish_without_a_margin_takes_no_calibrating_trial(m8528: Fin) -> None:
+    """A speed loop's fish asks for its thrust with no margin (``demand_margin_z: 0``): the
+    calibration then keeps no trial from counting, and a calibrating trial (800 Vpp far from the
+    demand) would only move the fish's speed, as it moved M8514-P1's 5 % in ``bench_fish``.  Where
+    the leak's fish of the test above takes one (its second trial, the map's choice measured, a
+    bound of 115 %), the same optimiser with no margin does not."""
+    demand = 0.3 * float(np.max(Plant(m8528).steady(np.linspace(1, 20, 400), 800.0).thrust_n))
+    plant = Plant(m8528, loss_tan_delta=0.03, effects=(Leakage(0.08),))
+    opt = Optimiser(m8528, LIMITS, demand_n=demand, source="self")
+    rng, t = np.random.default_rng(3), 0.0
+    for _ in range(2):
+        t = evaluation.run_trial(opt, plant, t, rng)
+    assert opt.rule == "calibrate" and opt.self_sensing_bound > 1.0
+    assert opt._calibration_point(opt.incumbent()) is not None
+    opt.z_demand = 0.0
+    assert opt._calibration_point(opt.incumbent()) is None
