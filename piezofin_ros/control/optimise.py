@@ -240,6 +240,7 @@ _PARAMS = (
     Fitted("thrust_gain", LoadcellGain, "gain", True, 0.3, (0.2, 5.0)),
 )
 _PRIOR_SIGMA = np.array([p.prior_sigma for p in _PARAMS])
+_LEAK = [p.name for p in _PARAMS].index("leakage_us")
 _LOWER = np.array([p.bounds()[0] for p in _PARAMS]) + 1e-9
 _UPPER = np.array([p.bounds()[1] for p in _PARAMS]) - 1e-9
 
@@ -530,6 +531,12 @@ class Optimiser:
         sigma = _PRIOR_SIGMA.copy()
         if self.source == "self":
             sigma[0] = self.stiffness_sigma
+        else:
+            # a leak is fitted on a fish, where its current would read as motion; with a vibrometer or
+            # a load cell it moves only the power, and fitted there it let three M8528-P1 plants'
+            # maps (drag or coupling off the correction's family) hold points 2-3 % short of the
+            # demand in truth (`bench_unseen.py --watt supply_measured`): held at none
+            sigma[_LEAK] = 1e-6
         return sigma
 
     def _fit(self) -> Correction:
