@@ -17,9 +17,9 @@ How it learns
    model, ``model``) plus a :class:`Correction`: nine effects of the one library that real fins
    show (a resonance off, an added mass off ``c_m(psi)``, electroelastic softening, extra drag, a
    coupling that grows with the field, dielectric loss, a leak beside the piezo (on a fish), a
-   capacitance off ``C_eq``, and a load-cell gain).  After each trial they are fitted, with weak priors around the
-   nominal fin, to everything the trial measured: the power, the thrust estimate (vibrometer or load
-   cell) and the drive's admittance ``I_1 / V_1``.  The admittance carries the capacitance and loss
+   capacitance off ``C_eq``, and a load-cell gain).  After each trial they are fitted, with weak
+   priors around the nominal fin, to everything the trial measured: the power, the thrust estimate
+   (vibrometer or load cell) and the drive's admittance ``I_1 / V_1``.  The admittance carries the capacitance and loss
    conductance (its static part) and ``theta^2`` times the mechanical response (its motional part),
    so on a fish (``source = "self"``, drive only) the same fit *calibrates the self-sensing*: the
    thrust is re-estimated from each trial's admittance with the fitted ``C_eq``, loss conductance,
