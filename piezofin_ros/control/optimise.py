@@ -13,20 +13,21 @@ Choose the drive frequency ``f`` and peak-to-peak voltage ``V`` within :class:`O
 
 How it learns
 -------------
-1. **The model, corrected.**  The map is the harmonic balance of the fin model (or of a diagnosed
-   model, ``model``) plus a :class:`Correction`: nine effects of the one library that real fins
-   show (a resonance off, an added mass off ``c_m(psi)``, electroelastic softening, extra drag, a
+1. **The model, corrected.** The map is the harmonic balance of the fin model (or of a diagnosed
+   model, ``model``) plus a :class:`Correction`: nine effects of the one library that real fins show
+   (a resonance off, an added mass off ``c_m(psi)``, electroelastic softening, extra drag, a
    coupling that grows with the field, dielectric loss, a leak beside the piezo (on a fish), a
-   capacitance off ``C_eq``, and a load-cell gain).  After each trial they are fitted, with weak
+   capacitance off ``C_eq``, and a load-cell gain). After each trial they are fitted, with weak
    priors around the nominal fin, to everything the trial measured: the power, the thrust estimate
-   (vibrometer or load cell) and the drive's admittance ``I_1 / V_1``.  The admittance carries the capacitance and loss
-   conductance (its static part) and ``theta^2`` times the mechanical response (its motional part),
-   so on a fish (``source = "self"``, drive only) the same fit *calibrates the self-sensing*: the
-   thrust is re-estimated from each trial's admittance with the fitted ``C_eq``, loss conductance,
-   coupling at that field and ``c_m`` (:mod:`piezofin_ros.estimation.selfsense`), and the fit's
-   covariance gives its error bound.  When that bound keeps every trial from counting and the map's choice
-   has been measured already, a *calibrating* trial goes where it shrinks the bound most (a leak
-   and the loss, which one frequency cannot tell apart, are told apart by another).
+   (vibrometer or load cell) and the drive's admittance ``I_1 / V_1``. The admittance carries the
+   capacitance and loss conductance (its static part) and ``theta^2`` times the mechanical response
+   (its motional part), so on a fish (``source = "self"``, drive only) the same fit *calibrates the
+   self-sensing*: the thrust is re-estimated from each trial's admittance with the fitted ``C_eq``,
+   loss conductance, coupling at that field and ``c_m`` (:mod:`piezofin_ros.estimation.selfsense`),
+   and the fit's covariance gives its error bound. When that bound keeps every trial from counting
+   and the map's choice has been measured already, a *calibrating* trial goes where it shrinks the
+   bound most (a leak and the loss, which one frequency cannot tell apart, are told apart by
+   another).
 2. **What the model misses.**  Residuals of the measured log thrust and log power against the
    corrected map are interpolated by a Gaussian process (:mod:`.gp`): near the trials the map
    follows the measurements, far from them it reverts to the model.  When the corrected model keeps
