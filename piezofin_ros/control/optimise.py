@@ -195,7 +195,9 @@ class Correction:
     def calibration(self, fin: Fin, f: Any, v: Any) -> Calibration:
         """The self-sensing's calibration at these points (:mod:`piezofin_ros.estimation.selfsense`)."""
         law = self.model(fin).law(f, v)
-        return Calibration(law.capacitance, law.loss_conductance, law.coupling, law.mass)
+        return Calibration(
+            law.capacitance, law.loss_conductance, law.coupling, law.mass, law.mass_kc, law.mass_kc2
+        )
 
 
 # The fitted parameters (:class:`Fitted`): each one of the library's declared parameters, fitted

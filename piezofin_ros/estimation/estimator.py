@@ -267,8 +267,9 @@ def analyse_window(
     def lighthill(Uk: FloatArray) -> tuple[float, float, float]:
         ms_u = float(np.sum(np.abs(Uk) ** 2) / 2.0)
         ms_w = float(np.sum(np.abs(Uk) ** 2 / (2.0 * (orders * w) ** 2)))
-        thrust = 0.5 * fin.m_v * float(calibration.mass) * (ms_u - U2 * slope_ratio**2 * ms_w)
         amp_w1 = abs(Uk[0]) / w
+        mass = float(calibration.mass_at(fin, amp_w1))  # (the fundamental's amplitude sets KC)
+        thrust = 0.5 * fin.m_v * mass * (ms_u - U2 * slope_ratio**2 * ms_w)
         denom = 0.5 * fin.rho_w * w**2 * amp_w1**2 * fin.b * fin.L
         c_tau = thrust / denom if denom > 0 else math.nan
         return math.sqrt(ms_u), thrust, c_tau

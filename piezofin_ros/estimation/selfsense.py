@@ -36,6 +36,21 @@ class Calibration:
     conductance_s: float | FloatArray = 0.0  # S, the loss conductance at the drive frequency
     coupling: float | FloatArray = 1.0  # x theta, at this field
     mass: float | FloatArray = 1.0  # x c_m: the added mass of m_v (Eq. 21)
+    mass_kc: float | FloatArray = 0.0  # and x (1 + mass_kc KC + mass_kc2 KC^2) at the tip's motion
+    mass_kc2: float | FloatArray = 0.0
+
+    def mass_at(self, fin: Fin, tip_amplitude_m: Any) -> FloatArray:
+        """The factor on ``c_m`` at a tip amplitude ``X`` (m): with the Keulegan-Carpenter number
+        ``KC = 2 pi X / b``, ``mass x (1 + mass_kc KC + mass_kc2 KC^2)``, as the time domain has it."""
+        kc = 2 * np.pi * np.asarray(tip_amplitude_m, float) / fin.b
+        return np.asarray(self.mass) * (1 + (np.asarray(self.mass_kc) + np.asarray(self.mass_kc2) * kc) * kc)
+
+    @classmethod
+    def of_law(cls, law: Any) -> Calibration:
+        """A model's calibration at one operating point, from its time-domain law
+        (:meth:`piezofin_ros.physics.model.Model.law`)."""
+        names = ("capacitance", "loss_conductance", "coupling", "mass", "mass_kc", "mass_kc2")
+        return cls(*(float(getattr(law, n)) for n in names))
 
 
 NOMINAL = Calibration()
@@ -51,6 +66,11 @@ def self_sensed_tip(
     return np.asarray(fin.phi_tip / (fin.theta * np.asarray(cal.coupling)) * motional)
 
 
-def lighthill_thrust(fin: Fin, tip_rms: Any, calibration: Calibration = NOMINAL) -> FloatArray:
-    """Lighthill's mean thrust ``(1/2) m_v u^2`` (no swimming speed) for an RMS tip velocity ``u``."""
-    return np.asarray(0.5 * fin.m_v * np.asarray(calibration.mass) * np.asarray(tip_rms) ** 2)
+def lighthill_thrust(
+    fin: Fin, tip_rms: Any, calibration: Calibration = NOMINAL, frequency_hz: Any = np.inf
+) -> FloatArray:
+    """Lighthill's mean thrust ``(1/2) m_v u^2`` (no swimming speed) for an RMS tip velocity ``u`` of
+    a sine at ``frequency_hz`` (which sets its amplitude, for an added mass that grows with it)."""
+    amplitude = np.sqrt(2) * np.asarray(tip_rms) / (2 * np.pi * np.asarray(frequency_hz, float))
+    mass = calibration.mass_at(fin, amplitude)
+    return np.asarray(0.5 * fin.m_v * mass * np.asarray(tip_rms) ** 2)

@@ -189,10 +189,7 @@ def _calibration_of(path: str) -> tuple[Fin, Callable[[float, float], Calibratio
         raise StartupError(f"parameter model: {exc}") from None
 
     def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
-        law = model.law(frequency_hz, voltage_pp)
-        return Calibration(
-            float(law.capacitance), float(law.loss_conductance), float(law.coupling), float(law.mass)
-        )
+        return Calibration.of_law(model.law(frequency_hz, voltage_pp))
 
     return model.fin, calibrate
 

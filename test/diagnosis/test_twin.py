@@ -18,9 +18,10 @@ EXE = Path(sys.executable).parent / "piezofin"
 
 
 def test_the_shipped_twin_reproduces_the_papers_facts_as_it_says() -> None:
-    """Every fact of the paper recomputed on the presets, with the amplifier's draw: each within 2 of
-    its tolerances, at least 7 of 10 within one, chi2 that the tolerances explain (p >= 0.01); max T/P
-    per the supply watt within 40 % of 60.7 mN/W; and docs/twin.md says the same numbers."""
+    """Every fact of the paper recomputed on the presets, with the amplifier's draw: 9 of 10 within
+    their tolerance, the tenth within 1.6 of it, chi2 that the tolerances explain (p >= 0.5); max T/P
+    per the supply watt within 12 % of 60.7 mN/W, two of the three fins within 10 %; and docs/twin.md
+    says the same numbers."""
     from scipy import stats
 
     assert {f"paper-twin-{n}" for n in PAPER_FINS} <= set(model_presets())
@@ -28,11 +29,11 @@ def test_the_shipped_twin_reproduces_the_papers_facts_as_it_says() -> None:
     assert len({m.parameters().__repr__() for m in models.values()}) == 1  # one rig: shared effects
     q = quantities(models, "amplifier draw", Fins())
     r = _residuals(q)
-    assert max(abs(r)) <= 2.0 and sum(abs(r) <= 1.0) >= 7, dict(zip([f.name for f in FACTS], r, strict=True))
+    assert max(abs(r)) <= 1.6 and sum(abs(r) <= 1.0) >= 9, dict(zip([f.name for f in FACTS], r, strict=True))
     k = sum(len(p) for p in next(iter(models.values())).parameters().values())
-    assert stats.chi2.sf(float((r**2).sum()), len(FACTS) - k) >= 0.01
-    for n in PAPER_FINS:
-        assert abs(q[f"max_tpw_{n}"] / 0.0607 - 1) < 0.4, (n, q[f"max_tpw_{n}"])
+    assert stats.chi2.sf(float((r**2).sum()), len(FACTS) - k) >= 0.5
+    off = [abs(q[f"max_tpw_{n}"] / 0.0607 - 1) for n in PAPER_FINS]
+    assert max(off) < 0.12 and sum(x < 0.1 for x in off) == 2, off
     md = (ROOT / "docs" / "twin.md").read_text()
     for f, x in zip(FACTS, r, strict=True):
         assert f"{x:+.2f} sigma" in md, (f.name, x)
@@ -40,19 +41,21 @@ def test_the_shipped_twin_reproduces_the_papers_facts_as_it_says() -> None:
         assert set(m.uncertainties) == set(m.names) and "twin" in m.notes
 
 
-def test_a_fourth_effect_brings_every_fins_max_thrust_per_watt_within_10_percent() -> None:
-    """What the README says of the next twin: the shipped one plus an added mass growing with KC puts
-    each fin's max T/P (the amplifier's draw) within 10 % of 60.7 mN/W and 9 of the 10 facts within
-    their tolerance, the tenth (the 5 : 1 power ratio) within 1.3 of it, p >= 0.5."""
+def test_the_rival_the_facts_cannot_rule_out_brings_every_fin_within_10_percent() -> None:
+    """What the README says of the twin's closest rival: an added mass growing with KC, not KC^2,
+    fits the facts as well (p within 0.05 of the twin's) and puts each fin's max T/P (the amplifier's
+    draw) within 10 % of 60.7 mN/W; 9 of the 10 facts within their tolerance, the tenth (the 5 : 1
+    power ratio) within 1.3 of it."""
     from piezofin_ros.diagnosis.paper import fit_hypothesis
 
+    twin = load_model("paper-twin-M8528-P1")
     names = ("added_mass_kc", "added_mass_offset", "drag_offset", "electroelastic_softening")
     h = fit_hypothesis("amplifier draw", names)
     for n in PAPER_FINS:
         assert abs(h.predicted[f"max_tpw_{n}"] / 0.0607 - 1) < 0.1, (n, h.predicted[f"max_tpw_{n}"])
     r = dict(zip([f.name for f in FACTS], h.residuals, strict=True))
     assert sum(abs(x) <= 1.0 for x in r.values()) == 9 and abs(r["power_ratio_M8528-P1"]) <= 1.3, r
-    assert h.p_value >= 0.5, h.p_value
+    assert abs(h.p_value - twin.notes["p_value"]) < 0.05, (h.p_value, twin.notes["p_value"])
 
 
 @pytest.mark.slow

@@ -1,6 +1,7 @@
 """Self-sensing on a fin the paper's model does not describe: dielectric loss, a coupling that grows
-with the field, an added mass off c_m(psi).  The nominal self-sensing is wrong by tens of per cent;
-calibrated with the fin's own capacitance, loss, coupling and c_m it agrees with the vibrometer."""
+with the field, an added mass off c_m(psi) and growing with the motion.  The nominal self-sensing is
+wrong by tens of per cent; calibrated with the fin's own capacitance, loss, coupling and c_m (at the
+motion's Keulegan-Carpenter number) it agrees with the vibrometer."""
 
 from __future__ import annotations
 
@@ -14,14 +15,19 @@ from piezofin_ros.physics.model import Model
 from piezofin_ros.rig.simulated import SimulatedRig
 
 FIN = load_fin("M8528-P1")
-MODEL = Model.of(FIN, {"dielectric_loss": [0.08], "field_coupling": [0.3, 1.0], "added_mass_offset": [1.2]})
+MODEL = Model.of(  # the last: the twin's added mass, growing with KC^2 (the estimator's thrust too)
+    FIN,
+    {
+        "dielectric_loss": [0.08],
+        "field_coupling": [0.3, 1.0],
+        "added_mass_offset": [1.2],
+        "added_mass_kc2": [0.25],
+    },
+)
 
 
 def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
-    law = MODEL.law(frequency_hz, voltage_pp)
-    return Calibration(
-        float(law.capacitance), float(law.loss_conductance), float(law.coupling), float(law.mass)
-    )
+    return Calibration.of_law(MODEL.law(frequency_hz, voltage_pp))
 
 
 def finals(calibrated: bool) -> list[Estimate]:
