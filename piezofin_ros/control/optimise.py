@@ -492,7 +492,7 @@ class Optimiser:
             y = np.array([obs[k].admittance for k in selfs])
             cal = c.calibration(self.fin, f, 2 * v_amp)
             tip = self_sensed_tip(self.fin, y * v_amp, v_amp, 2 * math.pi * f, cal)
-            out[selfs] = lighthill_thrust(self.fin, np.abs(tip) / math.sqrt(2), cal)
+            out[selfs] = lighthill_thrust(self.fin, np.abs(tip) / math.sqrt(2), cal, f)
         return out
 
     def _residuals(
