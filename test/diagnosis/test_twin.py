@@ -19,8 +19,8 @@ EXE = Path(sys.executable).parent / "piezofin"
 
 def test_the_shipped_twin_reproduces_the_papers_facts_as_it_says() -> None:
     """Every fact of the paper recomputed on the presets, with the amplifier's draw: 9 of 10 within
-    their tolerance, the tenth within 1.6 of it, chi2 that the tolerances explain (p >= 0.5); max T/P
-    per the supply watt within 12 % of 60.7 mN/W, two of the three fins within 10 %; and docs/twin.md
+    their tolerance, the tenth within 1.35 of it, chi2 that the tolerances explain (p >= 0.5); max
+    T/P per the supply watt within 10 % of 60.7 mN/W on each fin (issue 26's goal); and docs/twin.md
     says the same numbers."""
     from scipy import stats
 
@@ -29,11 +29,11 @@ def test_the_shipped_twin_reproduces_the_papers_facts_as_it_says() -> None:
     assert len({m.parameters().__repr__() for m in models.values()}) == 1  # one rig: shared effects
     q = quantities(models, "amplifier draw", Fins())
     r = _residuals(q)
-    assert max(abs(r)) <= 1.6 and sum(abs(r) <= 1.0) >= 9, dict(zip([f.name for f in FACTS], r, strict=True))
+    assert max(abs(r)) <= 1.35 and sum(abs(r) <= 1.0) >= 9, dict(zip([f.name for f in FACTS], r, strict=True))
     k = sum(len(p) for p in next(iter(models.values())).parameters().values())
     assert stats.chi2.sf(float((r**2).sum()), len(FACTS) - k) >= 0.5
-    off = [abs(q[f"max_tpw_{n}"] / 0.0607 - 1) for n in PAPER_FINS]
-    assert max(off) < 0.12 and sum(x < 0.1 for x in off) == 2, off
+    for n in PAPER_FINS:
+        assert abs(q[f"max_tpw_{n}"] / 0.0607 - 1) < 0.1, (n, q[f"max_tpw_{n}"])
     md = (ROOT / "docs" / "twin.md").read_text()
     for f, x in zip(FACTS, r, strict=True):
         assert f"{x:+.2f} sigma" in md, (f.name, x)
@@ -41,21 +41,21 @@ def test_the_shipped_twin_reproduces_the_papers_facts_as_it_says() -> None:
         assert set(m.uncertainties) == set(m.names) and "twin" in m.notes
 
 
-def test_the_rival_the_facts_cannot_rule_out_brings_every_fin_within_10_percent() -> None:
-    """What the README says of the twin's closest rival: an added mass growing with KC, not KC^2,
-    fits the facts as well (p within 0.05 of the twin's) and puts each fin's max T/P (the amplifier's
-    draw) within 10 % of 60.7 mN/W; 9 of the 10 facts within their tolerance, the tenth (the 5 : 1
-    power ratio) within 1.3 of it."""
+def test_a_greedy_step_would_have_missed_the_twin() -> None:
+    """Why ``--twin`` fits every pair of further effects: the most probable triple (added mass,
+    drag, softening; p = 0.2) extended by any one effect is less probable than the twin (its best,
+    with an added mass growing with KC^2, p = 0.72, puts M8528-P1's T/P 12 % above 60.7 mN/W)."""
     from piezofin_ros.diagnosis.paper import fit_hypothesis
 
     twin = load_model("paper-twin-M8528-P1")
-    names = ("added_mass_kc", "added_mass_offset", "drag_offset", "electroelastic_softening")
-    h = fit_hypothesis("amplifier draw", names)
-    for n in PAPER_FINS:
-        assert abs(h.predicted[f"max_tpw_{n}"] / 0.0607 - 1) < 0.1, (n, h.predicted[f"max_tpw_{n}"])
-    r = dict(zip([f.name for f in FACTS], h.residuals, strict=True))
-    assert sum(abs(x) <= 1.0 for x in r.values()) == 9 and abs(r["power_ratio_M8528-P1"]) <= 1.3, r
-    assert abs(h.p_value - twin.notes["p_value"]) < 0.05, (h.p_value, twin.notes["p_value"])
+    greedy = fit_hypothesis(
+        "amplifier draw", ("added_mass_offset", "drag_offset", "electroelastic_softening")
+    )
+    ahead = fit_hypothesis(
+        "amplifier draw", ("added_mass_kc2", "added_mass_offset", "drag_offset", "electroelastic_softening")
+    )
+    assert greedy.p_value < ahead.p_value < twin.notes["p_value"], (greedy.p_value, ahead.p_value)
+    assert ahead.predicted["max_tpw_M8528-P1"] / 0.0607 - 1 > 0.1
 
 
 @pytest.mark.slow
