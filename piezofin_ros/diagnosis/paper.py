@@ -558,6 +558,23 @@ def paper_twin(
     return Twin(every[0], tuple(h for h in every[1:] if h.survives), tried)
 
 
+def _all_within(twin: Twin) -> str:
+    """Whether any hypothesis tried puts every fact within its tolerance.  (One that did would have
+    chi2 <= 10 on at least 5 degrees of freedom, p >= 0.07: a survivor, so the survivors suffice.)"""
+    every = (twin.hypothesis, *twin.rivals)
+    inside = [h for h in every if max(abs(r) for r in h.residuals) <= 1]
+    if inside:
+        return (
+            f"{len(inside)} of the {twin.tried} hypotheses put all {len(FACTS)} facts within their tolerance."
+        )
+    closest = min(every, key=lambda h: max(abs(r) for r in h.residuals))
+    worst = max(abs(r) for r in closest.residuals)
+    return (
+        f"None of the {twin.tried} hypotheses puts all {len(FACTS)} facts within their tolerance; the "
+        f"closest, {closest.label}, has every one within {worst:.2f} of it."
+    )
+
+
 def twin_text(twin: Twin) -> str:
     h = twin.hypothesis
     amp = PAPER_BENCH
@@ -598,6 +615,8 @@ def twin_text(twin: Twin) -> str:
         f"{max(abs(r) for r in h.residuals):.1f} of it. Max T/P per the supply watt: "
         + ", ".join(f"{nm} {h.predicted[f'max_tpw_{nm}'] * 1e3:.1f} mN/W" for nm in PAPER_FINS)
         + f" (the paper: about {PAPER_MAX_TPW * 1e3:.1f}).",
+        "",
+        _all_within(twin),
         "",
         "## What the facts cannot decide",
         "",

@@ -70,7 +70,8 @@ def lighthill_thrust(
     fin: Fin, tip_rms: Any, calibration: Calibration = NOMINAL, frequency_hz: Any = np.inf
 ) -> FloatArray:
     """Lighthill's mean thrust ``(1/2) m_v u^2`` (no swimming speed) for an RMS tip velocity ``u`` of
-    a sine at ``frequency_hz`` (which sets its amplitude, for an added mass that grows with it)."""
+    a sine at ``frequency_hz``, which sets its amplitude for a calibration whose added mass grows with
+    it (``mass_kc``, ``mass_kc2``); without it the amplitude is taken as 0 (KC = 0)."""
     amplitude = np.sqrt(2) * np.asarray(tip_rms) / (2 * np.pi * np.asarray(frequency_hz, float))
     mass = calibration.mass_at(fin, amplitude)
     return np.asarray(0.5 * fin.m_v * mass * np.asarray(tip_rms) ** 2)

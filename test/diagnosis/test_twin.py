@@ -65,10 +65,11 @@ def test_the_command_writes_the_twin_the_package_ships(tmp_path: Path) -> None:
     out = tmp_path / "twin"
     run = subprocess.run(
         [str(EXE), "diagnose", "--paper", "--twin", str(out), "--quiet"],
-        capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL,
+        capture_output=True, text=True, timeout=1200, stdin=subprocess.DEVNULL,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr
     assert "# The paper's rig as a twin" in run.stdout and (out / "twin.md").exists()
+    assert "None of the 237 hypotheses puts all 10 facts within their tolerance" in run.stdout
     for n in PAPER_FINS:
         new = yaml.safe_load((out / f"paper-twin-{n}.yaml").read_text())
         shipped = yaml.safe_load((ROOT / "config" / "models" / f"paper-twin-{n}.yaml").read_text())
@@ -126,7 +127,7 @@ def test_bringup_runs_the_twin_and_refuses_contradictions(tmp_path: Path) -> Non
     assert run.returncode == 0, run.stderr[-2000:]
     (r,) = json.loads(out.read_text())["fins"]["/fin"]["results"]
     assert r["thrust_n"] == pytest.approx(r["thrust_loadcell_n"], rel=0.02)  # the estimator knows the twin
-    assert r["thrust_per_watt_supply"] * 1e3 == pytest.approx(70.3, rel=0.05)  # the README's main job, 4 Hz
+    assert r["thrust_per_watt_supply"] * 1e3 == pytest.approx(67.5, rel=0.05)  # the README's main job, 4 Hz
     for args, words in (
         (["--models", "a", "b"], "2 models for 1 namespaces"),
         (["--models", "paper-twin-M8528-P1", "--fins", "M8514-P1"], "--fins"),
