@@ -38,12 +38,12 @@ def test_a_fixed_drive_swims_at_the_closed_form_speed_and_pays_its_joules_per_me
     plant, model = twin
     body, battery = load_body("mfc-fish"), load_battery("li-ion-2s-500mah")
     f, v = 5.4, 600.0
-    trace = swim_run(plant, body, FixedDrive(f, v), [(0.0, 0.05)], 60.0, battery, speed_noise_m_s=0.0)
+    trace = swim_run(plant, body, FixedDrive(f, v), [(0.0, 0.05)], 90.0, battery, speed_noise_m_s=0.0)
     p = model.predict(f, v)
     u = float(body.steady_speed(p.thrust_n, f, model.fin.L))
     supply = float(plant.amplifier.steady(p.voltage_pp_drive, p.current_rms, p.power_w))
     assert trace.speed_m_s[-1] == pytest.approx(u, rel=1e-3)
-    assert trace.energy_per_m(40.0, 60.0) == pytest.approx((supply + battery.hotel_w) / u, rel=2e-3)
+    assert trace.energy_per_m(60.0, 90.0) == pytest.approx((supply + battery.hotel_w) / u, rel=2e-3)
     tau = body.time_constant_s(float(p.thrust_n), f, model.fin.L)
     reached = trace.t[np.argmax(trace.speed_m_s >= 0.95 * u)]
     assert 1.5 * tau < reached < 4.0 * tau, (reached, tau)
