@@ -292,6 +292,11 @@ class TeardownWatchdog:
         os._exit(self.status)
 
 
+#: a turn of a node's spin loop, or its close(), taking this long is stuck: its threads' stacks go
+#: to standard error (a stopping node that does not stop is otherwise killed without a word)
+STALL_S = 8.0
+
+
 class StopFlag:
     """SIGINT/SIGTERM set a flag that the spin loop checks between callbacks.
 
@@ -400,6 +405,10 @@ def run_node(
         # spin_once in a loop, not spin(): with rclpy 7.1's EventsExecutor.spin() a lifecycle
         # node's services do not answer clients in other processes (measured), spin_once does.
         while context.ok() and not stop and not (until is not None and all(until(n) for n in nodes)):
+            # a turn of the loop that takes STALL_S (a callback or the middleware that never returns:
+            # then neither SIGINT nor SIGTERM reaches the flag, and `ros2 launch` ends in SIGKILL)
+            # leaves every thread's stack on standard error
+            faulthandler.dump_traceback_later(STALL_S)
             executor.spin_once(timeout_sec=0.1)
             code = next((n.exit_code for n in nodes if getattr(n, "exit_code", None) is not None), None)
             if code is not None:
@@ -411,12 +420,14 @@ def run_node(
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        faulthandler.dump_traceback_later(STALL_S)  # (and a close() that never returns)
         for node in nodes:
             close = getattr(node, "close", None)
             if close is not None:
                 close()  # (what matters is done here: the drive ramped down, the bag closed)
         if code is None:
             code = next((n.exit_code for n in nodes if getattr(n, "exit_code", None) is not None), None)
+        faulthandler.cancel_dump_traceback_later()
         watchdog = TeardownWatchdog(int(code or 0)).start()
         for node in nodes:
             node.destroy_node()
