@@ -25,6 +25,10 @@ FIN = load_fin("M8528-P1")
 HIDDEN = Model.of(FIN, {"dielectric_loss": [0.08], "field_coupling": [0.3, 1.0]})
 
 
+# exclusive: what nine trials of fin time at x10 identify depends on how fast the fits run against
+# the trials, so on the machine's load (beside the parallel phase's CPU-bound tests it fitted a
+# coupling of 0.14 in two of the recent full runs, and with two CPU burners failed 2 of 3; alone 2 of 2)
+@pytest.mark.exclusive
 def test_a_fish_meets_its_demand_in_truth_on_a_fin_it_was_not_told(tmp_path: Path) -> None:
     """fin_sim streams the hidden fin (x10); thrust_estimator (the paper's fin) and controller
     (`mode:=optimise source:=self demand_n:=...`) run as `ros2 run` starts them.  The raw self-sensed
