@@ -579,12 +579,7 @@ class Optimiser:
             return np.concatenate([misfit, xx / self._prior_sigma])
 
         r0 = weighted(x)
-        steps = 1e-5 * _PRIOR_SIGMA
-        jac = np.empty((len(r0), len(x)))
-        for k in range(len(x)):
-            xk = x.copy()
-            xk[k] += steps[k] if xk[k] + steps[k] <= _UPPER[k] else -steps[k]
-            jac[:, k] = (weighted(xk) - r0) / (xk[k] - x[k])
+        jac = _jacobian(weighted, x, 1e-5 * _PRIOR_SIGMA, r0)
         chi2 = float(np.sum(r0[: 3 * len(obs)] ** 2)) / max(n_data, 1)
         try:
             return np.asarray(np.linalg.inv(jac.T @ jac) * max(1.0, chi2))
@@ -599,15 +594,13 @@ class Optimiser:
         cov = self._covariance
         if cov is None:
             return np.zeros(base.shape)
-        x = _vector(self.correction)
-        grad = np.zeros((*base.shape, len(x)))
-        for k in range(len(x)):
-            if _PARAMS[k].name == skip:
-                continue
-            step = 1e-4 * _PRIOR_SIGMA[k]
-            xk = x.copy()
-            xk[k] += step if xk[k] + step <= _UPPER[k] else -step
-            grad[..., k] = (np.asarray(log_value(_correction(xk, self.model)), float) - base) / (xk[k] - x[k])
+        grad = _jacobian(
+            lambda xk: np.asarray(log_value(_correction(xk, self.model)), float),
+            _vector(self.correction),
+            1e-4 * _PRIOR_SIGMA,
+            base,
+            skip=tuple(p.name == skip for p in _PARAMS),
+        )
         var = np.einsum("...i,ij,...j->...", grad, cov, grad)
         return np.asarray(np.sqrt(np.maximum(var, 0.0)))
 
@@ -907,7 +900,7 @@ class Optimiser:
         # exceeds the trial's noise (with no margin, a speed loop's, it never does)
         estimate = self._thrust_estimates(self.correction, there[-1:])
         noise = float(self._thrust_noise(self.correction, there[-1:], estimate)[0])
-        if not self.z_demand * 0.5 * np.nan_to_num(self.self_sensing_bound) > self.z_demand * noise:
+        if not (self.z_demand > 0 and 0.5 * np.nan_to_num(self.self_sensing_bound) > noise):
             return None
         lim = self.limits
         f = np.geomspace(lim.frequency_min_hz, lim.frequency_max_hz, 16)
@@ -916,32 +909,27 @@ class Optimiser:
         ff, vv = np.concatenate([[choice[0]], ff]), np.concatenate([[choice[1]], vv])
         pred = self.correction.predict(self.fin, ff, vv)
         thrust = np.asarray(pred.thrust_n, float)
+        power = np.asarray(pred.power_w, float)
+        admittance = np.asarray(pred.admittance, complex)
         if math.isfinite(self.overshoot):  # (a fish's speed follows the trial's thrust)
             keep = thrust <= self.demand_n * (1.0 + self.overshoot)
             keep[0] = True
-            ff, vv, thrust = ff[keep], vv[keep], thrust[keep]
-            pred = self.correction.predict(self.fin, ff, vv)
-        admittance = np.asarray(pred.admittance, complex)
-        power = np.asarray(pred.power_w, float)
+            ff, vv, thrust, power, admittance = (a[keep] for a in (ff, vv, thrust, power, admittance))
         trials = [
             Observation(0.0, float(a), float(b), float(t), float(p), source="self", admittance=complex(y))
             for a, b, t, p, y in zip(ff, vv, thrust, power, admittance, strict=True)
         ]
         if not all(math.isfinite(o.thrust_n) and o.thrust_n > 0 and o.power_w > 0 for o in trials):
             return None
-        x = _vector(self.correction)
         n = len(trials)
-        r0 = self._residuals(self.correction, trials, 0.0)
-        e0 = np.log(self._thrust_estimates(self.correction, trials[:1]))
-        jac = np.empty((3, n, len(x)))
-        grad = np.empty(len(x))
-        for k in range(len(x)):
-            step = 1e-4 * _PRIOR_SIGMA[k]
-            xk = x.copy()
-            xk[k] += step if xk[k] + step <= _UPPER[k] else -step
+
+        def residuals_and_estimate(xk: FloatArray) -> FloatArray:
             ck = _correction(xk, self.model)
-            jac[:, :, k] = ((self._residuals(ck, trials, 0.0) - r0) / (xk[k] - x[k])).reshape(3, n)
-            grad[k] = (np.log(self._thrust_estimates(ck, trials[:1]))[0] - e0[0]) / (xk[k] - x[k])
+            estimate = np.log(self._thrust_estimates(ck, trials[:1]))
+            return np.concatenate([self._residuals(ck, trials, 0.0), estimate])
+
+        both = _jacobian(residuals_and_estimate, _vector(self.correction), 1e-4 * _PRIOR_SIGMA)
+        jac, grad = both[: 3 * n].reshape(3, n, -1), both[3 * n]
         try:
             info = np.linalg.inv(self._covariance)
             var = np.array(
@@ -1074,6 +1062,27 @@ class Optimiser:
             "correction": self.correction.fitted(),
             "observations": len(self.observations),
         }
+
+
+def _jacobian(
+    fn: Callable[[FloatArray], FloatArray],
+    x: FloatArray,
+    steps: FloatArray,
+    at_x: FloatArray | None = None,
+    skip: tuple[bool, ...] = (),
+) -> FloatArray:
+    """Forward differences of ``fn`` at the correction's vector ``x`` in each parameter (backwards
+    where the step would cross the parameter's upper bound), shaped ``(*fn(x).shape, len(x))``;
+    ``at_x`` is ``fn(x)`` when the caller has it, and a parameter flagged in ``skip`` gets zeros."""
+    base = np.asarray(fn(x) if at_x is None else at_x, float)
+    jac = np.zeros((*base.shape, len(x)))
+    for k in range(len(x)):
+        if k < len(skip) and skip[k]:
+            continue
+        xk = x.copy()
+        xk[k] += steps[k] if xk[k] + steps[k] <= _UPPER[k] else -steps[k]
+        jac[..., k] = (np.asarray(fn(xk), float) - base) / (xk[k] - x[k])
+    return jac
 
 
 def _point(o: Observation) -> tuple[float, float]:

@@ -300,6 +300,24 @@ def _fit_job(args: tuple[str, tuple[str, ...]]) -> Hypothesis:
     return fit_hypothesis(*args, fins=_fins())
 
 
+def _fit_all(
+    jobs: list[tuple[str, tuple[str, ...]]],
+    say: Callable[[str], None],
+    workers: int | None,
+    ray_address: str | None,
+) -> list[Hypothesis]:
+    """Each ``(definition, effects)`` hypothesis fitted, on ``workers`` processes or on Ray, with a
+    line said as each ends."""
+    return run_tasks(
+        _fit_job,
+        jobs,
+        workers=workers,
+        ray_address=ray_address,
+        say=say,
+        label=lambda job: f"[{job[0]}] " + (" + ".join(job[1]) or "no effect"),
+    )
+
+
 @functools.cache
 def _fins() -> Fins:
     """The three fins, read once per process (when first needed, not at import)."""
@@ -320,14 +338,7 @@ def paper_gap(
     say = progress or (lambda _m: None)
 
     def run(jobs: list[tuple[str, tuple[str, ...]]], stage: str) -> list[Hypothesis]:
-        return run_tasks(
-            _fit_job,
-            jobs,
-            workers=workers,
-            ray_address=ray_address,
-            say=lambda line: say(f"paper facts, {stage}: {line}"),
-            label=lambda job: f"[{job[0]}] " + (" + ".join(job[1]) or "no effect"),
-        )
+        return _fit_all(jobs, lambda line: say(f"paper facts, {stage}: {line}"), workers, ray_address)
 
     singles = run([(d, names) for d in definitions for names in [(), *((n,) for n in candidates)]], "singles")
     pairs_jobs = []
@@ -534,14 +545,7 @@ def paper_twin(
         nonlocal tried
         jobs = [("amplifier draw", n) for n in dict.fromkeys(tuple(sorted(n)) for n in names)]
         tried += len(jobs)
-        return run_tasks(
-            _fit_job,
-            jobs,
-            workers=workers,
-            ray_address=ray_address,
-            say=lambda line: say(f"paper twin, {stage}: {line}"),
-            label=lambda job: " + ".join(job[1]),
-        )
+        return _fit_all(jobs, lambda line: say(f"paper twin, {stage}: {line}"), workers, ray_address)
 
     names = [(*base.effects, c) for c in further]
     names += [(*base.effects, *pair) for pair in itertools.combinations(further, 2)]

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import EstimationError
 from ..physics.fin import Fin
 
 FloatArray = NDArray[Any]
@@ -67,11 +68,15 @@ def self_sensed_tip(
 
 
 def lighthill_thrust(
-    fin: Fin, tip_rms: Any, calibration: Calibration = NOMINAL, frequency_hz: Any = np.inf
+    fin: Fin, tip_rms: Any, calibration: Calibration = NOMINAL, frequency_hz: Any = None
 ) -> FloatArray:
     """Lighthill's mean thrust ``(1/2) m_v u^2`` (no swimming speed) for an RMS tip velocity ``u`` of
     a sine at ``frequency_hz``, which sets its amplitude for a calibration whose added mass grows with
-    it (``mass_kc``, ``mass_kc2``); without it the amplitude is taken as 0 (KC = 0)."""
+    it (``mass_kc``, ``mass_kc2``): required then, an :class:`EstimationError` without it."""
+    if frequency_hz is None:
+        if np.any(np.asarray(calibration.mass_kc) != 0) or np.any(np.asarray(calibration.mass_kc2) != 0):
+            raise EstimationError("lighthill_thrust: an added mass that grows with KC needs frequency_hz")
+        frequency_hz = np.inf
     amplitude = np.sqrt(2) * np.asarray(tip_rms) / (2 * np.pi * np.asarray(frequency_hz, float))
     mass = calibration.mass_at(fin, amplitude)
     return np.asarray(0.5 * fin.m_v * mass * np.asarray(tip_rms) ** 2)

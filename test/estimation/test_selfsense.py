@@ -78,3 +78,19 @@ def test_the_estimators_load_cell_stiffness_is_the_simulated_rigs() -> None:
     from piezofin_ros.rig.simulated import RigConfig
 
     assert EstimatorConfig().loadcell_stiffness_n_per_m == pytest.approx(RigConfig().loadcell_stiffness)
+
+
+def test_lighthill_thrust_with_a_kc_dependent_added_mass_needs_the_frequency() -> None:
+    """Without the frequency the tip's amplitude, hence KC, is unknown: an error, not KC = 0."""
+    from piezofin_ros.errors import EstimationError
+    from piezofin_ros.estimation.selfsense import lighthill_thrust
+
+    for cal in (Calibration(mass_kc=0.5), Calibration(mass_kc2=0.25)):
+        with pytest.raises(EstimationError, match="frequency_hz"):
+            lighthill_thrust(FIN, 0.05, cal)
+    # the closed form: (1/2) m_v c (1 + a KC + b KC^2) u^2, KC = 2 pi X / b, X = sqrt(2) u / (2 pi f)
+    u, f, cal = 0.05, 4.0, Calibration(mass=1.3, mass_kc=0.5, mass_kc2=0.25)
+    kc = 2 * np.pi * (np.sqrt(2) * u / (2 * np.pi * f)) / FIN.b
+    expected = 0.5 * FIN.m_v * 1.3 * (1 + 0.5 * kc + 0.25 * kc**2) * u**2
+    assert float(lighthill_thrust(FIN, u, cal, f)) == pytest.approx(expected, rel=1e-12)
+    assert float(lighthill_thrust(FIN, u)) == pytest.approx(0.5 * FIN.m_v * u**2, rel=1e-12)
