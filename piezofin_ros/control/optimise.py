@@ -374,6 +374,7 @@ class Optimiser:
     _covariance: FloatArray | None = None
     _chi2: float = 0.0
     _fits: int = 0
+    _calibrating: list[tuple[float, float]] = field(default_factory=list, repr=False)  # its points
     _counted_cache: dict[tuple[Any, ...], list[tuple[float, Observation, float]]] = field(
         default_factory=dict, repr=False
     )
@@ -816,6 +817,11 @@ class Optimiser:
         inc = self.incumbent()
         self._mode(inc)
         self.rule, self._next = self._proposal(inc)
+        self._calibrating = [  # (the calibrating points still in memory, and this one)
+            p
+            for p in self._calibrating
+            if any(_close(_point(o), p, self.tolerance) for o in self.observations)
+        ] + ([self._next] if self.rule == "calibrate" else [])
         held = inc is not None and _close(self._next, inc, self.tolerance)
         if held and not self.converged:
             self.converged = True
@@ -871,6 +877,8 @@ class Optimiser:
     #: a calibrating trial is taken when it shrinks the calibration's variance at the map's choice to
     #: less than this fraction of what one more trial at the choice would
     calibrate_gain: ClassVar[float] = 0.5
+    #: and no more than this many calibrating trials are in memory
+    max_calibrating_trials: ClassVar[int] = 99
 
     def _calibration_point(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
         """On a fish under a demand, while no trial counts and the calibration's share of the demand's
@@ -883,6 +891,7 @@ class Optimiser:
         waited for the choice to have been measured: M8514-P1 with drag varying with KC then walked
         down the frontier from 800 Vpp one trial at a time as the bound fell (136, 79, 50, 21, 17 %),
         0.745 of the optimum after 8 trials; calibrating from the first it reaches 0.995 after 5.
+        At most ``max_calibrating_trials`` are in memory.
 
         A first-order design: each candidate's trial is the corrected model's prediction there, its
         information (its residuals' Jacobian, as the fit weighs it) is added to the fit's, and the
@@ -893,7 +902,16 @@ class Optimiser:
             or inc is not None
             or self.choice is None
             or self._covariance is None
+            or not self.z_demand > 0
         ):
+            return None
+        # (a model that cannot fit the fin extrapolates its calibration into each far trial: past
+        # three calibrating trials in memory M8528-P1 with drag ~ KC took seven of twelve, and its
+        # self-sensed thrust ended 11 % off where it held)
+        taken = sum(
+            any(_close(_point(o), p, self.tolerance) for p in self._calibrating) for o in self.observations
+        )
+        if taken >= self.max_calibrating_trials:
             return None
         choice = (self.choice.frequency_hz, self.choice.voltage_pp)
         lim = self.limits
@@ -916,12 +934,15 @@ class Optimiser:
         if not all(math.isfinite(o.thrust_n) and o.thrust_n > 0 and o.power_w > 0 for o in trials):
             return None
         # only where the calibration is what keeps a trial from counting: its share of the margin
-        # exceeds a trial's noise at the choice (with no margin, a speed loop's, it never does)
+        # (one sigma of the calibration at the choice) exceeds a trial's noise there (with no margin,
+        # a speed loop's, it never does)
         there = [o for o in self.observations if _close(_point(o), choice, self.tolerance)]
         at_choice = there[-1:] or trials[:1]  # (measured there before, or as the map predicts it)
         estimate = self._thrust_estimates(self.correction, at_choice)
         noise = float(self._thrust_noise(self.correction, at_choice, estimate)[0])
-        if not (self.z_demand > 0 and 0.5 * np.nan_to_num(self.self_sensing_bound) > noise):
+        at = at_choice[0]
+        sigma = float(self._propagated_sigma(lambda c: np.log(self._thrust_estimates(c, [at])))[0])
+        if not sigma > noise:
             return None
         n = len(trials)
 
