@@ -878,7 +878,7 @@ class Optimiser:
     #: less than this fraction of what one more trial at the choice would
     calibrate_gain: ClassVar[float] = 0.5
     #: and no more than this many calibrating trials are in memory
-    max_calibrating_trials: ClassVar[int] = 99
+    max_calibrating_trials: ClassVar[int] = 3
 
     def _calibration_point(self, inc: tuple[float, float] | None) -> tuple[float, float] | None:
         """On a fish under a demand, while no trial counts and the calibration's share of the demand's
