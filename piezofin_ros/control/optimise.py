@@ -890,7 +890,7 @@ class Optimiser:
         admittance, which does not tell the two apart; one elsewhere does).  Until 2026-11-25 it
         waited for the choice to have been measured: M8514-P1 with drag varying with KC then walked
         down the frontier from 800 Vpp one trial at a time as the bound fell (136, 79, 50, 21, 17 %),
-        0.745 of the optimum after 8 trials; calibrating from the first it reaches 0.995 after 5.
+        0.745 of the optimum after 8 trials; calibrating from the first it holds 0.99 from the 4th.
         At most ``max_calibrating_trials`` are in memory.
 
         A first-order design: each candidate's trial is the corrected model's prediction there, its
