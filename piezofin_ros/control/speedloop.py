@@ -93,6 +93,10 @@ class SpeedLoop:
     integral_n: float = 0.0
     demand_n: float = 0.0
     state: str = "no set-point"
+    #: what the loop is doing, in one word (``state`` says it with its figures): ``idle`` (no
+    #: set-point), ``unread`` (no speed reading yet), ``silent`` (the sensor stopped), ``lies`` (the
+    #: sensor at odds with the drag law), ``saturated`` (at the most thrust allowed), ``holding``
+    kind: str = "idle"
     _last_t: float = math.nan
     _speed: float = math.nan
     _speed_t: float = -math.inf
@@ -161,11 +165,13 @@ class SpeedLoop:
         cfg = self.config
         if self.setpoint_m_s <= 0.0:
             self.integral_n, self.demand_n, self.state = 0.0, 0.0, "no set-point: no thrust asked"
+            self.kind = "idle"
             return 0.0
         ff = self.feed_forward_n(self.setpoint_m_s)
         fresh = t - self._speed_t <= cfg.sensor_timeout_s
         if not fresh:
             self.demand_n = min(max(ff, cfg.min_demand_n), cfg.max_demand_n)
+            self.kind = "silent" if math.isfinite(self._speed_t) else "unread"
             self.state = (
                 f"speed sensor silent for {t - self._speed_t:.1f} s: feed-forward only "
                 f"({self.demand_n * 1e3:.3g} mN per fin)"
@@ -184,11 +190,12 @@ class SpeedLoop:
         if delivered and (raw < cfg.max_demand_n or e < 0) and (raw > cfg.min_demand_n or e > 0):
             self.integral_n += kp / cfg.ti_s * e * dt
         self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cfg.max_demand_n)
-        self.state = self._judge(t, e)
+        self.kind, self.state = self._judge(t, e)
         return self.demand_n
 
-    def _judge(self, t: float, e: float) -> str:
-        """What is said of the loop now: holding, saturated, or a sensor at odds with the drag law."""
+    def _judge(self, t: float, e: float) -> tuple[str, str]:
+        """What is said of the loop now (its kind and its sentence): holding, saturated, or a sensor
+        at odds with the drag law."""
         judged = t - self._thrust_t <= 60.0  # (an estimate of the fin's thrust in the last minute)
         expected = float(self.body.steady_speed(self._thrust, 1e6, 1.0)) if judged else math.nan
         off = abs(self._speed - expected) / max(expected, 1e-3) if judged else 0.0
@@ -198,15 +205,15 @@ class SpeedLoop:
         else:
             self._disagree_since = math.nan
         if not math.isnan(self._disagree_since) and t - self._disagree_since >= self.config.disagreement_s:
-            return (
+            return "lies", (
                 f"the speed sensor reads {self._speed:.3g} m/s where the fin's {self._thrust * 1e3:.3g} mN "
                 f"gives {expected:.3g} m/s through the drag law, for {t - self._disagree_since:.0f} s: a "
                 "sensor that lies, a fouled body, or a drag law that is wrong"
             )
         if self.demand_n >= self.config.max_demand_n and e > 0:
             most = self.config.max_demand_n * 1e3
-            return f"at the most thrust allowed ({most:.3g} mN per fin): {e:+.3g} m/s short"
-        return f"holding {self.setpoint_m_s:.3g} m/s ({e:+.2g} m/s)"
+            return "saturated", f"at the most thrust allowed ({most:.3g} mN per fin): {e:+.3g} m/s short"
+        return "holding", f"holding {self.setpoint_m_s:.3g} m/s ({e:+.2g} m/s)"
 
 
 @dataclass

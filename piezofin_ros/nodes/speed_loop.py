@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from dataclasses import dataclass
 
 from rclpy.context import Context
@@ -73,7 +74,8 @@ class SpeedLoopNode(Node):
         self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
-        self._said = ""
+        self._said = self._published = ""
+        self._said_at = -math.inf
         self._gate = DemandGate(own.deadband)
         self.get_logger().info(
             f"body {body.name}: {body.mass_kg:g} kg, drag area {body.drag_area_m2:g} m^2, "
@@ -130,13 +132,21 @@ class SpeedLoopNode(Node):
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         demand = self.loop.update(t)
-        if self._gate.due(t, demand):
+        kind = self.loop.kind
+        if self._gate.due(t, demand) or kind != self._published:
             self._pub.publish(Float64(data=demand))
             self._status.publish(String(data=self.loop.state))
-        kind = self.loop.state.split(":")[0].split("(")[0].strip()
-        if kind != self._said:  # a new kind of state: said, at most every 5 s of wall time
-            self.get_logger().info(self.loop.state, throttle_duration_sec=5.0)
-            self._said = kind
+            self._published = kind
+        # A new kind of state is said at once, at most one line a second of wall time (a sensor that
+        # flips between kinds cannot flood the log), and the kind that lasts is always said: one that
+        # came too soon after the last line is said at the next tick after the second is over.
+        wall = time.monotonic()
+        if kind != self._said and wall - self._said_at >= 1.0:
+            if kind in ("silent", "lies", "saturated"):  # (one severity per call site: rclpy's rule)
+                self.get_logger().warning(self.loop.state)
+            else:
+                self.get_logger().info(self.loop.state)
+            self._said, self._said_at = kind, wall
 
 
 def main(args: list[str] | None = None) -> int:

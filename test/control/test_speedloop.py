@@ -85,7 +85,7 @@ def test_steps_settle_within_5_percent(drag_error: float, config: SpeedLoopConfi
     assert settled_after(t[t < step], u[t < step], 0.06, 0.0) <= within_s
     assert settled_after(t, u, 0.04, step) <= within_s
     assert np.all((d >= loop.config.min_demand_n) & (d <= loop.config.max_demand_n))
-    assert "holding 0.04 m/s" in loop.state
+    assert "holding 0.04 m/s" in loop.state and loop.kind == "holding"
 
 
 @pytest.mark.parametrize("drag_error", [1.0, 1.3, 0.7])
@@ -122,7 +122,7 @@ def test_an_unreachable_set_point_is_said_and_the_demand_stays_allowed() -> None
     assert "beyond" in said and f"{loop.fastest_m_s():.3g} m/s" in said
     _, u, d = swim(loop, body, [], 60.0)
     assert d.max() == pytest.approx(0.003) and u[-1] == pytest.approx(loop.fastest_m_s(), rel=0.02)
-    assert "at the most thrust allowed" in loop.state
+    assert "at the most thrust allowed" in loop.state and loop.kind == "saturated"
 
 
 def test_a_silent_sensor_leaves_the_feed_forward_and_says_so() -> None:
@@ -130,7 +130,7 @@ def test_a_silent_sensor_leaves_the_feed_forward_and_says_so() -> None:
     loop = SpeedLoop(body)
     _, u, d = swim(loop, body, [(0.0, 0.05)], 80.0, sensor=lambda t, x: x if t < 30 else None)
     assert d[-1] == pytest.approx(loop.feed_forward_n(0.05))
-    assert "speed sensor silent" in loop.state
+    assert "speed sensor silent" in loop.state and loop.kind == "silent"
     assert abs(u[-1] / 0.05 - 1) < 0.02  # the drag law is right here: the feed-forward alone holds it
 
 
@@ -138,7 +138,7 @@ def test_a_lying_sensor_is_said_and_cannot_push_the_demand_out_of_bounds() -> No
     body = load_body("mfc-fish")
     loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.008))
     _, _, d = swim(loop, body, [(0.0, 0.05)], 90.0, sensor=lambda t, x: 0.0)  # reads "still" for ever
-    assert d.max() <= 0.008 and "a sensor that lies" in loop.state
+    assert d.max() <= 0.008 and "a sensor that lies" in loop.state and loop.kind == "lies"
 
 
 @settings(max_examples=200, deadline=None)

@@ -8,6 +8,7 @@ Each test covers a class of attack, not the one value that was found.
 
 from __future__ import annotations
 
+import math
 import signal
 import subprocess
 import time
@@ -667,3 +668,91 @@ def test_a_flood_of_thrust_demands_neither_stops_the_fin_nor_floods_the_log() ->
     assert len(said) <= 20, said[:5]
     assert "thrust demand 4.00 mN" in out_ctl or "ignored thrust demand" in out_ctl
     assert "Traceback" not in out_ctl + out_est + out_sim
+
+
+# ------------------------------------------------------------------------- a fish's speed sensor
+@pytest.mark.slow
+def test_a_speed_sensor_that_stops_or_lies_is_said_the_demand_stays_allowed_and_the_bag_keeps_it(
+    tmp_path,
+) -> None:
+    """Issue 27's bad input, across processes: ``speed_loop`` and the ``recorder`` each in its own
+    process, this one the fish's speed sensor and estimator, then an attacker on ``swim_speed``.  In
+    turn the sensor reads true, stops, reads values that are no speed (NaN, +-inf, beyond 100 m/s),
+    lies slow (a still fish where the fin's thrust gives 5 cm/s), lies fast, then reads true again
+    (the tests' clocks are scaled: the sensor times out after 1 s, a lie is said after 2 s and the
+    reading's low-pass is 0.5 s, so that a lie of 5 m/s is forgotten within the last phase).
+    Every demand stays within ``[min_demand_n, max_demand_n]`` (a lie cannot make the drive ask for
+    more than the loop may), each kind of trouble is one line as it starts and is on the status topic,
+    the loop holds again once the sensor is honest, and every reading, lies included, is in the bag."""
+    from std_msgs.msg import Float64, String
+
+    from piezofin_ros.bags import decode, read_messages
+    from piezofin_ros.nodes._common import TOPIC_DEMAND, TOPIC_ESTIMATE, TOPIC_LOOP_STATUS, TOPIC_SPEED
+
+    ns, bag, most, least = "liar", tmp_path / "fish.mcap", 0.004, 1e-4
+    loop = start(
+        "speed_loop", "-r", f"__ns:=/{ns}", "-p", "speed_m_s:=0.05", "-p", "rate_hz:=20.0",
+        "-p", f"loop.max_demand_n:={most}", "-p", f"loop.min_demand_n:={least}",
+        "-p", "loop.sensor_timeout_s:=1.0", "-p", "loop.disagreement_s:=2.0", "-p", "loop.filter_s:=0.5",
+    )  # fmt: skip
+    rec = start("recorder", "-r", f"__ns:=/{ns}", "-p", f"path:={bag}")
+    sent: list[float] = []
+    demands: list[tuple[str, float]] = []  # (phase, demand)
+    states: list[tuple[str, str]] = []  # (phase, status)
+    not_speeds = [math.nan, math.inf, -math.inf, 1e9, -1e9, 101.0, 1e308]
+    phases: list[tuple[str, float, Any]] = [  # (name, seconds, reading at step k: None = silent)
+        ("true", 4.0, lambda k: 0.05),
+        ("stopped", 3.0, lambda k: None),
+        ("true again", 4.0, lambda k: 0.05),
+        ("no speed", 3.0, lambda k: not_speeds[k % len(not_speeds)]),
+        ("lies slow", 4.0, lambda k: 0.0),
+        ("lies fast", 4.0, lambda k: 5.0),
+        ("true at last", 5.0, lambda k: 0.05),
+    ]
+    now = ["start"]  # the phase under way, as the witness's callbacks read it
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("sensor", namespace=ns, context=g.context))
+            speed = node.create_publisher(Float64, TOPIC_SPEED, QOS_COMMAND)
+            estimate = node.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
+            node.create_subscription(
+                Float64, TOPIC_DEMAND, lambda m: demands.append((now[0], m.data)), QOS_COMMAND
+            )
+            node.create_subscription(
+                String, TOPIC_LOOP_STATUS, lambda m: states.append((now[0], m.data)), QOS_COMMAND
+            )
+            g.spin_until(lambda: speed.get_subscription_count() >= 2, 30.0, "speed_loop and recorder")
+            g.spin_until(lambda: bool(demands), 30.0, "a first demand")
+            # the fin gives what holds 5 cm/s against the drag law (the estimator's self-sensed thrust)
+            fin = Block.from_record({"thrust_self_n": 1.49e-3})
+            for name, seconds, reading in phases:
+                now[0] = name
+                t_end, k = time.monotonic() + seconds, 0
+                while time.monotonic() < t_end:
+                    if k % 10 == 0:
+                        estimate.publish(block_msg(fin))
+                    r = reading(k)
+                    if r is not None:
+                        speed.publish(Float64(data=r))
+                        sent.append(r)
+                    k += 1
+                    g.spin_for(0.05)
+            g.spin_for(1.0)
+    finally:
+        out_loop, out_rec = stop(loop, rec)
+    for name, _, _ in phases:
+        asked = [d for p, d in demands if p == name]
+        assert asked and all(least <= d <= most for d in asked), (name, asked)
+    said = {name: " | ".join(s for p, s in states if p == name) for name, _, _ in phases}
+    assert "holding 0.05 m/s" in said["true"], said
+    assert "speed sensor silent" in said["stopped"], said
+    assert "speed sensor silent" in said["no speed"], said  # refused readings are no readings
+    assert "a sensor that lies" in said["lies slow"] and "a sensor that lies" in said["lies fast"], said
+    assert "holding 0.05 m/s" in said["true at last"], said
+    assert min(d for p, d in demands if p == "lies fast") == least  # it reads fast: the least thrust
+    assert "refused a speed reading of nan m/s" in out_loop, out_loop
+    assert "speed sensor silent" in out_loop and "a sensor that lies" in out_loop, out_loop
+    assert len(out_loop.splitlines()) <= 40, out_loop  # one line per kind, at most one a second
+    assert "Traceback" not in out_loop + out_rec, out_loop + out_rec
+    recorded = [float(decode(m.type_name, m.data).data) for m in read_messages(bag, [f"/{ns}/{TOPIC_SPEED}"])]
+    np.testing.assert_array_equal(recorded, sent)  # every reading, NaN and lies included, in order
