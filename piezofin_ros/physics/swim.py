@@ -73,12 +73,33 @@ def thrust_at_speed(
     return np.asarray(thrust0_n, float) * (1.0 - (np.asarray(U, float) / c) ** 2)  # type: ignore[no-any-return]
 
 
+#: The most each field may be (SI, generous: any fish, from a robot to an AUV, is well inside).  A
+#: number beyond is no body or battery: a drag area of 1e300 m^2 printed a table of 150-digit joules
+#: per metre and a speed of 0.00, and a hotel load of 1e308 W an infinite one.
+MOST = {
+    "mass_kg": 1e3,
+    "added_mass_kg": 1e3,
+    "length_m": 20.0,
+    "drag_area_m2": 10.0,
+    "drag_linear_n_s_m": 1e3,
+    "rho_w": 2e3,
+    "capacity_ah": 1e4,
+    "internal_resistance_ohm": 100.0,
+    "cutoff_v_per_cell": 10.0,
+    "hotel_w": 1e4,
+}
+#: The least (beyond "> 0"): a water that is no water.
+LEAST = {"rho_w": 500.0}
+
+
 def _positive(source: str, name: str, value: Any, allow_zero: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SwimError(f"{source}: {name} must be a number, got {value!r}")
     x = float(value)
-    if not math.isfinite(x) or x < 0 or (x == 0 and not allow_zero):
-        raise SwimError(f"{source}: {name} = {value!r} must be finite and {'>= 0' if allow_zero else '> 0'}")
+    most, least = MOST.get(name, math.inf), LEAST.get(name, 0.0)
+    if not math.isfinite(x) or x < least or (x == 0 and not allow_zero) or x > most:
+        low = f"[{least:g}" if allow_zero or least > 0 else f"({least:g}"
+        raise SwimError(f"{source}: {name} = {value!r} must be finite and within {low}, {most:g}]")
     return x
 
 

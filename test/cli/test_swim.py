@@ -74,6 +74,8 @@ def test_the_watt_decides_the_range_once_the_fixed_draw_is_gone() -> None:
         ("--battery", "capacity_ah: 0\n", "capacity_ah"),
         ("--battery", "cells: -2\n", "cells"),
         ("--battery", "hotel_w: .nan\n", "hotel_w"),
+        ("--body", "drag_area_m2: 1.0e+300\n", "drag_area_m2"),
+        ("--body", "length_m: 1.0e+9\n", "length_m"),
         ("--battery", "[1, 2]\n", "mapping"),
     ],
 )
@@ -99,6 +101,7 @@ def test_an_impossible_body_or_battery_is_one_line(
         (("--battery", "no-such-battery"), "li-ion-2s-500mah"),
         (("--amplifier", "no-such-amp"), "fish-switching"),
         (("--hotel", "-1"), "hotel_w"),
+        (("--hotel", "1e308"), "hotel_w"),
         (("--voltage-max", "0"), "--voltage-max"),
         (("--fins", "nope"), "nope"),
     ],

@@ -125,6 +125,13 @@ def test_the_anchor_body_swims_cen_and_erturks_speed_on_the_papers_point() -> No
         (lambda: Battery(cells=0), "cells"),
         (lambda: Battery(internal_resistance_ohm=-0.1), "internal_resistance_ohm"),
         (lambda: Battery(hotel_w=math.inf), "hotel_w"),
+        # numbers, but no fish (a drag area of 1e300 m^2 printed 150-digit joules per metre)
+        (lambda: Body(drag_area_m2=1e300), r"drag_area_m2 = 1e\+300 must be finite and within \(0, 10\]"),
+        (lambda: Body(mass_kg=1e6), "mass_kg"),
+        (lambda: Body(rho_w=1.0), r"rho_w = 1.0 must be finite and within \[500, 2000\]"),
+        (lambda: Body(added_mass_kg=1e9), "added_mass_kg"),
+        (lambda: Battery(hotel_w=1e308), "hotel_w"),
+        (lambda: Battery(capacity_ah=1e12), "capacity_ah"),
         (lambda: Battery(ocv_v_per_cell=(4.2,) + (3.0,) * 11), "ocv_v_per_cell"),
     ],
 )
