@@ -541,6 +541,41 @@ def test_a_fish_calibrates_from_its_first_trials_not_one_frontier_step_at_a_time
 
 
 @pytest.mark.slow
+def test_a_fish_whose_model_misfits_counts_the_misfit_in_its_bound() -> None:
+    """``bench_unseen``'s one demand missed in truth (stop 36, supply watts): M8514-P1 whose coupling
+    grows as the field to the power 2.27, where the correction's law is linear.  The fit fell into a
+    basin where a strong coupling, a heavy added mass and extra drag compensate (reduced chi-square
+    8 against the noise alone); the parametric bound at the held point, 254 Vpp, was 2.1 % while the
+    self-sensed thrust read 5.2 % high, and from the 9th trial it held 0.9994 of the demand in truth.
+    The bound now counts the misfit (the model error times the square root of the chi-square beyond
+    1): every point it holds once one counts meets the demand in truth, and the bound covers the
+    held estimate's true error."""
+    from piezofin_ros.physics.amplifier import LinearAmplifier
+    from piezofin_ros.physics.effects import make
+
+    fin = load_fin("M8514-P1")
+    demand = 0.3 * float(np.max(Plant(fin).steady(np.linspace(1, 20, 400), 800.0).thrust_n))
+    plant = Plant(
+        fin,
+        softening=0.2279,
+        loss_tan_delta=0.01076,
+        effects=(make("field_coupling", [0.3679, 2.273]),),
+        amplifier=LinearAmplifier(rail_v=375.8, quiescent_w=0.0313),
+    )
+    opt = Optimiser(fin, LIMITS, demand_n=demand, source="self", watt="supply")
+    rng, t, held = np.random.default_rng(3440327350), 0.0, []
+    for _ in range(12):
+        t = evaluation.run_trial(opt, plant, t, rng)
+        if opt.incumbent() is not None:
+            f, v = opt.incumbent()
+            held.append((f, v, float(plant.steady(f, v).thrust_n) / demand))
+    assert held and all(short >= 1.0 for *_, short in held), held
+    status = opt.status()
+    truth = float(plant.steady(status["held"]["frequency_hz"], status["held"]["voltage_pp"]).thrust_n)
+    assert abs(status["held"]["thrust_n"] / truth - 1.0) <= status["self_sensing_bound"], status
+
+
+@pytest.mark.slow
 def test_a_fish_whose_model_cannot_fit_takes_at_most_three_calibrating_trials(m8528: Fin) -> None:
     """M8528-P1 with a drag coefficient growing strongly with KC (c_d ~ KC^-0.49): the correction
     cannot fit it, each calibrating trial's predicted gain is an extrapolation, and without a cap

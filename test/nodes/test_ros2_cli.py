@@ -101,7 +101,8 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
     other parameter refused), the battery read with `ros2 topic echo`; the bag holds the speed, the
     demand and the battery, and the fish swam, and holds its new set-point within 5 % over the last
     minute of at least 480 s of fish time after the step (it held 3.4 cm/s for 700 s at 5 cm/s
-    when the speed loop's every demand moved the drive before a trial ended)."""
+    when the speed loop's every demand moved the drive before a trial ended); then an unreachable
+    set-point is said, and the demand never went beyond the loop's 8 mN."""
     from piezofin_ros.bags import decode, read_messages
 
     launch = Launch(ros_env, tmp_path, "realtime_factor:=10", "speed_m_s:=0.04", file="fish.launch.py")
@@ -125,6 +126,13 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
         deadline = time.monotonic() + 300.0  # (x10 alone: 50 s of wall time; a loaded machine is slower)
         while fish_time(ros_env) < t_set + HOLD_S and time.monotonic() < deadline:
             time.sleep(3.0)
+        # an unreachable set-point: taken, said with the fastest speed, and never more than the 8 mN
+        # the loop may ask (config/fish.yaml), whatever the speed error (the bag's demands, below)
+        t_far = fish_time(ros_env)
+        far = ros2(ros_env, "param", "set", "/fish/speed_loop", "speed_m_s", "5.0", "--spin-time", "3")
+        assert "Set parameter successful" in far.stdout, far.stdout + far.stderr
+        launch.wait_for("set-point 5 m/s is beyond the 8 mN per fin the loop may ask for", 30.0)
+        time.sleep(5.0)
         assert launch.proc.poll() is None
     finally:
         out = launch.interrupt()
@@ -134,18 +142,23 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
     counts: dict[str, int] = {}
     speeds: list[float] = []
     speed_times: list[float] = []
+    demands: list[float] = []
     for m in read_messages(bag, ["/fish/swim_speed", "/fish/thrust_demand", "/fish/battery"]):
         counts[m.topic] = counts.get(m.topic, 0) + 1
+        if m.topic == "/fish/thrust_demand":
+            demands.append(float(decode(m.type_name, m.data).data))
         if m.topic == "/fish/swim_speed":
             speeds.append(float(decode(m.type_name, m.data).data))
             speed_times.append(m.log_time_ns * 1e-9)  # (fish time: the recorder runs on /clock)
     assert counts.get("/fish/swim_speed", 0) > 100 and counts.get("/fish/battery", 0) > 10, counts
     assert counts.get("/fish/thrust_demand", 0) > 3, counts
     assert max(speeds) > 0.005, max(speeds)  # it swam
-    # and holds the new set-point: the speed sensor's mean over the run's last minute of fish time
+    assert max(demands) <= 0.008 and max(demands) == pytest.approx(0.008), max(demands)  # asked, capped
+    # and holds the new set-point: the speed sensor's mean over the last minute of fish time before
+    # the unreachable one
     t, u = np.array(speed_times), np.array(speeds)
-    assert t[-1] >= t_set + HOLD_S, f"only {t[-1] - t_set:.0f} s of fish time after the step"
-    last = t >= t[-1] - LAST_S
+    assert t_far >= t_set + HOLD_S, f"only {t_far - t_set:.0f} s of fish time after the step"
+    last = (t >= t_far - LAST_S) & (t <= t_far)
     assert abs(float(np.mean(u[last])) / 0.06 - 1.0) < 0.05, float(np.mean(u[last]))
 
 
