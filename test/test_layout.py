@@ -139,3 +139,24 @@ def test_every_import_is_declared_in_package_xml() -> None:
         assert re.search(rf"try:\n\s+import {top}\b.*\n\s+except ImportError", source), where
         assert f'"{top}": ["{OPTIONAL[top]}' in extras, f"{top}: no extra in setup.py"
         assert re.search(rf"<!--[^>]*\b{top.capitalize()}\b[^>]*piezofin_ros\[{top}\][^>]*-->", xml), top
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a Markdown heading: lower case, punctuation dropped, spaces to hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_every_link_to_a_heading_finds_it() -> None:
+    """A link `file.md#anchor` in the README or docs/ lands on a heading of that file (two links
+    in the README pointed at a heading that had since been renamed)."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    anchors = {
+        page.resolve(): {_slug(m) for m in re.findall(r"^#+ (.+)$", page.read_text(), re.M)} for page in pages
+    }
+    broken = []
+    for page in pages:
+        for target, anchor in re.findall(r"\]\(([\w./-]*\.md|)#([\w-]+)\)", page.read_text()):
+            where = (page.parent / target).resolve() if target else page.resolve()
+            if where in anchors and anchor not in anchors[where]:
+                broken.append(f"{page.relative_to(ROOT)}: {target or page.name}#{anchor}")
+    assert not broken, broken

@@ -807,7 +807,7 @@ class Optimiser:
 
         # (on a fish only, whose whole calibration is the fit's; a vibrometer's is c_m alone, which a
         # misfit of the power, a leak's say, does not move: counted there it cost M8528-P1 with a leak
-        # 0.66 -> 0.41 of the optimum after 8 trials under a demand)
+        # 0.60 -> 0.41 of the optimum after 8 trials under a demand, `bench_unseen.py --seeds 1`)
         misfit = self._chi2_noise - 1.0 if last.source == "self" else 0.0
         form = MODEL_ERROR * math.sqrt(max(misfit, 0.0))  # (0 while the model fits)
         return float(2.0 * math.hypot(self._propagated_sigma(log_estimate)[0], form))
