@@ -19,6 +19,8 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from piezofin_ros.nodes.launching import number_argument, stop_if_it_fails
+
 NAMESPACE = "fish"
 #: Each data topic's readers before fin_sim's first sample: the estimator and the recorder.
 CONSUMERS = 2
@@ -29,8 +31,8 @@ def _nodes(context, *args, **kwargs):
     files = [os.path.join(config, "bringup.yaml"), os.path.join(config, "fish.yaml")]
     extra = LaunchConfiguration("params_file").perform(context)
     files += [extra] if extra else []
-    factor = float(LaunchConfiguration("realtime_factor").perform(context))
-    speed = float(LaunchConfiguration("speed_m_s").perform(context))
+    factor = number_argument(context, "realtime_factor")
+    speed = number_argument(context, "speed_m_s")
     use_sim_time = factor != 1.0
     sim = {
         "autostart": True,
@@ -71,7 +73,8 @@ def _nodes(context, *args, **kwargs):
             output="screen",
         )
     )
-    return nodes
+    # a node that stops with an error stops them all (a fish without its speed loop swam on)
+    return nodes + [stop_if_it_fails(n, n.node_executable) for n in nodes]
 
 
 def generate_launch_description():

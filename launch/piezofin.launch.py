@@ -24,6 +24,8 @@ from launch_ros.event_handlers import OnStateTransition
 from launch_ros.events.lifecycle import ChangeState
 from lifecycle_msgs.msg import Transition
 
+from piezofin_ros.nodes.launching import number_argument, stop_if_it_fails
+
 #: What reads each fin's data topics here: its thrust_estimator and the recorder.  fin_sim waits for
 #: both before its first sample, so neither misses the first trial's start (nodes start in any order).
 CONSUMERS = 2
@@ -35,7 +37,7 @@ def _nodes(context, *args, **kwargs):
     files = [default, extra] if extra else [default]
     namespaces = LaunchConfiguration("namespaces").perform(context).split()
     sim = LaunchConfiguration("sim").perform(context).lower() in ("1", "true", "yes")
-    factor = float(LaunchConfiguration("realtime_factor").perform(context))
+    factor = number_argument(context, "realtime_factor")
     use_sim_time = sim and factor != 1.0
     actions = []
     several = sim and len(namespaces) > 1
@@ -116,7 +118,9 @@ def _nodes(context, *args, **kwargs):
             output="screen",
         )
     )
-    return actions
+    # a node that stops with an error stops them all (the others went on without it)
+    nodes = [a for a in actions if isinstance(a, Node)]  # (a LifecycleNode is a Node)
+    return actions + [stop_if_it_fails(n, f"{n.node_executable}") for n in nodes]
 
 
 def generate_launch_description():

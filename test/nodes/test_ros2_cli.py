@@ -162,6 +162,45 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
     assert abs(float(np.mean(u[last])) / 0.06 - 1.0) < 0.05, float(np.mean(u[last]))
 
 
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (("fish.launch.py", "speed_m_s:=-1"), "speed_loop exited with code 2"),
+        (("fish.launch.py", "speed_m_s:=abc"), "launch argument speed_m_s:='abc' is not a number"),
+        (("piezofin.launch.py", "realtime_factor:=0"), "fin_sim exited with code 2"),
+    ],
+)
+def test_a_launch_whose_node_fails_stops_whole_and_says_which(
+    ros_env: dict[str, str], tmp_path: Path, args: tuple[str, ...], said: str
+) -> None:
+    """A launch argument a node refuses (a negative set-point, a real-time factor of 0) or that is no
+    number: `ros2 launch` stops by itself, exits 1 and names the node or the argument, every other
+    node finishes cleanly (none was interrupted into a traceback while importing), and the bag the
+    recorder had opened is closed.  Before, the failed node's error line scrolled by and the
+    rest ran on: the fish drove its fin with no speed loop until Ctrl-C."""
+    from ..rosutil import assert_quiet_domain
+
+    assert_quiet_domain(ros_env)
+    run = subprocess.run(
+        ["ros2", "launch", "piezofin_ros", *args],
+        env=ros_env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        stdin=subprocess.DEVNULL,
+    )
+    out = run.stdout + run.stderr
+    assert run.returncode == 1, out[-3000:]
+    assert said in out and "Traceback" not in out, out[-3000:]
+    if "exited with code" in said:
+        assert "the stack does not run without it, so every node stops" in out, out[-3000:]
+        if "recorder]: recording" in out:  # (it may be stopped before it opens one)
+            assert re.search(r"recorder\]: closed bags/piezofin_\S+\.mcap", out), out[-3000:]
+        died = [line for line in out.splitlines() if "process has died" in line]
+        assert len(died) == 1 and said.split()[0] in died[0], died  # the others finished cleanly
+
+
 def test_launch_without_the_simulator_and_with_a_layered_params_file(
     ros_env: dict[str, str], tmp_path: Path
 ) -> None:

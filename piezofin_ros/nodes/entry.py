@@ -1,0 +1,58 @@
+"""The nodes' console scripts (``ros2 run piezofin_ros <node>``): a Ctrl-C that comes while a node is
+still importing its modules ends it quietly, exit 0, as it would once running.
+
+``ros2 launch`` stops every node when one fails (:mod:`.launching`); a node stopped in its first
+second was still importing scipy, and Python printed a ``KeyboardInterrupt`` traceback for each.
+Once :func:`~._common.run_node` runs, it answers Ctrl-C itself.
+"""
+
+from __future__ import annotations
+
+import importlib
+import signal
+from types import FrameType
+
+
+def _interrupted(signum: int, frame: FrameType | None) -> None:
+    raise SystemExit(0)
+
+
+def _run(module: str, function: str = "main") -> int:
+    signal.signal(signal.SIGINT, _interrupted)
+    try:
+        main = getattr(importlib.import_module(f"{__package__}.{module}"), function)
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    return int(main())
+
+
+def fin_sim() -> int:
+    return _run("fin_sim")
+
+
+def fin_sims() -> int:
+    return _run("fin_sim", "fins_main")
+
+
+def thrust_estimator() -> int:
+    return _run("thrust_estimator")
+
+
+def controller() -> int:
+    return _run("controller")
+
+
+def recorder() -> int:
+    return _run("recorder")
+
+
+def player() -> int:
+    return _run("player")
+
+
+def speed_loop() -> int:
+    return _run("speed_loop")
+
+
+def bringup() -> int:
+    return _run("bringup")
