@@ -14,7 +14,7 @@ code keeps working::
     +-- RigError            rig/: a drive command or configuration the rig refuses
     +-- ControlError        control/: limits, plans, optimiser settings
     +-- DiagnosisError      diagnosis/: DataError (a recording that cannot be diagnosed)
-    +-- NodeError           nodes/: StartupError
+    +-- NodeError           nodes/: StartupError; NodeFailed, LaunchArgumentError (launch files)
     +-- CliError            cli/: UsageError
     +-- TaskError           workers.py: a task that kills its worker, a Ray that cannot start
 """

@@ -89,6 +89,10 @@ FloatArray = NDArray[Any]
 
 #: Relative model error weighed into the fit beside the measurement noise (the map is a model).
 MODEL_ERROR = 0.02
+#: The reduced chi-square against the noise alone beyond which a fish's calibration bound counts the
+#: model's misfit (an RMS misfit of twice the noise; below it, scatter the noise model misses, such as
+#: a voltage monitor's gain noise of 0.3 %, at chi-square 1.8, would have widened it: ``Optimiser._bound``)
+MISFIT_CHI2 = 4.0
 #: Trials this close (relative, see ``_close``) are at the same operating point.
 SAME_POINT = 1e-3
 
@@ -808,7 +812,7 @@ class Optimiser:
         # (on a fish only, whose whole calibration is the fit's; a vibrometer's is c_m alone, which a
         # misfit of the power, a leak's say, does not move: counted there it cost M8528-P1 with a leak
         # 0.60 -> 0.41 of the optimum after 8 trials under a demand, `bench_unseen.py --seeds 1`)
-        misfit = self._chi2_noise - 1.0 if last.source == "self" else 0.0
+        misfit = self._chi2_noise - MISFIT_CHI2 if last.source == "self" else 0.0
         form = MODEL_ERROR * math.sqrt(max(misfit, 0.0))  # (0 while the model fits)
         return float(2.0 * math.hypot(self._propagated_sigma(log_estimate)[0], form))
 
