@@ -795,8 +795,9 @@ class Optimiser:
         """2 sigma (relative) of the thrust estimate's calibration at the latest trial: the fitted
         parameters' (propagated from their covariance) and, on a fish, the model's own where the
         trials say it misfits, ``MODEL_ERROR`` times the square root of the reduced chi-square against
-        the noise alone beyond 1.  A model outside the correction's family can fit the trials with
-        parameters that compensate one another, whose propagated error is small where their bias is not:
+        the noise alone beyond ``MISFIT_CHI2``.  A model outside the correction's family can fit the
+        trials with parameters that compensate one another, whose propagated error is small where
+        their bias is not:
         M8514-P1 with a coupling growing as the field to the power 2.27 (chi-square 8) read its
         self-sensed thrust 5.2 % high against a parametric bound of 2.1 % and held 0.9994 of the
         demand in truth (``test_a_fish_whose_model_misfits_counts_the_misfit_in_its_bound``)."""

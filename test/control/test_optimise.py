@@ -548,7 +548,7 @@ def test_a_fish_whose_model_misfits_counts_the_misfit_in_its_bound() -> None:
     8 against the noise alone); the parametric bound at the held point, 254 Vpp, was 2.1 % while the
     self-sensed thrust read 5.2 % high, and from the 9th trial it held 0.9994 of the demand in truth.
     The bound now counts the misfit (the model error times the square root of the chi-square beyond
-    1): every point it holds once one counts meets the demand in truth, and the bound covers the
+    4): every point it holds once one counts meets the demand in truth, and the bound covers the
     held estimate's true error."""
     from piezofin_ros.physics.amplifier import LinearAmplifier
     from piezofin_ros.physics.effects import make
