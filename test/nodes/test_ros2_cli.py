@@ -192,7 +192,12 @@ def test_a_launch_whose_node_fails_stops_whole_and_says_which(
     )
     out = run.stdout + run.stderr
     assert run.returncode == 1, out[-3000:]
-    assert said in out and "Traceback" not in out, out[-3000:]
+    assert said in out, out[-3000:]
+    # no traceback of ours; launch_ros's own lifecycle client, still waiting for the dead fin_sim's
+    # change_state service when the launch stops, may leave one ("cannot use Destroyable": upstream)
+    upstream = out.count("InvalidHandle('cannot use Destroyable")
+    assert out.count("Traceback") <= upstream, out[-3000:]
+    assert not re.search(r'File "[^"]*piezofin_ros/', out), out[-3000:]
     if "exited with code" in said:
         assert "the stack does not run without it, so every node stops" in out, out[-3000:]
         if "recorder]: recording" in out:  # (it may be stopped before it opens one)
