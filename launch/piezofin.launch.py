@@ -120,7 +120,7 @@ def _nodes(context, *args, **kwargs):
     )
     # a node that stops with an error stops them all (the others went on without it)
     nodes = [a for a in actions if isinstance(a, Node)]  # (a LifecycleNode is a Node)
-    return actions + [stop_if_it_fails(n, f"{n.node_executable}") for n in nodes]
+    return actions + [stop_if_it_fails(n, n.node_executable) for n in nodes]
 
 
 def generate_launch_description():

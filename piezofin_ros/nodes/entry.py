@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 import signal
 import sys
+from functools import partial
 from types import FrameType
 
 
@@ -27,33 +28,12 @@ def _run(module: str, function: str = "main") -> int:
     return int(main())
 
 
-def fin_sim() -> int:
-    return _run("fin_sim")
-
-
-def fin_sims() -> int:
-    return _run("fin_sim", "fins_main")
-
-
-def thrust_estimator() -> int:
-    return _run("thrust_estimator")
-
-
-def controller() -> int:
-    return _run("controller")
-
-
-def recorder() -> int:
-    return _run("recorder")
-
-
-def player() -> int:
-    return _run("player")
-
-
-def speed_loop() -> int:
-    return _run("speed_loop")
-
-
-def bringup() -> int:
-    return _run("bringup")
+# (each a callable that setup.py's console_scripts name)
+fin_sim = partial(_run, "fin_sim")
+fin_sims = partial(_run, "fin_sim", "fins_main")
+thrust_estimator = partial(_run, "thrust_estimator")
+controller = partial(_run, "controller")
+recorder = partial(_run, "recorder")
+player = partial(_run, "player")
+speed_loop = partial(_run, "speed_loop")
+bringup = partial(_run, "bringup")

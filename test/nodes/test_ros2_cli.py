@@ -24,9 +24,17 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def ros2(env: dict[str, str], *args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+def ros2(
+    env: dict[str, str], *args: str, timeout: float = 60.0, cwd: Path | None = None
+) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        ["ros2", *args], env=env, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL
+        ["ros2", *args],
+        env=env,
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
     )
 
 
@@ -178,18 +186,8 @@ def test_a_launch_whose_node_fails_stops_whole_and_says_which(
     node finishes cleanly (none was interrupted into a traceback while importing), and the bag the
     recorder had opened is closed.  Before, the failed node's error line scrolled by and the
     rest ran on: the fish drove its fin with no speed loop until Ctrl-C."""
-    from ..rosutil import assert_quiet_domain
-
     assert_quiet_domain(ros_env)
-    run = subprocess.run(
-        ["ros2", "launch", "piezofin_ros", *args],
-        env=ros_env,
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        stdin=subprocess.DEVNULL,
-    )
+    run = ros2(ros_env, "launch", "piezofin_ros", *args, timeout=120.0, cwd=tmp_path)
     out = run.stdout + run.stderr
     assert run.returncode == 1, out[-3000:]
     assert said in out, out[-3000:]
