@@ -83,10 +83,15 @@ def _nodes(context, *args, **kwargs):
                     transition_id=Transition.TRANSITION_CONFIGURE,
                 )
             )
+            # Activate once, on the arrival in `inactive` from `configuring` (the start): an operator's
+            # `ros2 lifecycle set .../fin_sim deactivate` also arrives in `inactive`, from
+            # `deactivating`, and must hold (the handler re-activated it within a second).
             activate = RegisterEventHandler(
                 OnStateTransition(
                     target_lifecycle_node=fin_sim,
+                    start_state="configuring",
                     goal_state="inactive",
+                    handle_once=True,
                     entities=[
                         EmitEvent(
                             event=ChangeState(
