@@ -40,6 +40,20 @@ SUPPLY_CHANNELS = ("t_s", "supply_voltage_V", "supply_current_A")
 #: Fields of an actuation command, in wire order (also accepted unlabelled in this order).
 COMMAND_FIELDS = ("frequency_hz", "voltage_pp_V", "on")
 
+#: The physical range of each sampled channel: a reading beyond (or infinite) is no reading of this
+#: rig or fish, whoever sent it.  Generous: an MFC is rated -500..+1500 V and draws milliamperes; a
+#: fin's tip moves centimetres per second; the load cell's beam deflects micrometres; a fin's
+#: amplifier runs from a bus under 2 kV drawing under 10 A (a spoofed supply of 1e300 V gave a
+#: measured supply power of 3.9e8 W).  ``t_s`` is checked apart (finite, increasing).
+CHANNEL_MOST = {
+    "voltage_V": 2000.0,
+    "current_A": 1.0,
+    "tip_velocity_m_s": 100.0,
+    "displacement_m": 0.1,
+    "supply_voltage_V": 2000.0,
+    "supply_current_A": 10.0,
+}
+
 #: Hard bound on a block's size, so a malformed message cannot make a receiver allocate gigabytes.
 MAX_VALUES = 1_000_000
 
@@ -159,10 +173,12 @@ def from_layout(
 
 
 def check_samples(block: Block, channels: Sequence[str]) -> Block:
-    """Validate a high-rate block: at least one sample, finite, strictly increasing ``t_s``.
+    """Validate a high-rate block: at least one sample, finite, strictly increasing ``t_s``, and
+    every value within its channel's physical range (:data:`CHANNEL_MOST`).
 
-    Returns a block holding only ``channels`` (in that order).  Non-finite *values* are
-    allowed (a sensor may drop out); non-finite or non-increasing times are not.
+    Returns a block holding only ``channels`` (in that order).  NaN *values* are allowed (a sensor
+    may drop out); infinite values, values beyond the range, and non-finite or non-increasing times
+    are not.
     """
     if block.n == 0:
         raise BlockFormatError("block holds no sample")
@@ -171,4 +187,13 @@ def check_samples(block: Block, channels: Sequence[str]) -> Block:
         raise BlockFormatError("non-finite sample time")
     if block.n > 1 and np.any(np.diff(t) <= 0):
         raise BlockFormatError("sample times do not increase strictly")
+    for c in channels:
+        most = CHANNEL_MOST.get(c)
+        if most is not None:
+            x = block[c]
+            with np.errstate(invalid="ignore"):
+                beyond = np.abs(x) > most  # (NaN: a dropout, not beyond)
+            if np.any(beyond):
+                worst = float(x[beyond][0])
+                raise BlockFormatError(f"{c} = {worst!r} is beyond its physical range (within +-{most:g})")
     return Block(tuple(channels), np.stack([block[c] for c in channels]))

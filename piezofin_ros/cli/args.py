@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -42,13 +43,33 @@ def parse_frequencies(spec: Sequence[str], option: str = "--freq") -> np.ndarray
         raise UsageError(str(exc)) from None
 
 
-def writable_path(option: str, path: str | Path) -> None:
-    """``path`` can be written: its folder exists (made if need be) and takes files, and it is no
-    folder itself; else one line naming ``option``."""
-    path = Path(path)
+#: What ``--plot`` writes (matplotlib's format follows the suffix; with none it added ``.png`` to
+#: the name, so ``--plot DIR`` wrote ``DIR.png`` and said "wrote DIR").
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def writable_path(option: str, path: str | Path, suffixes: Sequence[str] = ()) -> None:
+    """``path`` can be written as a new file, checked before the work that makes it: a usable name
+    (no NUL byte; one of ``suffixes`` when given), nothing there yet (an output never replaces a
+    file: choose another name), its folder made if need be, and a file can be created in it (tried:
+    ``/proc/x.png`` passed a permission check as root, then failed after the work); else one line
+    naming ``option``."""
+    text = os.fspath(path)
+    if "\0" in text:
+        raise UsageError(f"{option} {text!r}: not a usable file name (a NUL byte)")
+    path = Path(text)
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise UsageError(f"{option} {path}: give a file name ending in {', '.join(suffixes)}")
     if path.is_dir():
         raise UsageError(f"{option} {path}: a folder, not a file")
+    if path.exists() or path.is_symlink():
+        raise UsageError(f"{option} {path}: exists; choose another name (an output is never overwritten)")
     writable_folder(option, path.parent, f"{option} {path}: its folder")
+    try:  # the one sure test: create it (exclusively), then leave the name free for the work
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+    except OSError as exc:
+        raise UsageError(f"{option} {path}: cannot be written ({exc.strerror or exc})") from None
+    os.unlink(path)
 
 
 def writable_folder(option: str, folder: Path, what: str = "") -> None:
@@ -60,3 +81,9 @@ def writable_folder(option: str, folder: Path, what: str = "") -> None:
         raise UsageError(f"{what} {folder}: cannot make it ({exc.strerror or exc})") from None
     if not os.access(folder, os.W_OK):
         raise UsageError(f"{what} {folder}: not writable")
+    try:  # (root passes os.access anywhere: a file made and removed is the sure test)
+        fd, probe = tempfile.mkstemp(prefix=".piezofin-probe-", dir=folder)
+    except OSError as exc:
+        raise UsageError(f"{what} {folder}: cannot write in it ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(probe)

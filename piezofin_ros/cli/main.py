@@ -20,11 +20,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import workers
+from ..errors import PiezofinError
 from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
 from ..physics.steady import SteadyState, harmonic_balance
 from .args import (
     EXIT_UNTRUSTED,
     EXIT_USAGE,
+    PLOT_SUFFIXES,
     UsageError,
     parse_frequencies,
     writable_folder,
@@ -139,6 +141,8 @@ def _voltages(values: Sequence[float]) -> np.ndarray:
 
 
 def run_sweep(args: argparse.Namespace) -> int:
+    if args.plot:
+        writable_path("--plot", args.plot, PLOT_SUFFIXES)  # (before the work)
     if args.model:
         return _sweep_augmented(args)
     fin = _load(args.fin, args.c_d)
@@ -156,7 +160,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         print(format_table(fin, state))
     if args.plot:
         try:
-            plot_sweep(fin, state, args.plot)
+            plot_sweep(fin, state, args.plot)  # (checked before the work, at the top)
         except OSError as exc:
             raise UsageError(f"--plot {args.plot}: cannot write ({exc.strerror})") from None
         print(f"wrote {args.plot}", file=sys.stderr)
@@ -315,9 +319,9 @@ def run_identify(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.output} exists; choose another --output (it is never overwritten)")
     if args.plot and Path(args.plot).exists():
         raise UsageError(f"{args.plot} exists; choose another --plot (it is never overwritten)")
-    for option, path in (("--output", args.output), ("--plot", args.plot)):
+    for option, path, suffixes in (("--output", args.output, ()), ("--plot", args.plot, PLOT_SUFFIXES)):
         if path:
-            writable_path(option, path)  # (before the work: no fin file left without its plot)
+            writable_path(option, path, suffixes)  # (before the work: no fin file left without its plot)
     try:
         geometry = load_geometry(args.geometry)
         air = read_sweep(args.air, args.namespace)
@@ -493,6 +497,14 @@ def run_estimate(args: argparse.Namespace) -> int:
             f"(largest relative difference {diff:.1e})",
             file=sys.stderr,
         )
+    if not replay.replayed and replay.n_skipped:
+        # (a bag whose one drive block of five held 1e300 V said "0 estimates; DIFFERS", exit 0)
+        print(
+            f"no estimate: {replay.n_skipped} message(s) of the fin could not be used (the lines above say "
+            "why), and what was left makes no full window",
+            file=sys.stderr,
+        )
+        return EXIT_UNTRUSTED
     return 0
 
 
@@ -553,13 +565,37 @@ def _write_twin(out: Path, twin: Twin, text: str) -> None:
 
 
 def _refuse_existing(args: argparse.Namespace) -> None:
-    """Outputs are never replaced without ``--force``; checked before the work, not after it."""
+    """Outputs are never replaced without ``--force``, and each can be written; checked before the
+    work, not after it (a file or ``/proc/x`` as ``--twin`` was refused after 292 s of it)."""
+    for option in ("--json", "--twin", "--report"):
+        value = getattr(args, option[2:], None)
+        if not value:
+            continue
+        if "\0" in str(value):
+            raise UsageError(f"{option} {value!r}: not a usable name (a NUL byte)")
+        p = Path(value)
+        if option == "--json":
+            if p.exists() and not p.is_file():
+                raise UsageError(f"{option} {p}: exists and is not a file")
+            writable_folder(option, p.parent, f"{option} {p}: its folder")
+        else:
+            if p.exists() and not p.is_dir():
+                raise UsageError(f"{option} {p}: exists and is not a directory")
+            writable_folder(option, p)
     if args.force:
         return
     if args.json and Path(args.json).exists():
         raise UsageError(f"--json {args.json}: exists (give --force to replace it)")
-    if getattr(args, "twin", None) and Path(args.twin).exists() and any(Path(args.twin).glob("paper-twin-*")):
-        raise UsageError(f"--twin {args.twin}: holds a twin already (give --force to replace it)")
+    twin = getattr(args, "twin", None)
+    if twin and Path(twin).is_dir():
+        # what _write_twin writes: twin.md and a paper-twin-*.yaml per fin (twin.md was replaced, exit 0)
+        ours = [
+            p.name for p in Path(twin).iterdir() if p.name == "twin.md" or p.name.startswith("paper-twin-")
+        ]
+        if ours:
+            raise UsageError(
+                f"--twin {twin}: holds {', '.join(sorted(ours))} already (give --force to replace)"
+            )
     if args.report and Path(args.report).exists():
         report = Path(args.report)
         if not report.is_dir():
@@ -680,6 +716,10 @@ def _run(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
         return EXIT_USAGE
     except BrokenPipeError:  # e.g. `piezofin sweep | head`
         return 0
+    except PiezofinError as exc:  # any input the package refuses on purpose (a FIFO as a file, a NUL
+        # byte in a path, a value out of range) that a command did not word itself: one line, exit 2
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
 
 
 def main(argv: Sequence[str] | None = None) -> int:

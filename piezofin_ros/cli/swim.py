@@ -22,7 +22,7 @@ from ..physics.amplifier import load_amplifier
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
 from ..physics.swim import battery_presets, body_presets, load_battery, load_body
-from .args import UsageError, add_fins, writable_path
+from .args import PLOT_SUFFIXES, UsageError, add_fins, writable_path
 
 #: The strategy every other is compared with: what a builder without a model does.
 BASELINE = "resonance, full voltage"
@@ -170,13 +170,15 @@ def plot(r: dict[str, Any], path: str) -> None:
     try:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise SwimUsageError(f"--plot {path}: cannot write ({exc.strerror or exc})") from None
     finally:
         plt.close(fig)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.plot:
-        writable_path("--plot", args.plot)  # (before the work)
+        writable_path("--plot", args.plot, PLOT_SUFFIXES)  # (before the work)
     r = compute(args)
     if args.json:
         json.dump(r, sys.stdout, indent=1, default=float)

@@ -17,7 +17,7 @@ from ..errors import PiezofinError
 from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
-from .args import UsageError, add_fins, parse_frequencies
+from .args import PLOT_SUFFIXES, UsageError, add_fins, parse_frequencies, writable_path
 
 
 class WattsError(UsageError):
@@ -61,6 +61,8 @@ def compute(args: argparse.Namespace) -> dict[str, Any]:
     except PiezofinError as exc:
         raise WattsError(str(exc)) from None
     freqs = np.asarray(parse_frequencies(args.freq), float)
+    if not (math.isfinite(args.min_thrust) and 0 <= args.min_thrust <= 1.0):  # (nan or -1: no floor, unsaid)
+        raise WattsError(f"--min-thrust {args.min_thrust}: a thrust within [0, 1] N")
     volts = np.asarray(args.voltages, float)
     if not (np.all(np.isfinite(volts)) and np.all(volts > 0) and np.all(volts <= 1000)):
         raise WattsError(f"--voltages {args.voltages}: each must be within (0, 1000] Vpp")
@@ -161,6 +163,8 @@ def plot(r: dict[str, Any], path: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        writable_path("--plot", args.plot, PLOT_SUFFIXES)  # (before the work)
     r = compute(args)
     if args.json:
         json.dump({"watts": r["watts"]}, sys.stdout, indent=1)

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 from ..config import setting
 from ..errors import ControlError
-from ..physics.swim import Body
+from ..physics.swim import SPEED_MOST_M_S, Body
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,7 @@ class SpeedLoop:
     def measure(self, t: float, speed_m_s: float) -> bool:
         """A speed reading at time ``t``, low-passed (``filter_s``); False (ignored) unless it is a
         finite speed."""
-        if not math.isfinite(speed_m_s) or not math.isfinite(t) or abs(speed_m_s) > 100.0:
+        if not math.isfinite(speed_m_s) or not math.isfinite(t) or abs(speed_m_s) > SPEED_MOST_M_S:
             return False
         dt = t - self._speed_t
         if self.config.filter_s > 0 and 0 <= dt <= self.config.sensor_timeout_s:

@@ -103,17 +103,30 @@ class Fish:
         p = self.model.predict(frequencies, np.full(np.shape(frequencies), voltage_pp))
         return float(np.asarray(frequencies)[int(np.argmax(np.asarray(p.tip_velocity_rms)))])
 
+    def voltage_grid(self) -> FloatArray:
+        """The drive amplitudes searched, Vpp: 50 to the limit in steps of 25, or sixteen steps up to
+        a limit below 50 (the grid from 50 was empty there: ``swim --voltage-max 30`` crashed)."""
+        top = self.voltage_pp_max
+        if top >= 50.0:
+            return np.arange(50.0, top + 1e-9, 25.0)
+        return np.linspace(top / 16, top, 16)
+
+    def _grid_voltages(self) -> FloatArray:
+        """The ``grid`` strategy's amplitudes, 400/600/800 Vpp, within the drive's limit."""
+        within = [v for v in (400.0, 600.0, 800.0) if v <= self.voltage_pp_max]
+        return np.array(within or [self.voltage_pp_max])
+
     def strategies(self, f_max_hz: float = 30.0) -> dict[str, Swim]:
         """Each of :data:`STRATEGIES` (module docstring)."""
         dense = np.geomspace(1.0, f_max_hz, 240)
-        volts = np.arange(50.0, self.voltage_pp_max + 1e-9, 25.0)
+        volts = self.voltage_grid()
         top = self.voltage_pp_max
         return {
             "range": self.best(dense, volts, "supply"),
             "range (fin watt)": self.best(dense, volts, "fin"),
             "resonance, full voltage": self.swim(self.resonance_hz(top, dense), top),
             "paper (5.5 Hz, 800 Vpp)": self.swim(5.5, min(800.0, top)),
-            "grid": self.best(np.arange(1.0, 12.0), np.array([400.0, 600.0, 800.0]), "supply"),
+            "grid": self.best(np.arange(1.0, 12.0), self._grid_voltages(), "supply"),
         }
 
     def fixed_draw_for(self, gain: float = 0.3) -> float:
@@ -124,7 +137,7 @@ class Fish:
         Above it the fixed draw dominates: the distance per joule grows with the speed, and the
         longest range is the fastest drive, whatever the fins' own watts."""
         dense = np.geomspace(1.0, 30.0, 240)
-        volts = np.arange(50.0, self.voltage_pp_max + 1e-9, 25.0)
+        volts = self.voltage_grid()
         top = self.voltage_pp_max
         quiet = self.amplifier
         if isinstance(quiet, LinearAmplifier | SwitchingAmplifier):  # (every kind has a quiescent draw)
@@ -133,9 +146,15 @@ class Fish:
         def beyond(fixed_w: float) -> float:
             fish = replace(self, battery=replace(self.battery, hotel_w=fixed_w), amplifier=quiet)
             best = fish.best(dense, volts, "supply").range_m
-            return best / fish.swim(fish.resonance_hz(top, dense), top).range_m - 1.0
+            base = fish.swim(fish.resonance_hz(top, dense), top).range_m
+            if base > 0:
+                return best / base - 1.0
+            return math.inf if best > 0 else -1.0  # (a pack that carries neither: no gain)
 
-        lo, hi = math.log(1e-4), math.log(10.0)
+        # (up to 10 W, or just below what the pack can deliver at all: a battery takes no more)
+        lo, hi = math.log(1e-4), math.log(min(10.0, 0.99 * self.battery.max_power_w()))
+        if hi <= lo:
+            return math.nan
         if beyond(math.exp(hi)) >= gain:
             return math.nan
         if beyond(math.exp(lo)) < gain:

@@ -69,6 +69,7 @@ from ..config import setting
 from ..errors import EstimationError
 from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS, Amplifier, check_watt
 from ..physics.fin import MEDIA, Fin
+from ..physics.swim import SPEED_MOST_M_S
 from .selfsense import NOMINAL, Calibration, self_sensed_tip
 
 FloatArray = NDArray[Any]
@@ -459,8 +460,14 @@ class StreamEstimator:
         return self._finish_ready()
 
     def add_speed(self, t: float, speed_m_s: float) -> None:
-        """Swimming speed ``U`` (m/s) from the fish stack, applied in Eq. (19)."""
-        if math.isfinite(t) and math.isfinite(speed_m_s):
+        """Swimming speed ``U`` (m/s) from the fish stack, applied in Eq. (19); a time that is not
+        finite is ignored, a speed beyond :data:`~piezofin_ros.physics.swim.SPEED_MOST_M_S` (or not
+        finite) refused with :class:`EstimationError`."""
+        if not (math.isfinite(speed_m_s) and abs(speed_m_s) <= SPEED_MOST_M_S):
+            raise EstimationError(
+                f"a swimming speed of {speed_m_s!r} m/s is no fish's (within +-{SPEED_MOST_M_S:g})"
+            )
+        if math.isfinite(t):
             self._speed.append((t, speed_m_s))
 
     def flush(self) -> list[Estimate]:

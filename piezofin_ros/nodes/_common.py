@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import faulthandler
 import math
 import os
@@ -20,7 +21,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ..bags.blocks import Block, from_layout, to_layout
+from ..bags.blocks import Block, check_samples, from_layout, to_layout
 from ..config import settings_of
 from ..errors import NodeError, PiezofinError
 
@@ -220,6 +221,96 @@ def freeze_parameters(
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(callback)
+
+
+# -------------------------------------------------------------------------------------- inbox
+#: A reason a node refuses what another process sent is said at most this often per topic, s.
+SAY_EVERY_S = 1.0
+
+
+class Inbox:
+    """The one door by which a node takes messages from other processes.
+
+    Each subscription made here has a ``check`` that turns the message into what the node uses
+    (a :class:`Block`, a number within its range) or raises with the reason; the handler sees
+    only what passed.  What fails is counted per topic (``refused``) and said at most once a
+    second per topic, with the count.  A handler that still fails on a message the check passed
+    with an arithmetic or a value error (an overflow, a division by zero, the core's refusal) is
+    counted (``failed``) and said the same way: the message is lost, the node lives (one
+    ``swim_speed`` of 1e308 killed the estimator with an ``OverflowError``, and the launch with it).
+    Other exceptions are bugs and propagate.
+    """
+
+    def __init__(self, node: Node) -> None:
+        from rclpy.clock import Clock, ClockType
+
+        self._node = node
+        self._clock = Clock(clock_type=ClockType.STEADY_TIME)
+        self._said: dict[str, int] = {}
+        self.refused: collections.Counter[str] = collections.Counter()
+        self.failed: collections.Counter[str] = collections.Counter()
+
+    def subscribe(
+        self,
+        msg_type: Any,
+        topic: str,
+        handler: Callable[[Any], None],
+        qos: QoSProfile,
+        check: Callable[[Any], Any] | None = None,
+        **kwargs: Any,
+    ) -> Any:
+        def on_message(msg: Any) -> None:
+            try:
+                value = msg if check is None else check(msg)
+            except (PiezofinError, ValueError, TypeError, ArithmeticError, KeyError, IndexError) as exc:
+                self.refused[topic] += 1
+                self._say(
+                    topic,
+                    f"refused {self.refused[topic]} message(s) on {self._name(topic)}; the latest: {exc}",
+                )
+                return
+            try:
+                handler(value)
+            except (PiezofinError, ValueError, ArithmeticError) as exc:
+                self.failed[topic] += 1
+                self._say(
+                    topic,
+                    f"could not use {self.failed[topic]} message(s) on {self._name(topic)}; the latest: "
+                    f"{type(exc).__name__}: {exc}",
+                )
+
+        return self._node.create_subscription(msg_type, topic, on_message, qos, **kwargs)
+
+    def _name(self, topic: str) -> str:
+        return self._node.resolve_topic_name(topic)
+
+    def _say(self, topic: str, text: str) -> None:
+        now = self._clock.now().nanoseconds
+        if now - self._said.get(topic, -(10**18)) >= SAY_EVERY_S * 1e9:
+            self._said[topic] = now
+            self._node.get_logger().warning(text)
+
+
+def scalar(lo: float, hi: float, unit: str) -> Callable[[Any], float]:
+    """A check for a ``std_msgs/Float64``: its value, finite and within ``[lo, hi]`` (``unit``)."""
+
+    def check(msg: Any) -> float:
+        x = float(msg.data)
+        if not (math.isfinite(x) and lo <= x <= hi):
+            raise ValueError(f"{x!r} {unit} is not within [{lo:g}, {hi:g}] {unit}")
+        return x
+
+    return check
+
+
+def samples(channels: tuple[str, ...]) -> Callable[[Float64MultiArray], Block]:
+    """A check for a block of samples on ``channels``: its layout, its times and each value's
+    physical range (:func:`~piezofin_ros.bags.blocks.check_samples`)."""
+
+    def check(msg: Float64MultiArray) -> Block:
+        return check_samples(msg_block(msg, expect=channels), channels)
+
+    return check
 
 
 # ------------------------------------------------------------------------------------ silence

@@ -44,6 +44,7 @@ from ._common import (
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
     TOPIC_STATUS,
+    Inbox,
     SilenceWatch,
     StartupError,
     block_msg,
@@ -144,9 +145,10 @@ class Controller(Node):
             self.strategy, summary = self._trials(c)
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
         self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
-        self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
+        self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
+        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
         if self.strategy.takes_demand:
-            self.create_subscription(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
+            self.inbox.subscribe(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
         self._timer = self.create_timer(1.0 / c.heartbeat_hz, self._tick)
         # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
         self._silence = SilenceWatch(

@@ -79,6 +79,7 @@ from ._common import (
     TOPIC_SPEED,
     TOPIC_SUPPLY,
     TOPIC_TIP,
+    Inbox,
     StartupError,
     block_msg,
     declare,
@@ -208,7 +209,8 @@ class FinSim(LifecycleNode):
         self.command_counts: collections.Counter[str] = collections.Counter()
         self._last_reason_log_ns = -(2**62)
         self._unlogged = 0
-        self.create_subscription(Float64MultiArray, TOPIC_CMD, self._on_command, QOS_COMMAND)
+        self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
+        self.inbox.subscribe(Float64MultiArray, TOPIC_CMD, self._on_command, QOS_COMMAND)
 
     # ------------------------------------------------------------------------------ lifecycle
     def on_configure(self, state: State) -> TransitionCallbackReturn:

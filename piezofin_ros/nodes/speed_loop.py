@@ -32,6 +32,7 @@ from ._common import (
     TOPIC_ESTIMATE,
     TOPIC_LOOP_STATUS,
     TOPIC_SPEED,
+    Inbox,
     StartupError,
     declare,
     freeze_parameters,
@@ -70,8 +71,9 @@ class SpeedLoopNode(Node):
         freeze_parameters(self, "speed_m_s", self._on_setpoint)
         self._pub = self.create_publisher(Float64, TOPIC_DEMAND, QOS_COMMAND)
         self._status = self.create_publisher(String, TOPIC_LOOP_STATUS, QOS_COMMAND)
-        self.create_subscription(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
-        self.create_subscription(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
+        self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
+        self.inbox.subscribe(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
+        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
         self._said = self._published = ""

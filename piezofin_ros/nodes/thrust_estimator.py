@@ -23,8 +23,6 @@ from ..bags.blocks import (
     SUPPLY_CHANNELS,
     TIP_CHANNELS,
     Block,
-    BlockFormatError,
-    check_samples,
 )
 from ..config import setting
 from ..errors import PiezofinError
@@ -32,6 +30,7 @@ from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
 from ..estimation.selfsense import Calibration
 from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.fin import MEDIA, Fin, load_fin
+from ..physics.swim import SPEED_MOST_M_S
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -41,13 +40,15 @@ from ._common import (
     TOPIC_SPEED,
     TOPIC_SUPPLY,
     TOPIC_TIP,
+    Inbox,
     SilenceWatch,
     StartupError,
     block_msg,
     declare,
     freeze_parameters,
-    msg_block,
     run_node,
+    samples,
+    scalar,
 )
 
 
@@ -96,13 +97,18 @@ class ThrustEstimator(Node):
         freeze_parameters(self)
         self.core = StreamEstimator(self.fin, config, calibrate, amplifier, own.medium)
         self.estimates: list[Estimate] = []
-        self.rejected = 0
         self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
-        self.create_subscription(Float64MultiArray, TOPIC_DRIVE, self._on_drive, QOS_DATA)
-        self.create_subscription(Float64MultiArray, TOPIC_TIP, self._on_tip, QOS_DATA)
-        self.create_subscription(Float64MultiArray, TOPIC_LOADCELL, self._on_loadcell, QOS_DATA)
-        self.create_subscription(Float64MultiArray, TOPIC_SUPPLY, self._on_supply, QOS_DATA)
-        self.create_subscription(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
+        # every message from another process through one door: checked there, refused with the reason
+        self.inbox = inbox = Inbox(self)
+        inbox.subscribe(Float64MultiArray, TOPIC_DRIVE, self._on_drive, QOS_DATA, samples(DRIVE_CHANNELS))
+        inbox.subscribe(Float64MultiArray, TOPIC_TIP, self._on_tip, QOS_DATA, samples(TIP_CHANNELS))
+        inbox.subscribe(
+            Float64MultiArray, TOPIC_LOADCELL, self._on_loadcell, QOS_DATA, samples(LOADCELL_CHANNELS)
+        )
+        inbox.subscribe(Float64MultiArray, TOPIC_SUPPLY, self._on_supply, QOS_DATA, samples(SUPPLY_CHANNELS))
+        inbox.subscribe(
+            Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
+        )
         self._last_t = float("nan")
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
         self._silence = SilenceWatch(
@@ -114,42 +120,33 @@ class ThrustEstimator(Node):
             f"{self.resolve_topic_name(TOPIC_ESTIMATE)}"
         )
 
-    def _decode(self, msg: Float64MultiArray, channels: tuple[str, ...], topic: str) -> Block | None:
-        self.received[topic] += 1
-        if topic == TOPIC_DRIVE:
-            self._silence.heard()
-        try:
-            return check_samples(msg_block(msg, expect=channels), channels)
-        except BlockFormatError as exc:
-            self.rejected += 1
-            self.get_logger().warning(f"dropped a {topic} block: {exc}", throttle_duration_sec=5.0)
-            return None
+    @property
+    def rejected(self) -> int:
+        """Blocks and readings refused at the door (their reasons were said)."""
+        return sum(self.inbox.refused.values())
 
-    def _on_drive(self, msg: Float64MultiArray) -> None:
-        b = self._decode(msg, DRIVE_CHANNELS, TOPIC_DRIVE)
-        if b is not None:
-            self._last_t = float(b["t_s"][-1])
-            self._emit(self.core.add_drive(b["t_s"], b["voltage_V"], b["current_A"]))
+    def _on_drive(self, b: Block) -> None:
+        self.received[TOPIC_DRIVE] += 1
+        self._silence.heard()
+        self._last_t = float(b["t_s"][-1])
+        self._emit(self.core.add_drive(b["t_s"], b["voltage_V"], b["current_A"]))
 
-    def _on_tip(self, msg: Float64MultiArray) -> None:
-        b = self._decode(msg, TIP_CHANNELS, TOPIC_TIP)
-        if b is not None:
-            self._emit(self.core.add_tip(b["t_s"], b["tip_velocity_m_s"]))
+    def _on_tip(self, b: Block) -> None:
+        self.received[TOPIC_TIP] += 1
+        self._emit(self.core.add_tip(b["t_s"], b["tip_velocity_m_s"]))
 
-    def _on_loadcell(self, msg: Float64MultiArray) -> None:
-        b = self._decode(msg, LOADCELL_CHANNELS, TOPIC_LOADCELL)
-        if b is not None:
-            self._emit(self.core.add_loadcell(b["t_s"], b["displacement_m"]))
+    def _on_loadcell(self, b: Block) -> None:
+        self.received[TOPIC_LOADCELL] += 1
+        self._emit(self.core.add_loadcell(b["t_s"], b["displacement_m"]))
 
-    def _on_supply(self, msg: Float64MultiArray) -> None:
-        b = self._decode(msg, SUPPLY_CHANNELS, TOPIC_SUPPLY)
-        if b is not None:
-            self._emit(self.core.add_supply(b["t_s"], b["supply_voltage_V"], b["supply_current_A"]))
+    def _on_supply(self, b: Block) -> None:
+        self.received[TOPIC_SUPPLY] += 1
+        self._emit(self.core.add_supply(b["t_s"], b["supply_voltage_V"], b["supply_current_A"]))
 
-    def _on_speed(self, msg: Float64) -> None:
+    def _on_speed(self, speed_m_s: float) -> None:
         # The speed applies from the latest drive sample on (the fish stack's message has no stamp).
         t = self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
-        self.core.add_speed(t, float(msg.data))
+        self.core.add_speed(t, speed_m_s)
 
     def _emit(self, estimates: list[Estimate]) -> None:
         for e in estimates:

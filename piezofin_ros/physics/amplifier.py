@@ -203,7 +203,7 @@ def amplifier_from_mapping(data: Any, source: str = "amplifier") -> Amplifier:
     if not isinstance(data, Mapping):
         raise AmplifierError(f"{source}: expected a mapping with 'kind' and the amplifier's parameters")
     kind = data.get("kind")
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:  # (a list or a mapping is no kind, nor hashable)
         raise AmplifierError(f"{source}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
     cls = KINDS[str(kind)]
     known = [f.name for f in fields(cls) if f.name != "name"]

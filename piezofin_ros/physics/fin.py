@@ -37,6 +37,7 @@ from typing import Any, NamedTuple
 import yaml
 
 from ..errors import PhysicsError
+from ..files import open_regular
 from . import hydro, modeshape
 
 
@@ -325,12 +326,12 @@ def read_yaml_file(
     Bounded by ``max_bytes`` (:data:`MAX_YAML_BYTES`); an unsafe tag, an alias, nesting beyond the parser's
     recursion, an integer beyond Python's digit limit or bytes that are not UTF-8 are one error.
     """
-    path = Path(path)
-    try:
-        with open(path, "rb") as fh:
+    with open_regular(path, error) as fh:  # a FIFO, a device or a directory: refused, never waited on
+        try:
             raw = fh.read(max_bytes + 1)
-    except OSError as exc:
-        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+        except OSError as exc:
+            raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    path = Path(path)
     if len(raw) > max_bytes:
         raise error(f"{path}: larger than {max_bytes // 1024} KiB, not a configuration file")
     try:
@@ -381,6 +382,8 @@ def preset_path(name_or_path: str | os.PathLike[str], folder: str, kind: str, er
     """A file by path, or a preset by name (no suffix, no such file) from ``config/<folder>``;
     ``error`` naming the ``kind`` and the presets when it is neither."""
     text = str(name_or_path)
+    if "\0" in text:
+        raise error(f"{kind} {text!r}: not a usable file name (a NUL byte)")
     path = Path(text)
     if not path.suffix and not path.exists():
         path = config_dir() / folder / f"{text}.yaml"

@@ -88,8 +88,22 @@ MOST = {
     "cutoff_v_per_cell": 10.0,
     "hotel_w": 1e4,
 }
-#: The least (beyond "> 0"): a water that is no water.
-LEAST = {"rho_w": 500.0}
+#: The least (beyond "> 0"): a water that is no water, and a body or battery too small to be one (a
+#: body of 1e-300 kg printed a 300-digit cost of transport, a drag area of 1e-300 "below nan mW").
+LEAST = {
+    "rho_w": 500.0,
+    "mass_kg": 1e-3,
+    "length_m": 1e-3,
+    "drag_area_m2": 1e-8,
+    "capacity_ah": 1e-4,
+    "internal_resistance_ohm": 1e-4,
+    "cutoff_v_per_cell": 0.5,
+}
+#: The fastest a fish's speed reading may be, m/s (either way): beyond, it is no speed of any fish
+#: (one reading of 1e308 m/s overflowed Eq. (19)'s U^2 term and killed the estimator).
+SPEED_MOST_M_S = 20.0
+#: An open-circuit voltage per cell beyond this is no cell of any chemistry, V.
+MOST_CELL_V = 10.0
 
 
 def _positive(source: str, name: str, value: Any, allow_zero: bool = False) -> float:
@@ -191,13 +205,35 @@ class Battery:
         _positive(where, "internal_resistance_ohm", self.internal_resistance_ohm)
         _positive(where, "cutoff_v_per_cell", self.cutoff_v_per_cell)
         _positive(where, "hotel_w", self.hotel_w, allow_zero=True)
-        soc, ocv = np.asarray(self.ocv_soc, float), np.asarray(self.ocv_v_per_cell, float)
+        try:
+            soc, ocv = np.asarray(self.ocv_soc, float), np.asarray(self.ocv_v_per_cell, float)
+        except (TypeError, ValueError):
+            raise SwimError(f"{where}: ocv_soc and ocv_v_per_cell must be lists of numbers") from None
+        if soc.ndim != 1 or not np.all(np.isfinite(soc)) or not np.all(np.isfinite(ocv)):
+            raise SwimError(f"{where}: ocv_soc and ocv_v_per_cell must be finite numbers")
+        if np.any(ocv <= 0) or np.any(ocv > MOST_CELL_V):
+            raise SwimError(f"{where}: ocv_v_per_cell must be within (0, {MOST_CELL_V:g}] V per cell")
         if soc.size < 2 or soc.shape != ocv.shape or np.any(np.diff(soc) <= 0) or soc[0] != 0 or soc[-1] != 1:
             raise SwimError(f"{where}: ocv_soc must rise from 0 to 1, one ocv_v_per_cell for each")
         if np.any(~np.isfinite(ocv)) or np.any(np.diff(ocv) < 0) or ocv[-1] <= self.cutoff_v_per_cell:
             raise SwimError(
                 f"{where}: ocv_v_per_cell must not fall with the charge and end above the cut-off"
             )
+        most = self.max_power_w()
+        if self.hotel_w >= most:  # (a hotel of 1e4 W on a 0.5 A h pack printed "+nan%")
+            raise SwimError(
+                f"{where}: hotel_w = {self.hotel_w:g} W is more than the pack delivers above its cut-off "
+                f"when full ({most:.3g} W)"
+            )
+
+    def max_power_w(self) -> float:
+        """The most the full pack delivers with its terminals at or above the cut-off, W: ``E I - r I^2``
+        at the current that brings the terminals to the cut-off, or at ``E / 2r`` if that comes first."""
+        e = float(self.emf_v(1.0))
+        v_cut = self.cells * self.cutoff_v_per_cell
+        r = self.internal_resistance_ohm
+        current = min((e - v_cut) / r, e / (2 * r))
+        return max(e * current - r * current * current, 0.0)
 
     def emf_v(self, soc: ArrayLike) -> FloatArray:
         """The pack's open-circuit voltage at the state of charge ``soc`` (0-1), V."""
