@@ -52,9 +52,9 @@ def open_regular(
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     except FileNotFoundError:
-        raise error(f"{label}: no such file") from None
+        raise error(f"{label}: cannot read (no such file)") from None
     except IsADirectoryError:
-        raise error(f"{label}: is a directory, not a file") from None
+        raise error(f"{label}: cannot read (a directory, not a file)") from None
     except OSError as exc:
         raise error(f"{label}: cannot open ({exc.strerror or exc})") from None
     except (ValueError, TypeError) as exc:  # a NUL byte in the name, a name that is no path
@@ -62,7 +62,9 @@ def open_regular(
     try:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):
-            raise error(f"{label}: {_kind(mode)}, not a regular file; refused before reading it")
+            raise error(
+                f"{label}: cannot read ({_kind(mode)}, not a regular file; refused before reading it)"
+            )
         os.set_blocking(fd, True)
         return os.fdopen(fd, "rb")
     except BaseException:

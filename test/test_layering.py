@@ -5,8 +5,9 @@ The package is read bottom-up::
     physics  <  bags  <  rig  <  estimation  <  identification  <  control  <  diagnosis  <  cli  <  nodes
 
 A module may import from its own package and from the packages below it, never from one above
-(``errors``, ``config`` and ``workers``, the error base, the declare-once settings and the engine
-that runs independent tasks on worker processes, are below everything).
+(``errors``, ``config``, ``workers`` and ``files``, the error base, the declare-once settings, the
+engine that runs independent tasks on worker processes and the opening of the files the suite is
+handed, are below everything).
 Only ``nodes/`` imports rclpy or any other ROS client code, so the
 science runs, and is tested, without ROS.  Every package says in its ``__init__`` docstring what it
 is for, and every error the package raises on purpose derives from :class:`PiezofinError`.
@@ -85,7 +86,7 @@ def test_the_top_level_holds_only_the_packages() -> None:
     loose = sorted(
         p.name
         for p in PACKAGE.glob("*.py")
-        if p.name not in ("__init__.py", "errors.py", "config.py", "workers.py")
+        if p.name not in ("__init__.py", "errors.py", "config.py", "workers.py", "files.py")
     )
     assert loose == [], f"modules outside the layer packages: {loose}"
     packages = sorted(p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists())

@@ -78,7 +78,9 @@ def writable_folder(option: str, folder: Path, what: str = "") -> None:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UsageError(f"{what} {folder}: cannot make it ({exc.strerror or exc})") from None
+        raise UsageError(
+            f"{what} {folder}: cannot write there (cannot make the folder: {exc.strerror or exc})"
+        ) from None
     if not os.access(folder, os.W_OK):
         raise UsageError(f"{what} {folder}: not writable")
     try:  # (root passes os.access anywhere: a file made and removed is the sure test)

@@ -138,6 +138,46 @@ class Estimate:
         return cls(**{n: float(record.get(n, math.nan)) for n in cls.field_names()})
 
 
+def _most_of(name: str) -> float:
+    """The largest magnitude field ``name`` of an estimate can have on any fin of this kind (generous)."""
+    if name.startswith("thrust_per_watt"):
+        return 1e3  # N/W (the paper: 0.06; the fin's own watt: a few)
+    if name.startswith("thrust") and name.endswith("_n"):
+        return 10.0  # N (a fin gives millinewtons)
+    if name.startswith("power"):
+        return 1e4  # W
+    if name.startswith("tip_velocity"):
+        return 100.0  # m/s
+    if name.startswith("admittance"):
+        return 1.0  # S
+    return {
+        "current_rms": 1.0,
+        "voltage_pp": 4000.0,
+        "frequency_hz": 1e4,
+        "swim_speed_m_s": SPEED_MOST_M_S,
+        "c_tau": 1e3,
+        "tip_phase_rad": 100.0,
+        "final": 1.0,
+        "loadcell_baselines": 2.0,
+    }.get(name, 1e12)  # times, periods
+
+
+def check_estimate(record: dict[str, float]) -> Estimate:
+    """An estimate as another process sends it: every field present, and each finite (NaN: not
+    estimated) and within what any fin of this kind can give; else :class:`EstimationError` naming
+    the field (an estimate of 1e308 N must not steer a controller or a speed loop)."""
+    try:
+        e = Estimate.from_dict(record)
+    except KeyError as exc:
+        raise EstimationError(str(exc).strip("'\"")) from None
+    for name, value in e.as_dict().items():
+        if abs(value) > _most_of(name):  # (inf too; NaN passes: not estimated)
+            raise EstimationError(
+                f"{name} = {value!r} is beyond what any fin gives (within +-{_most_of(name):g})"
+            )
+    return e
+
+
 #: Fields added after the first recordings: older bags lack them, and they read as NaN.
 OPTIONAL_FIELDS = (
     "tip_phase_rad",

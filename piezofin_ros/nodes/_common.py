@@ -291,13 +291,17 @@ class Inbox:
             self._node.get_logger().warning(text)
 
 
+class MessageRefused(NodeError, ValueError):
+    """A message from another process that is no reading of what its topic carries."""
+
+
 def scalar(lo: float, hi: float, unit: str) -> Callable[[Any], float]:
     """A check for a ``std_msgs/Float64``: its value, finite and within ``[lo, hi]`` (``unit``)."""
 
     def check(msg: Any) -> float:
         x = float(msg.data)
         if not (math.isfinite(x) and lo <= x <= hi):
-            raise ValueError(f"{x!r} {unit} is not within [{lo:g}, {hi:g}] {unit}")
+            raise MessageRefused(f"{x!r} {unit} is not within [{lo:g}, {hi:g}] {unit}")
         return x
 
     return check
@@ -311,6 +315,14 @@ def samples(channels: tuple[str, ...]) -> Callable[[Float64MultiArray], Block]:
         return check_samples(msg_block(msg, expect=channels), channels)
 
     return check
+
+
+def estimates(msg: Float64MultiArray) -> Any:
+    """A check for an ``estimate`` block: an :class:`~piezofin_ros.estimation.estimator.Estimate`
+    with every field within what a fin gives (:func:`~piezofin_ros.estimation.estimator.check_estimate`)."""
+    from ..estimation.estimator import Estimate, check_estimate
+
+    return check_estimate(msg_block(msg, expect=Estimate.field_names()).as_dict())
 
 
 # ------------------------------------------------------------------------------------ silence

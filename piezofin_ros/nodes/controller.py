@@ -24,7 +24,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, String
 
-from ..bags.blocks import Block, BlockFormatError
+from ..bags.blocks import Block
 from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.driveloop import DriveLoop
 from ..control.optimise import OperatingBox, Optimiser
@@ -49,9 +49,10 @@ from ._common import (
     StartupError,
     block_msg,
     declare,
+    estimates,
     freeze_parameters,
-    msg_block,
     run_node,
+    scalar,
 )
 
 
@@ -146,9 +147,9 @@ class Controller(Node):
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
         self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
-        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
+        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA, estimates)
         if self.strategy.takes_demand:
-            self.inbox.subscribe(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND)
+            self.inbox.subscribe(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND, scalar(0.0, 10.0, "N"))
         self._timer = self.create_timer(1.0 / c.heartbeat_hz, self._tick)
         # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
         self._silence = SilenceWatch(
@@ -294,24 +295,13 @@ class Controller(Node):
         if strategy.status_due(t):
             self._publish_status()
 
-    def _on_demand(self, msg: Float64) -> None:
-        d = float(msg.data)
-        if not (math.isfinite(d) and 0.0 <= d <= 10.0):
-            self.get_logger().warning(
-                f"ignored thrust demand {d!r} N (must be within [0, 10] N)", throttle_duration_sec=2.0
-            )
-            return
+    def _on_demand(self, d: float) -> None:  # (within [0, 10] N: checked at the door)
         self.strategy.set_demand(d or None)  # (the loop coalesces a flood: one fit at a time)
         self.get_logger().info(
             f"thrust demand {d * 1e3:.2f} mN" if d else "no thrust demand", throttle_duration_sec=2.0
         )
 
-    def _on_estimate(self, msg: Float64MultiArray) -> None:
-        try:
-            e = Estimate.from_dict(msg_block(msg, expect=Estimate.field_names()).as_dict())
-        except (BlockFormatError, KeyError) as exc:
-            self.get_logger().warning(f"ignored an estimate: {exc}", throttle_duration_sec=5.0)
-            return
+    def _on_estimate(self, e: Estimate) -> None:
         if self.strategy.add_estimate(self._now(), e):
             self._publish_status()
 

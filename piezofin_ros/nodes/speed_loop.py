@@ -20,11 +20,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray, String
 
-from ..bags.blocks import BlockFormatError
 from ..config import setting
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 from ..errors import PiezofinError
-from ..physics.swim import load_body
+from ..estimation.estimator import Estimate
+from ..physics.swim import SPEED_MOST_M_S, load_body
 from ._common import (
     QOS_COMMAND,
     QOS_DATA,
@@ -35,9 +35,10 @@ from ._common import (
     Inbox,
     StartupError,
     declare,
+    estimates,
     freeze_parameters,
-    msg_block,
     run_node,
+    scalar,
 )
 
 
@@ -72,8 +73,10 @@ class SpeedLoopNode(Node):
         self._pub = self.create_publisher(Float64, TOPIC_DEMAND, QOS_COMMAND)
         self._status = self.create_publisher(String, TOPIC_LOOP_STATUS, QOS_COMMAND)
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
-        self.inbox.subscribe(Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND)
-        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA)
+        self.inbox.subscribe(
+            Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
+        )
+        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA, estimates)
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
         self._said = self._published = ""
@@ -109,24 +112,18 @@ class SpeedLoopNode(Node):
         self._set(float(value))
         return None
 
-    def _on_speed(self, msg: Float64) -> None:
-        if not self.loop.measure(self._now(), float(msg.data)):
+    def _on_speed(self, speed_m_s: float) -> None:
+        if not self.loop.measure(self._now(), speed_m_s):
             self.refused += 1
             self.get_logger().warning(
-                f"refused a speed reading of {msg.data!r} m/s (not a finite speed)", throttle_duration_sec=5.0
+                f"refused a speed reading of {speed_m_s!r} m/s (not a finite speed)",
+                throttle_duration_sec=5.0,
             )
 
-    def _on_estimate(self, msg: Float64MultiArray) -> None:
+    def _on_estimate(self, e: Estimate) -> None:
         """The fin's thrust as the estimator gives it (self-sensed on a fish): what a speed reading is
         judged against."""
-        try:
-            block = msg_block(msg)
-            names = block.names
-            thrust = block.scalar("thrust_self_n") if "thrust_self_n" in names else math.nan
-            if not math.isfinite(thrust) and "thrust_n" in names:
-                thrust = block.scalar("thrust_n")
-        except (BlockFormatError, KeyError, IndexError):
-            return
+        thrust = e.thrust_self_n if math.isfinite(e.thrust_self_n) else e.thrust_n
         self.loop.estimate(self._now(), thrust)
 
     def _tick(self) -> None:

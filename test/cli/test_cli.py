@@ -84,7 +84,7 @@ def test_fin_file_path(tmp_path: Path) -> None:
         (["--freq", "5:1:1"], "need start <= stop"),
         (["--freq", "abc"], "cannot read 'abc'"),
         (["--vpp", "-5"], "voltages must be finite"),
-        (["--plot", "/nonexistent/dir/x.png", "--freq", "5"], "cannot write"),
+        (["--plot", "/proc/nonexistent/x.png", "--freq", "5"], "cannot write"),
     ],
 )
 def test_errors_are_one_line_without_traceback(args: list[str], message: str) -> None:

@@ -750,7 +750,7 @@ def test_a_speed_sensor_that_stops_or_lies_is_said_the_demand_stays_allowed_and_
     assert "a sensor that lies" in said["lies slow"] and "a sensor that lies" in said["lies fast"], said
     assert "holding 0.05 m/s" in said["true at last"], said
     assert min(d for p, d in demands if p == "lies fast") == least  # it reads fast: the least thrust
-    assert "refused a speed reading of nan m/s" in out_loop, out_loop
+    assert "swim_speed; the latest: nan m/s is not within" in out_loop, out_loop  # (refused at the door)
     assert "speed sensor silent" in out_loop and "a sensor that lies" in out_loop, out_loop
     assert len(out_loop.splitlines()) <= 40, out_loop  # one line per kind, at most one a second
     assert "Traceback" not in out_loop + out_rec, out_loop + out_rec

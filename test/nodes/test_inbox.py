@@ -1,0 +1,147 @@
+"""No message can kill a node: every subscription of every node, attacked from another process.
+
+Issue 38: one ``swim_speed`` of 1e308 from another process killed ``thrust_estimator`` with an
+``OverflowError`` (and ``ros2 launch`` stopped every node with it); at 1e155 the estimate published
+a thrust of -1.9e293 N; a spoofed ``supply`` of 1e300 V passed through as a measured supply power of
+3.9e8 W.  Each node here runs as ``ros2 run`` starts it; this process publishes, on each topic the
+node subscribes, the class of values that are no reading of a fish or a rig (beyond any physical
+range, infinite, the largest doubles, wrong labels, a block far too large), then valid ones.  The
+node lives, says each topic's refusals at most once a second with a count, and never publishes
+a number that came from them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from std_msgs.msg import Float64, Float64MultiArray
+
+from piezofin_ros.bags.blocks import (
+    CHANNEL_MOST,
+    DRIVE_CHANNELS,
+    LOADCELL_CHANNELS,
+    SUPPLY_CHANNELS,
+    TIP_CHANNELS,
+    Block,
+)
+from piezofin_ros.estimation.estimator import Estimate
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
+
+from ..rosutil import graph, start, stop
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+#: numbers that are no reading of anything on a fish or a rig (and the ones that broke it)
+HOSTILE = [1e308, -1e308, math.inf, -math.inf, 1e155, 1.3e155, 1e300, -1e300, 1e30]
+
+
+def block(channels: tuple[str, ...], value: float, n: int = 50, t0: float = 0.0) -> Float64MultiArray:
+    t = t0 + np.arange(n) * 1e-3
+    cols = {c: (t if c == "t_s" else np.full(n, value)) for c in channels}
+    return block_msg(Block.from_columns(**cols))
+
+
+def hostile_blocks(channels: tuple[str, ...]) -> list[Float64MultiArray]:
+    out = [block(channels, x) for x in HOSTILE]
+    for c in channels[1:]:  # just beyond each channel's range, one channel at a time
+        most = CHANNEL_MOST[c]
+        cols = {k: (np.arange(50) * 1e-3 if k == "t_s" else np.zeros(50)) for k in channels}
+        cols[c] = np.full(50, 1.5 * most)
+        out.append(block_msg(Block.from_columns(**cols)))
+    wrong = block(channels, 1.0)
+    wrong.layout.dim[0].label = "voltage_mV"  # a label that is not the contract's
+    out.append(wrong)
+    big = Float64MultiArray()  # a 200k-value block with no layout
+    big.data = [1e300] * 200_000
+    out.append(big)
+    return out
+
+
+def estimate_blocks() -> list[Float64MultiArray]:
+    names = Estimate.field_names()
+    out = []
+    for x in HOSTILE:
+        out.append(block_msg(Block.from_record(dict.fromkeys(names, x))))
+    return out
+
+
+#: each node, its namespace-relative subscriptions and the hostile messages of each
+ATTACKS = {
+    "thrust_estimator": {
+        "swim_speed": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
+        "drive": (Float64MultiArray, QOS_DATA, hostile_blocks(DRIVE_CHANNELS)),
+        "tip_velocity": (Float64MultiArray, QOS_DATA, hostile_blocks(TIP_CHANNELS)),
+        "loadcell": (Float64MultiArray, QOS_DATA, hostile_blocks(LOADCELL_CHANNELS)),
+        "supply": (Float64MultiArray, QOS_DATA, hostile_blocks(SUPPLY_CHANNELS)),
+    },
+    "speed_loop": {
+        "swim_speed": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
+        "estimate": (Float64MultiArray, QOS_DATA, estimate_blocks()),
+    },
+    "controller": {
+        "thrust_demand": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
+        "estimate": (Float64MultiArray, QOS_DATA, estimate_blocks()),
+    },
+}
+ARGS = {
+    "thrust_estimator": ("-p", "estimator.window_s:=0.2", "-p", "estimator.settle_s:=0.1"),
+    "speed_loop": ("-p", "speed_m_s:=0.05"),
+    "controller": ("-p", "mode:=optimise", "-p", "demand_n:=0.004", "-p", "wait_estimator_s:=0.0"),
+}
+
+
+@pytest.mark.parametrize("exe", list(ATTACKS))
+def test_no_message_kills_a_node_or_passes_its_door(exe: str) -> None:
+    ns = f"door_{exe}"
+    proc = start(exe, "-r", f"__ns:=/{ns}", *ARGS[exe])
+    heard: list[Block] = []
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("attacker", namespace=ns, context=g.context))
+            node.create_subscription(
+                Float64MultiArray, "estimate", lambda m: heard.append(msg_block(m)), QOS_DATA
+            )
+            pubs = {
+                topic: node.create_publisher(kind, topic, qos)
+                for topic, (kind, qos, _) in ATTACKS[exe].items()
+            }
+            g.spin_until(
+                lambda: all(p.get_subscription_count() > 0 for p in pubs.values()),
+                30.0,
+                f"{exe}'s subscriptions",
+            )
+            t0 = time.monotonic()
+            for _ in range(3):  # three rounds over 2 s: the refusals are said once a second per topic
+                for topic, (_, _, messages) in ATTACKS[exe].items():
+                    for m in messages:
+                        pubs[topic].publish(m)
+                g.spin_for(0.7)
+            if exe == "thrust_estimator":  # then a fin that is real: 5 Hz, 200 V, for 1.5 s
+                for k in range(30):
+                    t = k * 0.05 + np.arange(50) * 1e-3
+                    v = 200.0 * np.sin(2 * np.pi * 5 * t)
+                    i = 1e-5 * np.cos(2 * np.pi * 5 * t)
+                    pubs["drive"].publish(block_msg(Block.from_columns(t_s=t, voltage_V=v, current_A=i)))
+                    pubs["swim_speed"].publish(Float64(data=0.05))
+                    g.spin_for(0.02)
+            g.spin_for(2.0)
+            wall = time.monotonic() - t0
+            alive = proc.poll() is None
+    finally:
+        out = stop(proc)[0]
+    assert alive, out[-3000:]
+    assert "Traceback" not in out and "OverflowError" not in out, out[-3000:]
+    for topic in ATTACKS[exe]:
+        said = [line for line in out.splitlines() if f"/{ns}/{topic};" in line and "refused" in line]
+        assert said, f"{exe} never said it refused hostile messages on {topic}:\n{out[-3000:]}"
+        assert len(said) <= wall + 2, (topic, said)  # at most once a second
+    if exe != "thrust_estimator":
+        return  # (the attacker's own estimates were heard: only the estimator publishes them)
+    assert heard, "the estimator published nothing on a real drive after the attack"
+    for b in heard:  # what the node published never carries a number from the attack
+        values = b.values[np.isfinite(b.values)]
+        assert np.all(np.abs(values) < 1e12), dict(zip(b.names, b.values[:, 0], strict=True))
