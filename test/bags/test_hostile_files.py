@@ -357,6 +357,24 @@ def bag_directory(d: Path, kind: str) -> tuple[Path, str]:
     if kind == "10,000 splits listed":
         listing([f"run_{i}.mcap" for i in range(10_000)])
         return d, "more than 4096"
+    if kind == "one split listed 4,096 times":  # (issue 38: 1.85 GB after 353 readings, growing)
+        split.write_bytes(b"\x89MCAP0\r\n")  # (refused before it is read)
+        listing(["run_0.mcap"] * 4096)
+        return d, "more than once"
+    if kind == "one split under two names":
+        split.write_bytes(b"\x89MCAP0\r\n")
+        os.link(split, d / "run_1.mcap")
+        listing(["run_0.mcap", "run_1.mcap"])
+        return d, "more than once"
+    if kind == "a NUL byte in a listed name":
+        meta.write_text(
+            "rosbag2_bagfile_information:\n  storage_identifier: mcap\n"
+            '  relative_file_paths: ["run\\0_0.mcap"]\n'
+        )
+        return d, "no file name"
+    if kind == "a tag in metadata.yaml":
+        listing(["run_0.mcap"], "  junk: !!python/object/apply:os.system ['true']\n")
+        return d, "tags"
     if kind == "5,000 splits, no metadata":
         for i in range(5000):
             (d / f"run_{i}.mcap").touch()
@@ -375,6 +393,10 @@ DIRECTORY_ATTACKS = [
     "a link out, no metadata",
     "10,000 splits listed",
     "5,000 splits, no metadata",
+    "one split listed 4,096 times",
+    "one split under two names",
+    "a NUL byte in a listed name",
+    "a tag in metadata.yaml",
 ]
 
 
@@ -392,6 +414,32 @@ def test_a_bag_directory_cannot_make_diagnose_hang_blow_up_or_leave_it(tmp_path:
     errors = [x for x in err.splitlines() if "error" in x.lower()]
     assert len(errors) == 1 and str(d) in errors[0] and words in errors[0], err
     assert peak_mb < 300, peak_mb
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shape", ["short scalars", "a rosbag2 files list"])
+def test_a_metadata_file_costs_memory_in_proportion_to_its_size(tmp_path: Path, shape: str) -> None:
+    """A ``metadata.yaml`` just under the 4 MiB limit (issue 38: 4.19 MB took 1.27 GB and 101 s,
+    about 300x the file): read as events, within 100x its size (plus the interpreter's 200 MB)."""
+    d = tmp_path / "bag"
+    d.mkdir()
+    (d / "run_0.mcap").write_bytes(SAMPLE.read_bytes())
+    head = "rosbag2_bagfile_information:\n  storage_identifier: mcap\n  relative_file_paths: [run_0.mcap]\n"
+    if shape == "short scalars":
+        body = "  junk: [" + "1, " * ((4_190_000 - len(head)) // 3) + "1]\n"
+    else:
+        entry = (
+            "    - path: run_{i}.mcap\n      duration: {{nanoseconds: 1000000}}\n      message_count: 100\n"
+        )
+        n = (4_190_000 - len(head)) // len(entry.format(i=100000))
+        body = "  files:\n" + "".join(entry.format(i=i) for i in range(n))
+    (d / "metadata.yaml").write_text(head + body)
+    size_mb = (d / "metadata.yaml").stat().st_size / 1e6
+    status, err, wall, peak_mb = run_measured([str(BIN / "piezofin"), "estimate", str(d)], timeout=120)
+    print(f"{shape}: metadata {size_mb:.2f} MB, status {status}, {wall:.1f} s, peak {peak_mb:.0f} MB")
+    assert status == 0, err[-2000:]
+    assert peak_mb <= 100 * size_mb + 200, peak_mb
+    assert wall < 30.0, wall
 
 
 def _in_splits(d: Path, n: int) -> Path:
