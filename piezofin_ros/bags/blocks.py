@@ -20,6 +20,7 @@ This module has no ROS dependency: nodes convert messages with :func:`from_layou
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -197,3 +198,46 @@ def check_samples(block: Block, channels: Sequence[str]) -> Block:
                 worst = float(x[beyond][0])
                 raise BlockFormatError(f"{c} = {worst!r} is beyond its physical range (within +-{most:g})")
     return Block(tuple(channels), np.stack([block[c] for c in channels]))
+
+
+def sample_span(data: bytes) -> tuple[float, float, int] | None:
+    """``(first t_s, last t_s, samples)`` of a serialised (CDR) block whose first channel is ``t_s``,
+    read from the bytes without decoding the block (a recorder looks at every block it writes);
+    ``None`` for anything else (another layout, a command, garbage)."""
+    import struct
+
+    try:
+        if data[:2] != b"\x00\x01":  # little-endian CDR (what every ROS 2 middleware here writes)
+            return None
+        off = 4
+        (ndim,) = struct.unpack_from("<I", data, off)
+        off += 4
+        if ndim not in (1, 2):
+            return None
+        sizes = []
+        first_label = b""
+        for k in range(ndim):
+            (length,) = struct.unpack_from("<I", data, off)
+            off += 4
+            if k == 0:
+                first_label = data[off : off + min(length, 4)]
+            off += length
+            off = 4 + ((off - 4 + 3) & ~3)
+            size, _stride = struct.unpack_from("<II", data, off)
+            off += 8
+            sizes.append(size)
+        off += 4  # data_offset
+        (count,) = struct.unpack_from("<I", data, off)
+        off += 4
+        off = 4 + ((off - 4 + 7) & ~7)
+        if not first_label.startswith(b"t_s,"):
+            return None
+        n = sizes[1] if ndim == 2 else 1
+        if n < 1 or count < n:
+            return None
+        t0, t1 = struct.unpack_from("<d", data, off)[0], struct.unpack_from("<d", data, off + 8 * (n - 1))[0]
+    except struct.error:
+        return None
+    if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
+        return None
+    return t0, t1, n

@@ -102,6 +102,11 @@ class BagWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def set_custom(self, key: str, value: str) -> None:
+        """A ``custom_data`` entry of the rosbag2 metadata written at :meth:`close` (what a recording
+        learnt while it ran: the samples it lost)."""
+        self._custom[str(key)] = str(value)
+
     @property
     def closed(self) -> bool:
         return self._file is None

@@ -149,7 +149,8 @@ class Controller(Node):
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA, estimates)
         if self.strategy.takes_demand:
-            self.inbox.subscribe(Float64, TOPIC_DEMAND, self._on_demand, QOS_COMMAND, scalar(0.0, 10.0, "N"))
+            # the newest demand only, polled: a 3-4 kHz flood held the executor and the heartbeat with it
+            self.inbox.latest(Float64, TOPIC_DEMAND, self._on_demand, scalar(0.0, 10.0, "N"))
         self._timer = self.create_timer(1.0 / c.heartbeat_hz, self._tick)
         # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
         self._silence = SilenceWatch(
@@ -310,6 +311,10 @@ class Controller(Node):
 
     def _publish_status(self) -> None:
         self._status_pub.publish(String(data=json.dumps(self.status(), allow_nan=True)))
+
+    def destroy_node(self) -> None:
+        self.inbox.close()  # (its hidden helper node, which holds the polled subscriptions)
+        super().destroy_node()
 
     def close(self) -> None:
         if self.context.ok():

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import collections
 import importlib
+import json
 import struct
 import sys
 import time
@@ -24,10 +25,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
 
 from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
+from ..bags.gaps import Gap, GapWatch
+from ..bags.topics import SAMPLED
 from ..config import setting
 from ._common import (
     QOS_CLOCK,
@@ -83,7 +89,19 @@ def qos_for(topic: str, type_name: str) -> Any:
 #: Topics (relative) whose one-sample blocks are also written field by field, for plotting.
 PLOT_TOPICS = (TOPIC_ESTIMATE, TOPIC_CMD)
 FLOAT64 = "std_msgs/msg/Float64"
+STRING = "std_msgs/msg/String"
+#: The recorder's status (JSON in a String: the bag, what it holds, what it lost), sent when it changes
+#: (checked once a second); transient-local, so `ros2 topic echo --once` answers a late joiner.
+QOS_STATUS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
+
+
+def string_cdr(text: str) -> bytes:
+    """A serialised ``std_msgs/msg/String``."""
+    raw = text.encode()
+    return _CDR_LE + struct.pack("<I", len(raw) + 1) + raw + b"\0"
 
 
 def float64_cdr(value: float) -> bytes:
@@ -170,6 +188,14 @@ class Recorder(Node):
         self._untyped: set[str] = set()
         self._early: list[tuple[str, bytes]] = []
         self.received: collections.Counter[str] = collections.Counter()  # messages taken, per topic
+        # samples that never reached the recorder (a flood starved its queue): found, kept, said
+        self.gaps = GapWatch()
+        self._sampled = {f"{p}/{t}" for p in self._prefixes(namespaces) for t in SAMPLED}
+        self._gap_topic = f"{self.get_fully_qualified_name()}/gaps"
+        self._unsaid: list[Gap] = []
+        self._status_pub = self.create_publisher(String, "~/status", QOS_STATUS)
+        self._status_sent = ""
+        self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.exit_code: int | None = None  # set when recording had to stop (run_node exits with it)
         wanted = self._wanted(topics, namespaces)
         for topic, type_name in wanted.items():
@@ -252,6 +278,10 @@ class Recorder(Node):
             qos = offered_qos(self.get_publishers_info_by_topic(topic))
             self.bag.add_topic(topic, self._types[topic], qos)
         self.bag.write(topic, time_ns, data)
+        if topic in self._sampled:
+            gap = self.gaps.see(topic, data)
+            if gap is not None:
+                self._keep_gap(gap, time_ns)
         if self.plot_fields and topic in self._plot:
             self._record_fields(topic, time_ns, data)
 
@@ -267,6 +297,42 @@ class Recorder(Node):
             if not self.bag.has_topic(field):
                 self.bag.add_topic(field, FLOAT64)  # never published: no QoS offered
             self.bag.write(field, time_ns, float64_cdr(float(value)))
+
+    def _keep_gap(self, gap: Gap, time_ns: int) -> None:
+        """A hole in a sampled topic: in the bag at once (``<recorder>/gaps``), said within a second."""
+        if not self.bag.has_topic(self._gap_topic):
+            self.bag.add_topic(self._gap_topic, STRING)  # never published: no QoS offered
+        self.bag.write(self._gap_topic, time_ns, string_cdr(gap.to_json()))
+        self._unsaid.append(gap)
+
+    def _report(self) -> None:
+        """At most once a second: the holes found since the last report, and the status on change."""
+        if self._unsaid:
+            lost = collections.Counter[str]()
+            for g in self._unsaid:
+                lost[g.topic] += g.samples
+            span = f"fin time {self._unsaid[0].from_t_s:.2f}-{self._unsaid[-1].to_t_s:.2f} s"
+            self.get_logger().warning(
+                f"lost {sum(lost.values())} samples in {len(self._unsaid)} hole(s) ("
+                + ", ".join(f"{t} {n}" for t, n in sorted(lost.items()))
+                + f"; {span}): they never reached the recorder (its queue overflowed: a flood on "
+                f"another topic?); each hole is in the bag on {self._gap_topic}"
+            )
+            self._unsaid.clear()
+        status = json.dumps(self.status(), sort_keys=True)
+        if status != self._status_sent:
+            self._status_pub.publish(String(data=status))
+            self._status_sent = status
+
+    def status(self) -> dict[str, Any]:
+        """The bag, its messages, and the samples it lost (per topic) with the holes they were in."""
+        return {
+            "path": str(self.path),
+            "recording": not self.bag.closed,
+            "messages": sum(self.bag.counts.values()),
+            "lost_samples": dict(sorted(self.gaps.lost.items())),
+            "holes": sum(self.gaps.holes.values()),
+        }
 
     def _give_up(self, exc: OSError) -> None:
         """A write failed (disk full, file-size limit, I/O error): stop recording, say so, exit 1.
@@ -287,12 +353,22 @@ class Recorder(Node):
             try:
                 for topic, data in self._early:  # the clock never started: keep them at time 0
                     self._record(topic, 0, data)
+                self.bag.set_custom("lost_samples", json.dumps(dict(sorted(self.gaps.lost.items()))))
                 self.bag.close()
             except OSError as exc:
                 self._give_up(exc)
                 return
             total = sum(self.bag.counts.values())
-            self.get_logger().info(f"closed {self.path}: {total} messages on {len(self.bag.counts)} topics")
+            lost = self.gaps.total_lost
+            holes = sum(self.gaps.holes.values())
+            said = (
+                f"; lost {lost} samples in {holes} hole(s) (on {self._gap_topic})"
+                if lost
+                else ", no sample lost"
+            )
+            self.get_logger().info(
+                f"closed {self.path}: {total} messages on {len(self.bag.counts)} topics{said}"
+            )
 
 
 def main(args: list[str] | None = None) -> int:

@@ -73,8 +73,9 @@ class SpeedLoopNode(Node):
         self._pub = self.create_publisher(Float64, TOPIC_DEMAND, QOS_COMMAND)
         self._status = self.create_publisher(String, TOPIC_LOOP_STATUS, QOS_COMMAND)
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
-        self.inbox.subscribe(
-            Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
+        # the newest reading only, polled: a flood costs one reading per look
+        self.inbox.latest(
+            Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
         )
         self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA, estimates)
         self.create_timer(1.0 / own.rate_hz, self._tick)
@@ -111,6 +112,10 @@ class SpeedLoopNode(Node):
             return f"speed_m_s {value!r}: a finite speed >= 0 m/s"
         self._set(float(value))
         return None
+
+    def destroy_node(self) -> None:
+        self.inbox.close()  # (its hidden helper node, which holds the polled subscriptions)
+        super().destroy_node()
 
     def _on_speed(self, speed_m_s: float) -> None:
         if not self.loop.measure(self._now(), speed_m_s):

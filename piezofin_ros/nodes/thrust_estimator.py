@@ -32,7 +32,6 @@ from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.fin import MEDIA, Fin, load_fin
 from ..physics.swim import SPEED_MOST_M_S
 from ._common import (
-    QOS_COMMAND,
     QOS_DATA,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
@@ -106,9 +105,8 @@ class ThrustEstimator(Node):
             Float64MultiArray, TOPIC_LOADCELL, self._on_loadcell, QOS_DATA, samples(LOADCELL_CHANNELS)
         )
         inbox.subscribe(Float64MultiArray, TOPIC_SUPPLY, self._on_supply, QOS_DATA, samples(SUPPLY_CHANNELS))
-        inbox.subscribe(
-            Float64, TOPIC_SPEED, self._on_speed, QOS_COMMAND, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
-        )
+        # the newest speed only, polled: a flood of it costs one reading per look (it starved the drive's)
+        inbox.latest(Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s"))
         self._last_t = float("nan")
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
         self._silence = SilenceWatch(
@@ -169,6 +167,10 @@ class ThrustEstimator(Node):
                     f"fin mean(v i) {e.power_w * 1e3:.3f} mW, {e.thrust_per_watt * 1e3:.1f} mN/W; "
                     f"supply {supply}, {e.thrust_per_watt_supply * 1e3:.1f} mN/W"
                 )
+
+    def destroy_node(self) -> None:
+        self.inbox.close()  # (its hidden helper node, which holds the polled subscriptions)
+        super().destroy_node()
 
     def close(self) -> None:
         """Flush the last open window (end of a replay or of the run)."""
