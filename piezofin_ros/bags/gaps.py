@@ -5,7 +5,14 @@ Sampled topics (``drive``, ``tip_velocity``, ``loadcell``, ``supply``) carry the
 sample period after the previous block's end marks samples that never reached the reader: its
 queue overflowed while it was busy (a flood on another topic), or the publisher dropped them.
 :class:`GapWatch` finds each hole from the bytes of each block (:func:`~.blocks.sample_span`), with
-the samples it held; a block that starts earlier (a replay, a restarted rig) starts afresh.
+the samples it held.
+
+A topic may carry more than one stream: another process publishing blocks of times of its own (an
+attacker's flood, a second rig by mistake), a replay, a restarted rig.  Each block continues the
+stream it follows (the one whose last sample is the latest before the block's first, within
+:data:`HORIZON_S`); a block that follows none starts a stream of its own (at most
+:data:`MAX_STREAMS` per topic, the least recently continued forgotten), so one stream's blocks never
+make holes in another's.
 """
 
 from __future__ import annotations
@@ -15,8 +22,12 @@ from dataclasses import asdict, dataclass
 
 from .blocks import sample_span
 
-#: A block starting later than this many sample periods after the last one's end is a hole.
+#: A block starting later than this many sample periods after its stream's last sample is a hole.
 HOLE_PERIODS = 1.5
+#: The longest hole a stream can have, s of the stream's time: a block further ahead starts a stream.
+HORIZON_S = 3600.0
+#: Streams remembered per topic.
+MAX_STREAMS = 8
 
 
 @dataclass(frozen=True)
@@ -34,10 +45,12 @@ class Gap:
 
 
 class GapWatch:
-    """Per topic, the last sample time and period; :meth:`see` returns the hole a block reveals."""
+    """Per topic, its streams' last sample time and period; :meth:`see` returns the hole a block
+    reveals in the stream it continues."""
 
     def __init__(self) -> None:
-        self._last: dict[str, tuple[float, float]] = {}  # topic -> (last t, sample period)
+        self._streams: dict[str, list[list[float]]] = {}  # topic -> [[last t, period, last used]]
+        self._used = 0
         self.lost: dict[str, int] = {}  # topic -> samples in holes
         self.holes: dict[str, int] = {}  # topic -> holes
 
@@ -46,13 +59,21 @@ class GapWatch:
         if span is None:
             return None
         t0, t1, n = span
-        previous = self._last.get(topic)
-        period = (t1 - t0) / (n - 1) if n > 1 else (previous[1] if previous else 0.0)
-        self._last[topic] = (t1, period)
-        if previous is None or period <= 0:
+        self._used += 1
+        streams = self._streams.setdefault(topic, [])
+        ahead = [s for s in streams if s[0] < t0 <= s[0] + HORIZON_S]
+        if not ahead:  # a stream of its own (or a repeat of what a stream holds already)
+            if not any(s[0] >= t1 >= s[0] - HORIZON_S for s in streams):
+                if len(streams) >= MAX_STREAMS:
+                    streams.remove(min(streams, key=lambda s: s[2]))
+                streams.append([t1, (t1 - t0) / (n - 1) if n > 1 else 0.0, self._used])
             return None
-        last, _ = previous
-        if t0 <= last:  # a replay, a restarted rig: a new stream
+        stream = max(ahead, key=lambda s: s[0])
+        last, period = stream[0], stream[1]
+        if n > 1:
+            period = (t1 - t0) / (n - 1)
+        stream[:] = [t1, period, self._used]
+        if period <= 0:
             return None
         missing = round((t0 - last) / period) - 1
         if (t0 - last) <= HOLE_PERIODS * period or missing < 1:

@@ -253,7 +253,7 @@ class Inbox:
         self._helper: Node | None = None
         self.refused: collections.Counter[str] = collections.Counter()
         self.failed: collections.Counter[str] = collections.Counter()
-        self.polled: collections.Counter[str] = collections.Counter()  # latest values taken
+        self.polled_count: collections.Counter[str] = collections.Counter()  # messages taken by polls
 
     def latest(
         self,
@@ -262,15 +262,31 @@ class Inbox:
         handler: Callable[[Any], None],
         check: Callable[[Any], Any] | None = None,
     ) -> Any:
-        """A subscription to a set-point or reading of which only the newest value matters (a speed,
-        a thrust demand), looked at every :attr:`POLL_S` s of wall time: its newest message, if a
-        new one came, goes through ``check`` to ``handler`` as :meth:`subscribe`'s do.
+        """A set-point or reading of which only the newest value matters (a speed, a thrust demand):
+        :meth:`polled` with a queue of one."""
+        return self.polled(msg_type, topic, handler, check, depth=1, most=1)
 
-        Its queue (depth 1) lives in the middleware and is never seen by the executor, so a flood
-        costs this node one message per look, whatever its rate: a 3-4 kHz ``thrust_demand`` flood
-        held the controller's executor (its heartbeat late: fin_sim's watchdog tripped), and a
-        ``swim_speed`` flood starved the estimator.  The subscription belongs to a hidden helper
-        node of the same context (``_<node>_inbox``, not spun), on the topic's resolved name."""
+    def polled(
+        self,
+        msg_type: Any,
+        topic: str,
+        handler: Callable[[Any], None],
+        check: Callable[[Any], Any] | None = None,
+        *,
+        depth: int,
+        most: int,
+    ) -> Any:
+        """A subscription looked at every :attr:`POLL_S` s of wall time: up to ``most`` of its queued
+        messages (oldest first) go through ``check`` to ``handler`` as :meth:`subscribe`'s do.
+
+        Its queue (``depth`` deep) lives in the middleware and is never seen by the executor, so a
+        flood costs this node at most ``most`` messages per look, whatever its rate, and the timers
+        (the controller's heartbeat) keep their turn: a 3-4 kHz ``thrust_demand`` flood held the
+        controller's executor and fin_sim's watchdog tripped; a ``swim_speed`` flood starved the
+        estimator; a 10 kHz flood of ``estimate`` tripped it again.  What a flood pushes out of the
+        queue is the flood's or lost with it (a reliable publisher's messages are never dropped for
+        a slow reader at a normal rate).  The subscription belongs to a hidden helper node of the
+        same context (``_<node>_inbox``, never spun), on the topic's resolved name."""
         from rclpy.clock import Clock, ClockType
         from rclpy.qos import QoSProfile as Q
 
@@ -284,14 +300,16 @@ class Inbox:
                 start_parameter_services=False,
                 enable_rosout=False,
             )
-        qos = Q(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+        qos = Q(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
         sub = self._helper.create_subscription(msg_type, node.resolve_topic_name(topic), _never, qos)
 
         def poll() -> None:
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, False)
-            if taken is not None:
-                self.polled[topic] += 1
+            for _ in range(most):
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, False)
+                if taken is None:
+                    return
+                self.polled_count[topic] += 1
                 self._deliver(topic, taken[0], handler, check)
 
         node.create_timer(self.POLL_S, poll, clock=Clock(clock_type=ClockType.STEADY_TIME))

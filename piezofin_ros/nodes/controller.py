@@ -39,7 +39,6 @@ from ..physics.model import load_model
 from ..physics.waveforms import ProtocolTiming
 from ._common import (
     QOS_COMMAND,
-    QOS_DATA,
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
@@ -147,7 +146,8 @@ class Controller(Node):
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
         self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
-        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA, estimates)
+        # polled (a flood of estimates held the executor, and the heartbeat with it: the watchdog tripped)
+        self.inbox.polled(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20)
         if self.strategy.takes_demand:
             # the newest demand only, polled: a 3-4 kHz flood held the executor and the heartbeat with it
             self.inbox.latest(Float64, TOPIC_DEMAND, self._on_demand, scalar(0.0, 10.0, "N"))

@@ -27,7 +27,6 @@ from ..estimation.estimator import Estimate
 from ..physics.swim import SPEED_MOST_M_S, load_body
 from ._common import (
     QOS_COMMAND,
-    QOS_DATA,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
     TOPIC_LOOP_STATUS,
@@ -77,7 +76,7 @@ class SpeedLoopNode(Node):
         self.inbox.latest(
             Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
         )
-        self.inbox.subscribe(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, QOS_DATA, estimates)
+        self.inbox.polled(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20)
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
         self._said = self._published = ""
