@@ -48,7 +48,9 @@ def main(topic: str, kind: str, rate: float, seconds: float) -> int:
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("_flood", context=context)
-    pub = node.create_publisher(type(msgs[0]), topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    pub = node.create_publisher(
+        type(msgs[0]), topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    )
     t_wait = time.monotonic() + 10.0
     while pub.get_subscription_count() == 0 and time.monotonic() < t_wait:
         time.sleep(0.05)
