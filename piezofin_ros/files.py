@@ -110,3 +110,32 @@ def output_path(path: str | os.PathLike[str], what: str, *, force: bool = False)
     if not os.access(probe, os.W_OK | os.X_OK):
         raise OutputFileError(f"{what} {p}: {probe} is not writable")
     return p
+
+
+#: The name the suite writes into every figure it makes (a PNG's ``Software`` text, a PDF's or an
+#: SVG's ``Creator``), so that an output it wrote itself can be replaced and a user's file never is.
+SOFTWARE = "piezofin_ros"
+_MARKS = {
+    ".png": b"Software\x00" + SOFTWARE.encode(),
+    ".pdf": b"/Creator (" + SOFTWARE.encode(),
+    ".svg": b"<dc:title>" + SOFTWARE.encode(),
+}
+_MARK_SCAN_BYTES = 32 * 1024 * 1024
+
+
+def figure_metadata(path: str | os.PathLike[str]) -> dict[str, str]:
+    """matplotlib's ``savefig(metadata=...)`` that marks a figure as the suite's."""
+    suffix = Path(path).suffix.lower()
+    return {"Software": SOFTWARE} if suffix == ".png" else {"Creator": SOFTWARE}
+
+
+def written_by_us(path: str | os.PathLike[str]) -> bool:
+    """``path`` is a figure the suite wrote (its mark, :data:`SOFTWARE`, where matplotlib puts it)."""
+    mark = _MARKS.get(Path(path).suffix.lower())
+    if mark is None:
+        return False
+    try:
+        with open_regular(path) as fh:
+            return mark in fh.read(_MARK_SCAN_BYTES)
+    except InputFileError:
+        return False

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..control.trials import parse_frequencies as frequencies_of
 from ..errors import CliError, ControlError
+from ..files import written_by_us
 
 EXIT_USAGE = 2
 #: The work ran, but its result is not to be trusted (said on standard error, with the cause).
@@ -49,9 +50,10 @@ PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 def writable_path(option: str, path: str | Path, suffixes: Sequence[str] = ()) -> None:
-    """``path`` can be written as a new file, checked before the work that makes it: a usable name
-    (no NUL byte; one of ``suffixes`` when given), nothing there yet (an output never replaces a
-    file: choose another name), its folder made if need be, and a file can be created in it (tried:
+    """``path`` can be written, checked before the work that makes it: a usable name (no NUL byte;
+    one of ``suffixes`` when given), nothing there yet but a figure the suite wrote itself (an output
+    never replaces a user's file: choose another name; ``piezofin watts --plot out/watts.png`` twice
+    replaces its own), its folder made if need be, and a file can be created in it (tried:
     ``/proc/x.png`` passed a permission check as root, then failed after the work); else one line
     naming ``option``."""
     text = os.fspath(path)
@@ -63,7 +65,14 @@ def writable_path(option: str, path: str | Path, suffixes: Sequence[str] = ()) -
     if path.is_dir():
         raise UsageError(f"{option} {path}: a folder, not a file")
     if path.exists() or path.is_symlink():
-        raise UsageError(f"{option} {path}: exists; choose another name (an output is never overwritten)")
+        if suffixes and not path.is_symlink() and written_by_us(path):
+            if not os.access(path, os.W_OK):
+                raise UsageError(f"{option} {path}: exists and is not writable")
+            return  # the suite's own figure, from an earlier run: replaced
+        raise UsageError(
+            f"{option} {path}: exists and is not a figure this suite wrote; choose another name (a "
+            "user's file is never overwritten)"
+        )
     writable_folder(option, path.parent, f"{option} {path}: its folder")
     try:  # the one sure test: create it (exclusively), then leave the name free for the work
         os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))

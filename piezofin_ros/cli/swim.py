@@ -18,6 +18,7 @@ from typing import Any
 
 from ..control.swimming import STRATEGIES, Fish
 from ..errors import PiezofinError
+from ..files import figure_metadata
 from ..physics.amplifier import load_amplifier
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
@@ -169,7 +170,7 @@ def plot(r: dict[str, Any], path: str) -> None:
     )
     try:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, metadata=figure_metadata(path))
     except OSError as exc:
         raise SwimUsageError(f"--plot {path}: cannot write ({exc.strerror or exc})") from None
     finally:

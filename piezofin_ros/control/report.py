@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..estimation.estimator import tpw_field
+from ..files import figure_metadata
 from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in
 from ..physics.fin import Fin
 from ..physics.steady import harmonic_balance
@@ -136,6 +137,6 @@ def plot_trials(
     axes[0].legend(fontsize=7)
     axes[2].legend(fontsize=7)
     fig.suptitle(title or f"{fin.name}: protocol trials")
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, metadata=figure_metadata(path))
     plt.close(fig)
     return path

@@ -228,3 +228,23 @@ def test_diagnose_twin_refuses_before_the_work(tmp_path: Path, kind: str) -> Non
     assert wall < 15.0  # (it was refused, if at all, after 292 s of work)
     if kind == "holds my twin.md":
         assert (target / "twin.md").read_text() == "my notes"
+
+
+@pytest.mark.fast_cases(".png")
+@pytest.mark.parametrize("suffix", [".png", ".pdf", ".svg"])
+def test_a_plot_replaces_the_figure_it_wrote_itself(tmp_path: Path, suffix: str) -> None:
+    """A README line run twice (``piezofin sweep ... --plot out/x.png``) replaces its own figure
+    (marked as the suite's), and the user's file of the same kind stays refused."""
+    from piezofin_ros.files import written_by_us
+
+    out = tmp_path / f"sweep{suffix}"
+    for _ in range(2):
+        proc, _ = run("piezofin", "sweep", "--freq", "5", "--plot", str(out))
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert written_by_us(out)
+    mine = tmp_path / f"mine{suffix}"
+    mine.write_bytes(b"my own " + suffix.encode())
+    proc, _ = run("piezofin", "sweep", "--freq", "5", "--plot", str(mine))
+    assert proc.returncode == 2
+    one_error_line(proc, "not a figure this suite wrote")
+    assert mine.read_bytes() == b"my own " + suffix.encode()
