@@ -251,6 +251,7 @@ class Inbox:
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._said: dict[str, int] = {}
         self._helper: Node | None = None
+        self._polls: list[tuple[Any, str, Callable[[Any], None], Callable[[Any], Any] | None, int]] = []
         self.refused: collections.Counter[str] = collections.Counter()
         self.failed: collections.Counter[str] = collections.Counter()
         self.polled_count: collections.Counter[str] = collections.Counter()  # messages taken by polls
@@ -300,22 +301,25 @@ class Inbox:
                 start_parameter_services=False,
                 enable_rosout=False,
             )
+            # one timer looks at every polled subscription, in the order they were made
+            node.create_timer(self.POLL_S, self._poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
         qos = Q(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
         sub = self._helper.create_subscription(msg_type, node.resolve_topic_name(topic), _never, qos)
+        self._polls.append((sub, topic, handler, check, most))
+        return sub
 
-        def poll() -> None:
+    def _poll(self) -> None:
+        for sub, topic, handler, check, most in self._polls:
             for _ in range(most):
                 with sub.handle:
                     taken = sub.handle.take_message(sub.msg_type, False)
                 if taken is None:
-                    return
+                    break
                 self.polled_count[topic] += 1
                 self._deliver(topic, taken[0], handler, check)
 
-        node.create_timer(self.POLL_S, poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        return sub
-
     def close(self) -> None:
+        self._polls.clear()
         if self._helper is not None:
             self._helper.destroy_node()
             self._helper = None
