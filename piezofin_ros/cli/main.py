@@ -501,8 +501,8 @@ def run_estimate(args: argparse.Namespace) -> int:
     if not replay.replayed and replay.n_skipped:
         # (a bag whose one drive block of five held 1e300 V said "0 estimates; DIFFERS", exit 0)
         print(
-            f"no estimate: {replay.n_skipped} message(s) of the fin could not be used (the lines above say "
-            "why), and what was left makes no full window",
+            f"piezofin: error: no estimate from {args.bag}: {replay.n_skipped} message(s) of the fin could "
+            "not be used (the lines above say why), and what was left makes no full window",
             file=sys.stderr,
         )
         return EXIT_UNTRUSTED

@@ -138,12 +138,16 @@ class Estimate:
         return cls(**{n: float(record.get(n, math.nan)) for n in cls.field_names()})
 
 
+#: The most thrust any fin of this kind gives, N (a fin gives millinewtons).
+THRUST_MOST_N = 10.0
+
+
 def _most_of(name: str) -> float:
     """The largest magnitude field ``name`` of an estimate can have on any fin of this kind (generous)."""
     if name.startswith("thrust_per_watt"):
         return 1e3  # N/W (the paper: 0.06; the fin's own watt: a few)
     if name.startswith("thrust") and name.endswith("_n"):
-        return 10.0  # N (a fin gives millinewtons)
+        return THRUST_MOST_N
     if name.startswith("power"):
         return 1e4  # W
     if name.startswith("tip_velocity"):

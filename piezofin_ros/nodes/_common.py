@@ -241,7 +241,7 @@ class Inbox:
     Other exceptions are bugs and propagate.
     """
 
-    #: How often a latest-value topic is looked at, s of wall time.
+    #: How often the polled subscriptions are looked at, s of wall time.
     POLL_S = 0.01
 
     def __init__(self, node: Node) -> None:

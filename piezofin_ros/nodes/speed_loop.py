@@ -23,7 +23,7 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 from ..config import setting
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 from ..errors import PiezofinError
-from ..estimation.estimator import Estimate
+from ..estimation.estimator import THRUST_MOST_N
 from ..physics.swim import SPEED_MOST_M_S, load_body
 from ._common import (
     QOS_COMMAND,
@@ -32,13 +32,30 @@ from ._common import (
     TOPIC_LOOP_STATUS,
     TOPIC_SPEED,
     Inbox,
+    MessageRefused,
     StartupError,
     declare,
-    estimates,
     freeze_parameters,
+    msg_block,
     run_node,
     scalar,
 )
+
+
+def fin_thrust(msg: Float64MultiArray) -> float:
+    """The door's check of an ``estimate`` for the speed loop: its self-sensed thrust, else its
+    Lighthill thrust (a block may hold only what the loop reads), within what a fin gives (NaN: not
+    estimated)."""
+    block = msg_block(msg)
+    names = block.names
+    thrust = block.scalar("thrust_self_n") if "thrust_self_n" in names else math.nan
+    if not math.isfinite(thrust) and "thrust_n" in names:
+        thrust = block.scalar("thrust_n")
+    if abs(thrust) > THRUST_MOST_N:  # (inf too)
+        raise MessageRefused(
+            f"a thrust of {thrust!r} N is beyond what any fin gives (within +-{THRUST_MOST_N:g})"
+        )
+    return thrust
 
 
 @dataclass(frozen=True)
@@ -76,7 +93,9 @@ class SpeedLoopNode(Node):
         self.inbox.latest(
             Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
         )
-        self.inbox.polled(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20)
+        self.inbox.polled(
+            Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, fin_thrust, depth=200, most=20
+        )
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
         self._said = self._published = ""
@@ -124,11 +143,10 @@ class SpeedLoopNode(Node):
                 throttle_duration_sec=5.0,
             )
 
-    def _on_estimate(self, e: Estimate) -> None:
+    def _on_estimate(self, thrust_n: float) -> None:
         """The fin's thrust as the estimator gives it (self-sensed on a fish): what a speed reading is
         judged against."""
-        thrust = e.thrust_self_n if math.isfinite(e.thrust_self_n) else e.thrust_n
-        self.loop.estimate(self._now(), thrust)
+        self.loop.estimate(self._now(), thrust_n)
 
     def _tick(self) -> None:
         t = self._now()
