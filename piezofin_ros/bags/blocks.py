@@ -21,6 +21,7 @@ This module has no ROS dependency: nodes convert messages with :func:`from_layou
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -204,8 +205,6 @@ def sample_span(data: bytes) -> tuple[float, float, int] | None:
     """``(first t_s, last t_s, samples)`` of a serialised (CDR) block whose first channel is ``t_s``,
     read from the bytes without decoding the block (a recorder looks at every block it writes);
     ``None`` for anything else (another layout, a command, garbage)."""
-    import struct
-
     try:
         if data[:2] != b"\x00\x01":  # little-endian CDR (what every ROS 2 middleware here writes)
             return None

@@ -294,14 +294,7 @@ def read_file(
     """
     path = Path(path)
     wanted = set(topics) if topics is not None else None
-    try:
-        f = open(path, "rb")  # noqa: SIM115 (closed below; a generator cannot use `with` across yields safely)
-    except FileNotFoundError:
-        raise BagError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise BagError(f"{path}: is a directory") from None
-    except OSError as exc:
-        raise BagError(f"{path}: cannot open ({exc.strerror or exc})") from None
+    f = open_regular(path, BagError)  # (missing, a directory, a FIFO, a NUL byte: one BagError)
     with f:
         size = os.fstat(f.fileno()).st_size
         if size == 0:

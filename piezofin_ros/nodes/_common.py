@@ -293,18 +293,11 @@ class Inbox:
 
         node = self._node
         if self._helper is None:
-            self._helper = Node(
-                f"_{node.get_name()}_inbox",
-                namespace=node.get_namespace(),
-                context=node.context,
-                use_global_arguments=False,  # (a `-r __node:=` is for the node itself)
-                start_parameter_services=False,
-                enable_rosout=False,
-            )
+            self._helper = helper_node(node, "inbox")
             # one timer looks at every polled subscription, in the order they were made
             node.create_timer(self.POLL_S, self._poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
         qos = Q(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
-        sub = self._helper.create_subscription(msg_type, node.resolve_topic_name(topic), _never, qos)
+        sub = self._helper.create_subscription(msg_type, node.resolve_topic_name(topic), never, qos)
         self._polls.append((sub, topic, handler, check, most))
         return sub
 
@@ -369,8 +362,21 @@ class Inbox:
             self._node.get_logger().warning(text)
 
 
-def _never(msg: Any) -> None:  # (a polled subscription's callback: no executor calls it)
+def never(msg: Any) -> None:  # (a polled subscription's callback: no executor calls it)
     pass
+
+
+def helper_node(node: Node, role: str) -> Node:
+    """A hidden node (``_<node>_<role>``) beside ``node``, in its context and namespace, that no
+    executor spins: it holds the subscriptions ``node`` polls (:meth:`Inbox.polled`, the recorder)."""
+    return Node(
+        f"_{node.get_name()}_{role}",
+        namespace=node.get_namespace(),
+        context=node.context,
+        use_global_arguments=False,  # (a `-r __node:=` is for the node itself)
+        start_parameter_services=False,
+        enable_rosout=False,
+    )
 
 
 class MessageRefused(NodeError, ValueError):

@@ -53,6 +53,8 @@ from ._common import (
     StartupError,
     declare,
     freeze_parameters,
+    helper_node,
+    never,
     run_node,
 )
 
@@ -96,10 +98,6 @@ SAMPLED_DEPTH = 500
 SAMPLED_MOST = 50
 #: Full looks in a row that mean a topic comes faster than it is kept (a backlog drains in fewer).
 THIN_LOOKS = 20
-
-
-def _never(data: Any) -> None:  # (a polled subscription's callback: no executor calls it)
-    pass
 
 
 #: Topics (relative) whose one-sample blocks are also written field by field, for plotting.
@@ -210,6 +208,7 @@ class Recorder(Node):
         self._gap_topic = f"{self.get_fully_qualified_name()}/gaps"
         self._unsaid: list[Gap] = []
         self._helper: Node | None = None
+        self._polled: list[str] = []  # topics taken by _poll, in the order they were added
         self._full_looks: collections.Counter[str] = collections.Counter()  # in a row, per polled topic
         self._thinned: collections.Counter[str] = collections.Counter()  # looks past THIN_LOOKS in a row
         self._thinned_said: dict[str, int] = {}
@@ -281,18 +280,12 @@ class Recorder(Node):
         keeps up to its share of the flooded topic a second, the rest is dropped and said once a
         second, and a hole in a sampled topic is found and kept (:class:`GapWatch`)."""
         if self._helper is None:
-            self._helper = Node(
-                f"_{self.get_name()}_poll",
-                namespace=self.get_namespace(),
-                context=self.context,
-                use_global_arguments=False,
-                start_parameter_services=False,
-                enable_rosout=False,
-            )
+            self._helper = helper_node(self, "poll")
             self.create_timer(POLL_S, self._poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
         depth = SAMPLED_DEPTH if topic in self._sampled else POLL_DEPTH
         qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
-        return self._helper.create_subscription(cls, topic, _never, qos, raw=True)
+        self._polled.append(topic)
+        return self._helper.create_subscription(cls, topic, never, qos, raw=True)
 
     def _poll(self) -> None:
         for topic in self._polled:
@@ -311,10 +304,6 @@ class Recorder(Node):
 
     def _most(self, topic: str) -> int:
         return SAMPLED_MOST if topic in self._sampled else POLL_MOST
-
-    @property
-    def _polled(self) -> list[str]:
-        return [t for t, s in self._subs.items() if s.callback is _never]
 
     def _discover(self) -> None:
         for topic in list(self._untyped):
