@@ -150,12 +150,13 @@ def clean_env(**extra: str) -> dict[str, str]:
     return env
 
 
-def start(exe: str, *ros_args: str, **popen: Any) -> subprocess.Popen[str]:
-    """An executable of the package with ``--ros-args``, as ``ros2 run`` starts it (stdout+stderr piped)."""
+def start(exe: str, *ros_args: str, log: Path | None = None, **popen: Any) -> subprocess.Popen[str]:
+    """An executable of the package with ``--ros-args``, as ``ros2 run`` starts it (stdout+stderr piped,
+    or written to ``log`` where the test reads them while it runs)."""
     return subprocess.Popen(
         [str(BIN / exe), "--ros-args", *ros_args],
         stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
+        stdout=subprocess.PIPE if log is None else open(log, "w"),
         stderr=subprocess.STDOUT,
         text=True,
         env=clean_env(),

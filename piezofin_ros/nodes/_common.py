@@ -73,6 +73,31 @@ def msg_block(msg: Float64MultiArray, expect: Sequence[str] | None = None) -> Bl
 
 
 # --------------------------------------------------------------------------------- parameters
+#: The ROS arguments each context was started with (:func:`run_node`), for :func:`_declare`.
+_ARGV: dict[int, Sequence[str]] = {}
+
+
+def _declare(node: Node, name: str, default: Any, desc: ParameterDescriptor) -> Any:
+    """``node.declare_parameter``, with the command line's ``-p`` taking precedence over every
+    parameter file, as it follows them.
+
+    rclpy puts a ``-p`` value into the file's ``/**`` entry, which a ``/**/<node>`` entry of the
+    same file overrides whatever the order: ``speed_loop --ros-args --params-file config/fish.yaml
+    -p speed_m_s:=0.066`` swam at the file's 0.06 m/s, silently (rclcpp applies ``-p`` last).
+    """
+    if not getattr(node, "_piezofin_command_line", False):
+        node._piezofin_command_line = True  # type: ignore[attr-defined]
+        import yaml
+
+        for target, pname, raw in command_line_values(_ARGV.get(id(node.context), ())):
+            if target in ("", node.get_name()):
+                try:  # (rcl reads the value as YAML)
+                    node._parameter_overrides[pname] = Parameter(pname, value=yaml.safe_load(raw))
+                except (yaml.YAMLError, TypeError):
+                    pass  # (rcl refused it already or kept it as a string; its own value stands)
+    return node.declare_parameter(name, default, desc)
+
+
 def float_param(
     node: Node, name: str, default: float, lo: float, hi: float, description: str, *, read_only: bool = False
 ) -> float:
@@ -87,7 +112,7 @@ def float_param(
         read_only=read_only,
         dynamic_typing=True,
     )
-    value = node.declare_parameter(name, float(default), desc).value
+    value = _declare(node, name, float(default), desc).value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise StartupError(f"parameter {name}: expected a number, got {value!r}")
     if not (math.isfinite(value) and lo <= value <= hi):
@@ -120,16 +145,16 @@ def int_param(node: Node, name: str, default: int, lo: int, hi: int, description
     desc = ParameterDescriptor(
         description=description, integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)]
     )
-    return int(node.declare_parameter(name, int(default), desc).value)
+    return int(_declare(node, name, int(default), desc).value)
 
 
 def str_param(node: Node, name: str, default: str, description: str, *, read_only: bool = False) -> str:
     desc = ParameterDescriptor(description=description, read_only=read_only)
-    return str(node.declare_parameter(name, default, desc).value)
+    return str(_declare(node, name, default, desc).value)
 
 
 def bool_param(node: Node, name: str, default: bool, description: str) -> bool:
-    return bool(node.declare_parameter(name, default, ParameterDescriptor(description=description)).value)
+    return bool(_declare(node, name, default, ParameterDescriptor(description=description)).value)
 
 
 def array_param(
@@ -137,7 +162,7 @@ def array_param(
 ) -> list[Any]:
     """Declare a typed array parameter (an empty default stays typed); return its value as a list."""
     desc = ParameterDescriptor(description=description)
-    value = node.declare_parameter(name, default if default else kind, desc).value
+    value = _declare(node, name, default if default else kind, desc).value
     if value is None:
         return []
     if kind == Parameter.Type.DOUBLE_ARRAY:
@@ -523,8 +548,8 @@ class StopFlag:
         return self.signal is not None
 
 
-def command_line_parameters(argv: Sequence[str]) -> list[tuple[str, str]]:
-    """``(node or "", name)`` of every ``-p [node:]name:=value`` in the ROS arguments of ``argv``."""
+def command_line_values(argv: Sequence[str]) -> list[tuple[str, str, str]]:
+    """``(node or "", name, value)`` of every ``-p [node:]name:=value`` in the ROS arguments of ``argv``."""
     out, ros = [], False
     for k, arg in enumerate(argv):
         if arg == "--ros-args":
@@ -532,10 +557,15 @@ def command_line_parameters(argv: Sequence[str]) -> list[tuple[str, str]]:
         elif arg == "--":
             ros = False
         elif ros and arg in ("-p", "--param") and k + 1 < len(argv):
-            target, _, _ = argv[k + 1].partition(":=")
+            target, _, value = argv[k + 1].partition(":=")
             node, _, name = target.rpartition(":")
-            out.append((node, name))
+            out.append((node, name, value))
     return out
+
+
+def command_line_parameters(argv: Sequence[str]) -> list[tuple[str, str]]:
+    """``(node or "", name)`` of every ``-p [node:]name:=value`` in the ROS arguments of ``argv``."""
+    return [(node, name) for node, name, _ in command_line_values(argv)]
 
 
 def check_parameter_names(node: Node, argv: Sequence[str]) -> None:
@@ -577,6 +607,7 @@ def run_node(
     context = rclpy.Context()
     argv = args if args is not None else sys.argv
     rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    _ARGV[id(context)] = argv
     stop = StopFlag().install()
     nodes: list[Any] = []
     executor = None
@@ -628,4 +659,5 @@ def run_node(
             rclpy.shutdown(context=context)
         watchdog.cancel()
         stop.restore()
+        _ARGV.pop(id(context), None)
     return int(code) if code is not None else 0

@@ -494,6 +494,7 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
         )
         probe = g.add(__import__("rclpy").create_node("probe", context=ctx, parameter_overrides=SIM_TIME))
         sent: list[tuple[float, float, float]] = []
+        states: list[str] = []  # the loop's state as each command arrived (one executor: no race)
 
         def on_cmd(m: Float64MultiArray) -> None:
             from piezofin_ros.nodes._common import msg_block
@@ -502,6 +503,7 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
             sent.append(
                 (probe.get_clock().now().nanoseconds * 1e-9, b.scalar("voltage_pp_V"), b.scalar("on"))
             )
+            states.append(ctl.loop.state)
 
         probe.create_subscription(Float64MultiArray, "cmd", on_cmd, QOS_COMMAND)
         sim.trigger_configure()
@@ -519,8 +521,16 @@ def test_optimising_controller_ramps_down_when_estimates_stop() -> None:
         g.spin_until(lambda: ctl.loop.state == "stopped", timeout=60.0, what="ramp down")
         g.spin_for(0.2)
         assert sent[-1][1] == 0.0 and sent[-1][2] == 0.0
-        after = [v for t, v, _ in sent if t > t_kill + 0.5]  # (a trial change may be in flight at the kill)
-        assert all(b <= a + 1e-9 for a, b in itertools.pairwise(after))  # holds, then only down
+        # until the silence is noticed the loop may still move (a trial in flight, the fit's next point);
+        # from then on it holds its point (the ramp to it goes on one way only), then only ramps down
+        volts = [v for (t, v, _), s in zip(sent, states, strict=True) if t > t_kill]
+        later = [s for (t, _, _), s in zip(sent, states, strict=True) if t > t_kill]
+        assert "ramping down" in later, later[-20:]
+        held = [v for v, s in zip(volts, later, strict=True) if s == "holding"]
+        steps = [b - a for a, b in itertools.pairwise(held)]
+        assert all(d >= -1e-9 for d in steps) or all(d <= 1e-9 for d in steps), held
+        down = volts[later.index("ramping down") :]
+        assert all(b <= a + 1e-9 for a, b in itertools.pairwise(down)), down
         t_zero = next(t for t, v, _ in sent if t > t_kill and v == 0.0)
         # bounded: a move in flight at the kill reaches its point (a full ramp), 2 x timeout of silence
         # there, then a full ramp down

@@ -330,3 +330,40 @@ def test_launch_testing(ros_env: dict[str, str], tmp_path: Path, case: str) -> N
     out = run.stdout + run.stderr
     assert run.returncode == 0, out[-6000:]
     assert "FAILED" not in out and "Ran " in out, out[-3000:]
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (("--params-file", "config/fish.yaml", "-p", "speed_m_s:=0.066"), "0.066"),
+        (("-p", "speed_m_s:=0.066", "--params-file", "config/fish.yaml"), "0.066"),  # (as rclcpp: -p last)
+        (("--params-file", "config/fish.yaml", "-p", "speed_loop:speed_m_s:=0.07", "-p", "x:s:=1"), "0.07"),
+        (("--params-file", "config/fish.yaml"), "0.06"),
+    ],
+)
+def test_the_command_line_overrides_a_parameter_file(
+    ros_env: dict[str, str], tmp_path: Path, args: tuple[str, ...], expected: str
+) -> None:
+    """Issue 39: ``-p speed_m_s:=0.066`` after ``--params-file config/fish.yaml`` was silently
+    overridden by the file's ``/**/speed_loop`` entry (rclpy puts ``-p`` into the file's ``/**``)."""
+    log = tmp_path / "speed_loop.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen(
+            ["ros2", "run", "piezofin_ros", "speed_loop", "--ros-args", *args],
+            env=ros_env,
+            cwd=ROOT,
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
+    try:
+        t0 = time.monotonic()
+        while "set-point" not in log.read_text() and proc.poll() is None and time.monotonic() - t0 < 60:
+            time.sleep(0.2)
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C
+        proc.wait(timeout=30)
+    said = re.search(r"set-point (\S+) m/s", log.read_text())
+    assert said and said.group(1) == expected, log.read_text()[-2000:]
