@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import contextlib
 import faulthandler
 import math
 import os
@@ -91,10 +92,9 @@ def _declare(node: Node, name: str, default: Any, desc: ParameterDescriptor) -> 
 
         for target, pname, raw in command_line_values(_ARGV.get(id(node.context), ())):
             if target in ("", node.get_name()):
-                try:  # (rcl reads the value as YAML)
+                # (rcl reads the value as YAML; one it cannot read stays as rcl kept it)
+                with contextlib.suppress(yaml.YAMLError, TypeError):
                     node._parameter_overrides[pname] = Parameter(pname, value=yaml.safe_load(raw))
-                except (yaml.YAMLError, TypeError):
-                    pass  # (rcl refused it already or kept it as a string; its own value stands)
     return node.declare_parameter(name, default, desc)
 
 
