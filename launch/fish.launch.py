@@ -5,9 +5,12 @@ with the fish's drive electronics, which publish ``drive``, ``swim_speed`` and `
 ``thrust_estimator`` on the drive alone, the optimising ``controller`` in supply watts, the
 ``speed_loop`` that turns a speed set-point into the controller's thrust demand, and the
 ``recorder``.  Parameters: the package's ``config/bringup.yaml``, then ``config/fish.yaml``, then
-``params_file:=...``.
+``params_file:=...``, then the launch arguments (``speed_m_s``).  With ``sim:=false`` no
+``fin_sim`` is started: the fish's driver publishes ``drive``, ``swim_speed`` and ``battery`` in
+the namespace ``fish`` and obeys ``cmd`` (the README's topic contract).
 
     ros2 launch piezofin_ros fish.launch.py realtime_factor:=10 speed_m_s:=0.05
+    ros2 launch piezofin_ros fish.launch.py sim:=false params_file:=my_fish.yaml
     ros2 param set /fish/speed_loop speed_m_s 0.07
 """
 
@@ -33,23 +36,26 @@ def _nodes(context, *args, **kwargs):
     files += [extra] if extra else []
     factor = number_argument(context, "realtime_factor")
     speed = number_argument(context, "speed_m_s")
-    use_sim_time = factor != 1.0
-    sim = {
-        "autostart": True,
-        "realtime_factor": factor,
-        "publish_clock": use_sim_time,
-        "wait_subscribers": CONSUMERS,
-    }
-    nodes = [
-        Node(
-            package="piezofin_ros",
-            executable="fin_sim",
-            name="fin_sim",
-            namespace=NAMESPACE,
-            parameters=[*files, sim],
-            output="screen",
+    sim = LaunchConfiguration("sim").perform(context).lower() in ("1", "true", "yes")
+    use_sim_time = sim and factor != 1.0
+    nodes = []
+    if sim:
+        own = {
+            "autostart": True,
+            "realtime_factor": factor,
+            "publish_clock": use_sim_time,
+            "wait_subscribers": CONSUMERS,
+        }
+        nodes.append(
+            Node(
+                package="piezofin_ros",
+                executable="fin_sim",
+                name="fin_sim",
+                namespace=NAMESPACE,
+                parameters=[*files, own],
+                output="screen",
+            )
         )
-    ]
     for exe in ("thrust_estimator", "controller", "speed_loop"):
         own = {"use_sim_time": use_sim_time}
         if exe == "speed_loop":
@@ -82,6 +88,11 @@ def generate_launch_description():
         [
             DeclareLaunchArgument(
                 "params_file", default_value="", description="a parameter file layered on top"
+            ),
+            DeclareLaunchArgument(
+                "sim",
+                default_value="true",
+                description="start fin_sim (false: the fish's own driver publishes drive, swim_speed, battery)",
             ),
             DeclareLaunchArgument("realtime_factor", default_value="1.0", description="fin_sim speed"),
             DeclareLaunchArgument("speed_m_s", default_value="0.06", description="the speed set-point, m/s"),

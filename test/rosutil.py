@@ -107,6 +107,7 @@ class Launch:
     ) -> None:
         assert_quiet_domain(env)
         self.log = cwd / log
+        self.started = time.monotonic()
         self.proc = subprocess.Popen(
             ["ros2", "launch", "piezofin_ros", file, *args],
             env=env,

@@ -82,6 +82,7 @@ class DriveLoop:
     _demand_due: bool = False
     _demand_taken_t: float = -math.inf
     _waiting: tuple[Any, ...] | None = None  # a trial that agreed while a fit ran: learnt next
+    _supply_modelled: bool = False  # ranking by the model's supply watt (none measured)
 
     def __post_init__(self) -> None:
         self.optimiser.source = self.source  # (it reads the same estimate)
@@ -178,6 +179,18 @@ class DriveLoop:
         # trials group by it): the measured amplitude drifts with the monitor's gain and noise
         watt = self.optimiser.watt
         named = e.power(watt) if watt != "fin" else math.nan
+        if watt == "supply_measured" and not math.isfinite(named):
+            # nothing measures the supply (no supply topic, no battery, or its fixed draw not known
+            # yet): the amplifier's model is the fallback, said once each time it starts
+            named = e.power("supply")
+            if not self._supply_modelled:
+                self.events.append(
+                    "no measured supply watt in the estimates: ranking by the amplifier model's until one comes"
+                )
+            self._supply_modelled = True
+        elif watt == "supply_measured" and self._supply_modelled:
+            self._supply_modelled = False
+            self.events.append("the supply watt is measured again: ranking by it")
         args = (e.t_end, f, self.target[1], thrust, power, admittance, named, e.voltage_pp)
         if self.background:
             # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's

@@ -106,7 +106,8 @@ class Estimate:
     # the other watts (physics/amplifier.py, WATTS): power_w above is the fin's, mean(v i)
     power_apparent_w: float = math.nan  # W, Vrms x Irms
     power_supply_w: float = math.nan  # W, the amplifier's draw through its model
-    power_supply_measured_w: float = math.nan  # W, the supply topic's mean(V I) (NaN: none recorded)
+    power_supply_measured_w: float = math.nan  # W, the supply topic's mean(V I), or the battery's draw
+    # less its fixed draw (StreamEstimator.add_battery); NaN: neither measured
     thrust_per_watt_apparent: float = math.nan  # N/W, vibrometer thrust per apparent watt
     thrust_per_watt_supply: float = math.nan
     thrust_per_watt_supply_measured: float = math.nan
@@ -445,7 +446,10 @@ class StreamEstimator:
         calibrate: Callable[[float, float], Calibration] | None = None,
         amplifier: Amplifier = PAPER_BENCH,
         medium: str = "water",
+        fixed_draw_w: float | None = None,
     ) -> None:
+        if fixed_draw_w is not None and not (math.isfinite(fixed_draw_w) and fixed_draw_w >= 0):
+            raise EstimationError(f"fixed_draw_w must be a finite number >= 0 W, got {fixed_draw_w!r}")
         if medium not in MEDIA:
             raise EstimationError(f"medium must be one of {', '.join(MEDIA)}, got {medium!r}")
         self.medium = medium  # in air there is no fluid to push: no thrust is estimated
@@ -457,6 +461,9 @@ class StreamEstimator:
         self.tip = _Channel()
         self.loadcell = _Channel()
         self.supply = _Channel()  # the supply's meter (voltage, current), where the rig has one
+        self.battery = _Channel()  # the fish's battery (terminal voltage, current), where it has one
+        self.fixed_draw_w = fixed_draw_w  # what the battery feeds besides the fin's drive (None: learnt)
+        self._idle_draws: deque[float] = deque(maxlen=60)  # the battery's draw with the drive off, W
         self._speed: deque[tuple[float, float]] = deque(maxlen=10_000)
         self._on = False
         self._last_above = -math.inf
@@ -502,6 +509,43 @@ class StreamEstimator:
         v, i = np.asarray(voltage, dtype=float), np.asarray(current, dtype=float)
         self.supply.append(np.asarray(t, dtype=float), np.column_stack([v, i]))
         return self._finish_ready()
+
+    def add_battery(self, t: float, voltage: float, current: float) -> list[Estimate]:
+        """A reading of the fish's battery: its terminal voltage (V) and current (A; either sign, as
+        ``sensor_msgs/BatteryState`` counts a discharge negative).
+
+        Where no supply meter is read, the supply watt is measured here: the battery's draw over the
+        window less its fixed draw (what it feeds besides the fin's amplifier: the fish's
+        electronics).  That fixed draw is ``fixed_draw_w`` where it is given, else learnt as the
+        median draw while the drive is off (two readings at least) less the amplifier model's own
+        draw at 0 V, which the supply watt counts; until it is known, no supply watt is measured
+        from the battery.
+        """
+        draw = abs(float(voltage) * float(current))
+        if not (math.isfinite(t) and math.isfinite(draw)):
+            return []
+        if not self._on and self._off_since <= t <= self.drive.latest:
+            self._idle_draws.append(draw)
+        self.battery.append(np.array([float(t)]), np.array([[float(voltage), float(current)]]))
+        return self._finish_ready()
+
+    @property
+    def battery_fixed_draw_w(self) -> float:
+        """The fixed draw the battery's watt is measured above, W (NaN: not known yet)."""
+        if self.fixed_draw_w is not None:
+            return self.fixed_draw_w
+        if len(self._idle_draws) < 2:
+            return math.nan
+        idle = self.amplifier.mean_draw(np.zeros(2), np.zeros(2))  # (the model's, at 0 V)
+        return max(float(np.median(self._idle_draws)) - idle, 0.0)
+
+    @property
+    def supply_meter(self) -> str:
+        """Where the supply watt is measured: ``supply`` (its meter), ``battery``, or ``""`` (none: the
+        amplifier's model alone)."""
+        if self.supply.seen:
+            return "supply"
+        return "battery" if self.battery.seen and math.isfinite(self.battery_fixed_draw_w) else ""
 
     def add_speed(self, t: float, speed_m_s: float) -> None:
         """Swimming speed ``U`` (m/s) from the fish stack, applied in Eq. (19); a time that is not
@@ -653,7 +697,7 @@ class StreamEstimator:
             return False
         now = self.drive.latest
         timeout = self.config.channel_timeout_s
-        for lagging in (self.tip, self.supply):
+        for lagging in (self.tip, self.supply, self.battery):
             if lagging.seen and lagging.latest < p.t_end and now < p.t_end + timeout:
                 return False
         need = p.post[1] if p.post is not None else p.t_end
@@ -711,6 +755,12 @@ class StreamEstimator:
         if np.count_nonzero(ok) >= 4:
             r["power_supply_measured_w"] = float(np.mean(vi_s[ok, 0] * vi_s[ok, 1]))
             r = with_watts(r)
+        elif self.supply_meter == "battery":
+            tb, vi_b = self.battery.slice(p.t_start, p.t_end)
+            if tb.size:  # (readings of 1 Hz: the window's own, however few)
+                draw = float(np.mean(np.abs(vi_b[:, 0] * vi_b[:, 1])))
+                r["power_supply_measured_w"] = max(draw - self.battery_fixed_draw_w, 0.0)
+                r = with_watts(r)
         thrust_lc, n_base = math.nan, 0
         baselines: list[tuple[float, float]] = []  # (mean time, mean deflection)
         for win in (p.pre, p.post):
@@ -744,5 +794,5 @@ class StreamEstimator:
         oldest = self.drive.latest - horizon - 5.0
         for p in self._pending:
             oldest = min(oldest, p.pre[0] if p.pre else p.t_start)
-        for ch in (self.drive, self.tip, self.loadcell, self.supply):
+        for ch in (self.drive, self.tip, self.loadcell, self.supply, self.battery):
             ch.prune(oldest)

@@ -430,6 +430,21 @@ def samples(channels: tuple[str, ...]) -> Callable[[Float64MultiArray], Block]:
     return check
 
 
+#: The most a fish's battery reads: volts at its terminals, amperes either way.
+BATTERY_MOST_V, BATTERY_MOST_A = 1000.0, 1000.0
+
+
+def battery_reading(msg: Any) -> tuple[float, float, float]:
+    """A ``sensor_msgs/BatteryState``'s (stamp s, terminal voltage V, current A), each within what a
+    fish's battery reads (NaN, as the message's "unmeasured", is refused with the reason)."""
+    voltage, current = float(msg.voltage), float(msg.current)
+    if not (math.isfinite(voltage) and 0.0 < voltage <= BATTERY_MOST_V):
+        raise ValueError(f"voltage = {voltage!r} V is no battery's (within (0, {BATTERY_MOST_V:g}])")
+    if not (math.isfinite(current) and abs(current) <= BATTERY_MOST_A):
+        raise ValueError(f"current = {current!r} A is no battery's (within +-{BATTERY_MOST_A:g})")
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, voltage, current
+
+
 def estimates(msg: Float64MultiArray) -> Any:
     """A check for an ``estimate`` block: an :class:`~piezofin_ros.estimation.estimator.Estimate`
     with every field within what a fin gives (:func:`~piezofin_ros.estimation.estimator.check_estimate`)."""

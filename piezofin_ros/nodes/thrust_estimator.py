@@ -1,7 +1,8 @@
 """``thrust_estimator``: :class:`~piezofin_ros.estimation.estimator.StreamEstimator` on the live topics.
 
 Subscribes ``drive`` (required), ``tip_velocity`` and ``loadcell`` (optional: a fish has
-neither) and ``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` block per
+neither), ``supply`` or ``battery`` (sensor_msgs/BatteryState: the supply watt measured) and
+``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` block per
 window.  All timing comes from the samples' own time stamps, so a replayed bag gives the
 estimates recorded live.
 """
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 
 from rclpy.context import Context
 from rclpy.node import Node
+from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Float64MultiArray
 
 from ..bags.blocks import (
@@ -33,6 +35,7 @@ from ..physics.fin import MEDIA, Fin, load_fin
 from ..physics.swim import SPEED_MOST_M_S
 from ._common import (
     QOS_DATA,
+    TOPIC_BATTERY,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
     TOPIC_LOADCELL,
@@ -42,6 +45,7 @@ from ._common import (
     Inbox,
     SilenceWatch,
     StartupError,
+    battery_reading,
     block_msg,
     declare,
     freeze_parameters,
@@ -71,6 +75,13 @@ class ThrustEstimatorConfig:
         "the amplifier driving the fin (preset or YAML): its model gives the supply's watt; a supply "
         "topic, where the rig or the fish measures its supply, gives the measured one",
     )
+    battery_fixed_draw_w: float = setting(
+        -1.0,
+        "what the fish's battery (battery topic) feeds besides the fin's drive, W: the supply watt is the "
+        "battery's draw less this where no supply topic is read; negative: learnt while the drive is off",
+        -1.0,
+        1000.0,
+    )
 
 
 #: Sample blocks taken from each sampled topic a look (every 10 ms): 5,000 a second, where fin_sim at
@@ -99,7 +110,9 @@ class ThrustEstimator(Node):
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         freeze_parameters(self)
-        self.core = StreamEstimator(self.fin, config, calibrate, amplifier, own.medium)
+        fixed = own.battery_fixed_draw_w if own.battery_fixed_draw_w >= 0 else None
+        self.core = StreamEstimator(self.fin, config, calibrate, amplifier, own.medium, fixed)
+        self._meter = ""  # where the supply watt is measured, as last said
         self.estimates: list[Estimate] = []
         self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
         # every message from another process through one door: checked there, refused with the reason
@@ -115,6 +128,7 @@ class ThrustEstimator(Node):
             inbox.polled(Float64MultiArray, topic, handler, samples(channels), depth=500, most=BLOCKS_A_LOOK)
         # the newest speed only, polled: a flood of it costs one reading per look (it starved the drive's)
         inbox.latest(Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s"))
+        inbox.polled(BatteryState, TOPIC_BATTERY, self._on_battery, battery_reading, depth=50, most=10)
         self._last_t = float("nan")
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
         self._silence = SilenceWatch(
@@ -149,12 +163,27 @@ class ThrustEstimator(Node):
         self.received[TOPIC_SUPPLY] += 1
         self._emit(self.core.add_supply(b["t_s"], b["supply_voltage_V"], b["supply_current_A"]))
 
+    def _on_battery(self, reading: tuple[float, float, float]) -> None:
+        t, voltage, current = reading
+        if t == 0.0:  # (a driver that leaves the stamp empty: the reading is now's)
+            t = self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
+        self._emit(self.core.add_battery(t, voltage, current))
+
     def _on_speed(self, speed_m_s: float) -> None:
         # The speed applies from the latest drive sample on (the fish stack's message has no stamp).
         t = self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
         self.core.add_speed(t, speed_m_s)
 
     def _emit(self, estimates: list[Estimate]) -> None:
+        if estimates and self.core.supply_meter != self._meter:
+            self._meter = meter = self.core.supply_meter
+            self.get_logger().info(
+                f"the supply watt is measured on {self.resolve_topic_name(TOPIC_SUPPLY)}"
+                if meter == "supply"
+                else f"the supply watt is measured on {self.resolve_topic_name(TOPIC_BATTERY)}: its draw less "
+                f"{self.core.battery_fixed_draw_w * 1e3:.0f} mW of fixed draw"
+                + (" (learnt with the drive off)" if self.core.fixed_draw_w is None else "")
+            )
         for e in estimates:
             self.estimates.append(e)
             self._pub.publish(block_msg(Block.from_record(e.as_dict())))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from piezofin_ros.estimation.estimator import Estimate, StreamEstimator, tpw_field
@@ -91,3 +92,49 @@ def test_in_air_no_thrust_is_estimated_only_motion_and_power() -> None:
     assert e.tip_velocity_rms > 0 and e.power_w > 0 and e.power_supply_w > 0
     with pytest.raises(EstimationError, match="medium"):
         StreamEstimator(fin, medium="vacuum")
+
+
+def battery_drive(fixed_given: float | None, hotel_w: float = 0.25, off_s: float = 4.0) -> list[Estimate]:
+    """A fish without a supply meter: ``off_s`` with the drive off, then 6 Hz 800 Vpp; its battery read
+    once a second (terminal 7.4 V, current negative as BatteryState counts a discharge): the supply's
+    draw, plus a hotel load, through the pack."""
+    fin = load_fin("M8528-P1")
+    amp = AMPLIFIERS["fish"]
+    rig = SimulatedRig(fin, seed=4, amplifier=amp)
+    est = StreamEstimator(fin, amplifier=amp, fixed_draw_w=fixed_given)
+    out: list[Estimate] = []
+    since, draws = 0.0, []
+    for k in range(int((off_s + 10.0) / 0.05)):
+        on = k * 0.05 >= off_s
+        rig.command(6.0 if on else 0.0, 800.0 if on else 0.0, 1 if on else 0)
+        b = rig.step(50)
+        out += est.add_drive(b.t, b.voltage, b.current)
+        draws.append(float(np.mean(b.supply_voltage * b.supply_current)))
+        if b.t[-1] - since >= 1.0:
+            since = float(b.t[-1])
+            power = float(np.mean(draws)) + hotel_w
+            draws = []
+            out += est.add_battery(since, 7.4, -power / 7.4)
+    return [e for e in out if not e.final]
+
+
+def test_a_fish_measures_its_supply_watt_on_its_battery() -> None:
+    """Issue 39: the estimator's amplifier model read 0.77 and 1.18 times two fishes' true draw; a fish
+    measures its battery: the draw less the fixed draw (given, or learnt with the drive off less the
+    amplifier's own draw at 0 V, which the supply watt counts)."""
+    for given in (None, 0.25):
+        running = battery_drive(given)
+        e = running[-1]
+        # the meter's window is the battery's readings in it (1 Hz): within 2 % of the model on the
+        # amplifier the rig drove, which the battery paid
+        assert e.power_supply_measured_w == pytest.approx(e.power_supply_w, rel=0.02), given
+        assert e.thrust_per_watt_self_supply_measured == pytest.approx(
+            e.thrust_self_n / e.power_supply_measured_w, rel=1e-12
+        )
+
+
+def test_a_battery_whose_fixed_draw_is_not_known_measures_nothing() -> None:
+    """Never driven off, the fixed draw is never learnt: no supply watt from the battery (the model's
+    stays; the controller ranks by it and says so)."""
+    e = battery_drive(None, off_s=0.0)[-1]
+    assert math.isnan(e.power_supply_measured_w) and math.isfinite(e.power_supply_w)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Float64MultiArray
 
 from piezofin_ros.bags.blocks import (
@@ -30,7 +31,14 @@ from piezofin_ros.bags.blocks import (
     Block,
 )
 from piezofin_ros.estimation.estimator import Estimate
-from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
+from piezofin_ros.nodes._common import (
+    BATTERY_MOST_A,
+    BATTERY_MOST_V,
+    QOS_COMMAND,
+    QOS_DATA,
+    block_msg,
+    msg_block,
+)
 
 from ..rosutil import graph, start, stop
 
@@ -70,6 +78,17 @@ def estimate_blocks() -> list[Float64MultiArray]:
     return out
 
 
+def battery_states() -> list[BatteryState]:
+    out = []
+    for v, i in [(x, -0.1) for x in [*HOSTILE, math.nan, -7.4, 0.0, 1.5 * BATTERY_MOST_V]] + [
+        (7.4, x) for x in [*HOSTILE, math.nan, 1.5 * BATTERY_MOST_A, -1.5 * BATTERY_MOST_A]
+    ]:
+        m = BatteryState()
+        m.voltage, m.current = v, i
+        out.append(m)
+    return out
+
+
 #: each node, its namespace-relative subscriptions and the hostile messages of each
 ATTACKS = {
     "thrust_estimator": {
@@ -78,6 +97,7 @@ ATTACKS = {
         "tip_velocity": (Float64MultiArray, QOS_DATA, hostile_blocks(TIP_CHANNELS)),
         "loadcell": (Float64MultiArray, QOS_DATA, hostile_blocks(LOADCELL_CHANNELS)),
         "supply": (Float64MultiArray, QOS_DATA, hostile_blocks(SUPPLY_CHANNELS)),
+        "battery": (BatteryState, QOS_COMMAND, battery_states()),
     },
     "speed_loop": {
         "swim_speed": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),

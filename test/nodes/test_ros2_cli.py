@@ -364,6 +364,10 @@ def test_the_command_line_overrides_a_parameter_file(
             time.sleep(0.2)
     finally:
         os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C
-        proc.wait(timeout=30)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            raise
     said = re.search(r"set-point (\S+) m/s", log.read_text())
     assert said and said.group(1) == expected, log.read_text()[-2000:]

@@ -1,0 +1,119 @@
+"""A fish's own drive electronics, as a lab would write them from the README's topic contract: not
+``fin_sim``, in a process of its own, at real time.
+
+It obeys ``cmd`` (frequency, peak-to-peak voltage, on), and publishes ``drive`` (its voltage and
+current monitors), ``swim_speed`` and ``battery`` (``sensor_msgs/BatteryState``) in its namespace.
+Nothing of it is what the stack is told: the fin is the nominal M8528-P1 (the stack's prior is the
+paper's twin), the amplifier is another switching one (70 % efficient, none recovered, 0.12 W
+quiescent), the body has a linear drag term besides the quadratic one and a speed sensor with a
+bias, the battery feeds 0.3 W of electronics besides the amplifier.  Its own safety: the drive
+ramps to 0 V when no command came for 1 s.
+
+    python test/fish_driver.py --ros-args -r __ns:=/fish -p truth_file:=truth.csv
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import Float64, Float64MultiArray
+
+from piezofin_ros.bags.blocks import COMMAND_FIELDS, Block
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
+from piezofin_ros.physics.amplifier import SwitchingAmplifier
+from piezofin_ros.physics.fin import load_fin
+from piezofin_ros.rig.simulated import SimulatedRig
+
+RATE_HZ, BLOCK = 1000.0, 50
+MASS_KG, DRAG_QUAD, DRAG_LIN = 0.5, 0.75, 0.004  # F = q U|U| + l U  (N; m/s)
+SPEED_BIAS, SPEED_NOISE = 0.001, 0.002  # m/s
+BATTERY_V, ELECTRONICS_W = 7.6, 0.3
+AMPLIFIER = SwitchingAmplifier(efficiency=0.7, recovered=0.0, quiescent_w=0.12, bus_v=BATTERY_V)
+
+
+class FishDriver(Node):
+    def __init__(self) -> None:
+        super().__init__("fish_driver")
+        self.truth_file = self.declare_parameter("truth_file", "").value
+        self.rig = SimulatedRig(load_fin("M8528-P1"), seed=11, amplifier=AMPLIFIER)
+        self.rng = np.random.default_rng(12)
+        self.speed = 0.0
+        self.t0 = self.get_clock().now().nanoseconds * 1e-9
+        self.samples = 0
+        self.last_cmd = -math.inf
+        self.draws: list[float] = []
+        self.last_battery = -math.inf
+        self.commands: list[tuple[float, float, float]] = []
+        self.truth: list[str] = []
+        self.drive = self.create_publisher(Float64MultiArray, "drive", QOS_DATA)
+        self.speed_pub = self.create_publisher(Float64, "swim_speed", QOS_COMMAND)
+        self.battery = self.create_publisher(BatteryState, "battery", QOS_COMMAND)
+        self.create_subscription(Float64MultiArray, "cmd", self.on_cmd, QOS_COMMAND)
+        self.create_timer(BLOCK / RATE_HZ, self.step)
+
+    def now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_cmd(self, msg: Float64MultiArray) -> None:
+        f, v, on = (msg_block(msg, expect=COMMAND_FIELDS).scalar(n) for n in COMMAND_FIELDS)
+        self.rig.command(f, v, on)
+        self.last_cmd = self.now()
+        self.commands.append((self.now(), f, v))
+
+    def step(self) -> None:
+        if self.now() - self.last_cmd > 1.0:
+            self.rig.stop()  # (no command for 1 s: the driver's own watchdog)
+        while self.samples < (self.now() - self.t0) * RATE_HZ:
+            b = self.rig.step(BLOCK)
+            self.samples += BLOCK
+            t = self.t0 + b.t  # (the rig's time from 0: the drive's samples in ROS time)
+            self.drive.publish(block_msg(Block.from_columns(t_s=t, voltage_V=b.voltage, current_A=b.current)))
+            thrust = float(np.mean(b.thrust_true))
+            drag = DRAG_QUAD * self.speed * abs(self.speed) + DRAG_LIN * self.speed
+            self.speed += (thrust - drag) / MASS_KG * BLOCK / RATE_HZ
+            self.rig.swim_speed_m_s = self.speed
+            self.speed_pub.publish(Float64(data=self.speed + SPEED_BIAS + SPEED_NOISE * self.rng.normal()))
+            self.draws.append(float(np.mean(b.supply_voltage * b.supply_current)))
+            self.truth.append(
+                f"{t[-1]:.3f},{self.speed:.6f},{thrust:.6e},{self.draws[-1]:.6e},{self.rig.drive.voltage_pp:.1f}"
+            )
+            if t[-1] - self.last_battery >= 1.0:
+                self.last_battery = float(t[-1])
+                power = float(np.mean(self.draws)) + ELECTRONICS_W
+                self.draws = []
+                msg = BatteryState()
+                msg.header.stamp.sec = int(t[-1])
+                msg.header.stamp.nanosec = int((t[-1] % 1.0) * 1e9)
+                msg.voltage, msg.current = BATTERY_V, -power / BATTERY_V
+                msg.temperature = msg.charge = msg.capacity = msg.design_capacity = msg.percentage = math.nan
+                msg.present = True
+                self.battery.publish(msg)
+
+    def close(self) -> None:
+        if self.truth_file:
+            with open(self.truth_file, "w") as out:
+                out.write("t_s,speed_m_s,thrust_n,supply_w,voltage_pp\n")
+                out.write("\n".join(self.truth) + "\n")
+
+
+def main() -> None:
+    rclpy.init(args=sys.argv)
+    node = FishDriver()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,48 @@
+"""A fish you can plug in: ``ros2 launch piezofin_ros fish.launch.py sim:=false`` with the fish's own
+driver (``test/fish_driver.py``: not ``fin_sim``, another fin, amplifier, body, speed sensor and
+battery than the stack is told) in a process of its own, at real time."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ..rosutil import Launch, stop
+from .test_ros2_cli import node_list
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+DRIVER = Path(__file__).resolve().parents[1] / "fish_driver.py"
+RUN_S = 75.0
+
+
+def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, str], tmp_path: Path) -> None:
+    truth = tmp_path / "truth.csv"
+    launch = Launch(ros_env, tmp_path, "sim:=false", "speed_m_s:=0.05", file="fish.launch.py")
+    driver = subprocess.Popen(
+        [sys.executable, str(DRIVER), "--ros-args", "-r", "__ns:=/fish", "-p", f"truth_file:={truth}"],
+        env=ros_env,
+        stdin=subprocess.DEVNULL,
+        stdout=open(tmp_path / "driver.log", "w"),  # noqa: SIM115 (closed with the process)
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        launch.wait_for("the supply watt is measured on /fish/battery", 60.0)
+        nodes = node_list(ros_env, {"/fish/speed_loop", "/fish/fish_driver"})
+        assert "/fish/fin_sim" not in nodes and {"/fish/speed_loop", "/fish/fish_driver"} <= nodes, nodes
+        time.sleep(max(0.0, RUN_S - (time.monotonic() - launch.started)))
+    finally:
+        stop(driver)
+        out = launch.interrupt()
+    assert "[ERROR]" not in out and "Traceback" not in out, out[-3000:]
+    assert "fin_sim" not in out, out[-3000:]
+    rows = np.loadtxt(truth, delimiter=",", skiprows=1, ndmin=2)
+    t, speed, volts = rows[:, 0] - rows[0, 0], rows[:, 1], rows[:, 4]
+    assert volts.max() <= 800.0 + 1e-6
+    assert np.any(volts > 100.0), "the stack never drove the fish"
+    # the speed loop asks and the fish swims: the last 10 s at least half of its set-point
+    assert np.mean(speed[t > t[-1] - 10.0]) > 0.025, speed[-200::20]
