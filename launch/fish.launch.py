@@ -92,7 +92,7 @@ def generate_launch_description():
             DeclareLaunchArgument(
                 "sim",
                 default_value="true",
-                description="start fin_sim (false: the fish's own driver publishes drive, swim_speed, battery)",
+                description="start fin_sim (false: the fish's driver publishes drive, swim_speed, battery)",
             ),
             DeclareLaunchArgument("realtime_factor", default_value="1.0", description="fin_sim speed"),
             DeclareLaunchArgument("speed_m_s", default_value="0.06", description="the speed set-point, m/s"),

@@ -185,7 +185,8 @@ class DriveLoop:
             named = e.power("supply")
             if not self._supply_modelled:
                 self.events.append(
-                    "no measured supply watt in the estimates: ranking by the amplifier model's until one comes"
+                    "no measured supply watt in the estimates: ranking by the amplifier model's "
+                    "till one comes"
                 )
             self._supply_modelled = True
         elif watt == "supply_measured" and self._supply_modelled:

@@ -180,8 +180,8 @@ class ThrustEstimator(Node):
             self.get_logger().info(
                 f"the supply watt is measured on {self.resolve_topic_name(TOPIC_SUPPLY)}"
                 if meter == "supply"
-                else f"the supply watt is measured on {self.resolve_topic_name(TOPIC_BATTERY)}: its draw less "
-                f"{self.core.battery_fixed_draw_w * 1e3:.0f} mW of fixed draw"
+                else f"the supply watt is measured on {self.resolve_topic_name(TOPIC_BATTERY)}: its draw "
+                f"less {self.core.battery_fixed_draw_w * 1e3:.0f} mW of fixed draw"
                 + (" (learnt with the drive off)" if self.core.fixed_draw_w is None else "")
             )
         for e in estimates:

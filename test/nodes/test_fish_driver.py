@@ -16,16 +16,20 @@ from ..rosutil import Launch, stop
 from .test_ros2_cli import node_list
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
-DRIVER = Path(__file__).resolve().parents[1] / "fish_driver.py"
+ROOT = Path(__file__).resolve().parents[2]
+#: the README's two lines, as typed
+STACK = ("ros2", "launch", "piezofin_ros", "fish.launch.py", "sim:=false", "speed_m_s:=0.05")
+DRIVER = ("python", "test/fish_driver.py", "--ros-args", "-r", "__ns:=/fish")
 RUN_S = 75.0
 
 
 def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, str], tmp_path: Path) -> None:
     truth = tmp_path / "truth.csv"
-    launch = Launch(ros_env, tmp_path, "sim:=false", "speed_m_s:=0.05", file="fish.launch.py")
+    launch = Launch(ros_env, tmp_path, *STACK[4:], file=STACK[3])
     driver = subprocess.Popen(
-        [sys.executable, str(DRIVER), "--ros-args", "-r", "__ns:=/fish", "-p", f"truth_file:={truth}"],
+        [sys.executable, *DRIVER[1:], "-p", f"truth_file:={truth}"],  # (this venv's python)
         env=ros_env,
+        cwd=ROOT,
         stdin=subprocess.DEVNULL,
         stdout=open(tmp_path / "driver.log", "w"),  # noqa: SIM115 (closed with the process)
         stderr=subprocess.STDOUT,
