@@ -362,6 +362,12 @@ class Optimiser:
     #: is theta^2 times the mechanical response): it is held to the fin file's, within this (log) sigma.
     stiffness_sigma: float = 0.05
     identify: bool = True  # begin with a quiet trial below resonance (see _identification_point)
+    #: on a fish under a demand (a finite ``overshoot``), no calibrating trial where the map expects
+    #: less thrust than the demand by more than this (relative), and the quiet identification trial
+    #: only from rest or when asked: its speed follows each trial's thrust (issue 39: a re-identifying
+    #: trial dropped it 60-80 % for 20-30 s every 320-470 s)
+    hold_margin: float = 0.1
+    _identify_requested: bool = False
     observations: list[Observation] = field(default_factory=list)
     correction: Correction = field(default_factory=Correction)
     choice: Choice | None = None
@@ -444,8 +450,14 @@ class Optimiser:
             self.changes += 1
             self.gp = ResidualGP(self.gp.length_log_f, self.gp.length_v)
         self.observations.append(new)
-        recent = [o for o in self.observations if o.t >= t - self.memory_s]
+        # the memory forgets by age, but the latest quiet identification trial (what fixes the
+        # coupling and the stiffness) stays until a change clears everything: aged out, it was taken
+        # again, under a demand, every 20-22 trials
+        quiet = [o for o in self.observations if self._quiet(o)][-1:]
+        recent = [o for o in self.observations if o.t >= t - self.memory_s or o in quiet]
         self.observations = recent or self.observations[-2:]
+        if self._quiet(new):
+            self._identify_requested = False
         self._update()
         return True
 
@@ -943,7 +955,9 @@ class Optimiser:
         power = np.asarray(pred.power_w, float)
         admittance = np.asarray(pred.admittance, complex)
         if math.isfinite(self.overshoot):  # (a fish's speed follows the trial's thrust)
-            keep = thrust <= self.demand_n * (1.0 + self.overshoot)
+            keep = (thrust <= self.demand_n * (1.0 + self.overshoot)) & (
+                thrust >= self.demand_n * (1.0 - self.hold_margin)
+            )
             keep[0] = True
             ff, vv, thrust, power, admittance = (a[keep] for a in (ff, vv, thrust, power, admittance))
         trials = [
@@ -991,18 +1005,34 @@ class Optimiser:
         obj = s.objective(self.demand_n)
         return float(obj[1] / max(float(obj[0]), 1e-300) - 1.0)
 
+    @property
+    def _f_res(self) -> float:
+        """The fin's in-water resonance as its file gives it, Hz."""
+        return self.fin.omega_n / (2 * math.pi * math.sqrt(1 + self.fin.mu))
+
+    def _quiet(self, o: Observation) -> bool:
+        """Whether ``o`` is a quiet identification trial (well below the resonance)."""
+        return o.frequency_hz <= 0.7 * self._f_res
+
+    def request_identification(self) -> None:
+        """Take a quiet identification trial next, whatever the demand (an operator, or a fish's
+        stack at a moment its speed may drop: a trial there gives a fraction of the thrust)."""
+        self._identify_requested = True
+
     def _identification_point(self) -> tuple[float, float] | None:
         """A quiet trial well below the resonance, if none is in memory: there the tip moves as
         ``theta V / K`` and the motional current as ``theta^2 V / K``, which fix the coupling and the
         stiffness; the resonance then gives the added mass, hence ``c_m`` and every thrust estimate
         (without it a softer fin and a heavier added mass look alike).  None when there is one."""
-        if not self.identify:
+        if not (self.identify or self._identify_requested):
             return None
-        fin = self.fin
-        f_res = fin.omega_n / (2 * math.pi * math.sqrt(1 + fin.mu))
+        f_res = self._f_res
         f_quiet = max(0.5 * f_res, self.limits.frequency_min_hz)
-        if f_quiet >= 0.7 * f_res or any(o.frequency_hz <= 0.7 * f_res for o in self.observations):
+        if f_quiet >= 0.7 * f_res or any(self._quiet(o) for o in self.observations):
             return None
+        swimming = self.demand_n is not None and math.isfinite(self.overshoot)  # (see overshoot)
+        if swimming and self.observations and not self._identify_requested:
+            return None  # (the quiet trial only from rest, or when asked: request_identification)
         v = min(max(0.5 * self.limits.voltage_pp_max, self.limits.voltage_pp_min), self.limits.voltage_pp_max)
         return f_quiet, v
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from rclpy.context import Context
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, String
+from std_srvs.srv import Trigger
 
 from ..bags.blocks import Block
 from ..config import HARD_VOLTAGE_PP_MAX, setting
@@ -151,6 +152,10 @@ class Controller(Node):
         if self.strategy.takes_demand:
             # the newest demand only, polled: a 3-4 kHz flood held the executor and the heartbeat with it
             self.inbox.latest(Float64, TOPIC_DEMAND, self._on_demand, scalar(0.0, 10.0, "N"))
+        if self.loop is not None:
+            # the quiet identification trial, when the fish's stack says its speed may drop (never by a
+            # timer that ages evidence out: a fish fell to 1.2-2.6 cm/s for 20-30 s every 320-470 s)
+            self.create_service(Trigger, "~/identify", self._on_identify)
         self._timer = self.create_timer(1.0 / c.heartbeat_hz, self._tick)
         # the heartbeat runs on ROS time: with use_sim_time it stops with /clock (fin_sim gone)
         self._silence = SilenceWatch(
@@ -305,6 +310,17 @@ class Controller(Node):
     def _on_estimate(self, e: Estimate) -> None:
         if self.strategy.add_estimate(self._now(), e):
             self._publish_status()
+
+    def _on_identify(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        loop = self.loop
+        assert loop is not None
+        loop.optimiser.request_identification()
+        response.success = True
+        response.message = (
+            "a quiet identification trial comes after the running one (the thrust drops while it runs)"
+        )
+        self.get_logger().info(f"asked on {self.resolve_service_name('~/identify')}: {response.message}")
+        return response
 
     def status(self) -> dict[str, object]:
         return self.strategy.status()
