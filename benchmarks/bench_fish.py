@@ -126,21 +126,26 @@ def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
     return {"fin": plant.name, "strategy": strategy, "steps": steps, "wall_s": wall, "trace": trace}
 
 
+def settled(seconds: float) -> str:
+    """A settling time as the table says it: ``never`` where the speed did not settle within 5 %."""
+    return f"{seconds:.1f}" if math.isfinite(seconds) else "never"
+
+
 def table(results: list[dict[str, Any]]) -> str:
     lines = []
     for fin in dict.fromkeys(r["fin"] for r in results):
         lines.append(f"\n{fin}:")
         lines.append(
             f"  {'strategy':34s} {'set cm/s':>8s} {'speed':>6s} {'err':>6s} {'settle s':>8s} "
-            f"{'supply mW':>9s} {'least':>6s} {'J/m':>6s} {'range km':>8s} {'CoT':>5s}"
+            f"{'supply mW':>9s} {'least mW':>8s} {'J/m':>6s} {'range km':>8s} {'CoT':>5s}"
         )
         for r in (r for r in results if r["fin"] == fin):
             for k, s in enumerate(r["steps"]):
                 name = r["strategy"] if k == 0 else ""
                 lines.append(
                     f"  {name:34s} {s['setpoint_m_s'] * 100:8.2f} {s['speed_m_s'] * 100:6.2f} "
-                    f"{s['error'] * 100:+5.1f}% {s['settling_s']:8.1f} {s['supply_w'] * 1e3:9.1f} "
-                    f"{s['least_supply_w'] * 1e3:6.1f} {s['energy_per_m_j']:6.2f} {s['range_m'] / 1e3:8.2f} "
+                    f"{s['error'] * 100:+5.1f}% {settled(s['settling_s']):>8s} {s['supply_w'] * 1e3:9.1f} "
+                    f"{s['least_supply_w'] * 1e3:8.1f} {s['energy_per_m_j']:6.2f} {s['range_m'] / 1e3:8.2f} "
                     f"{s['cost_of_transport']:5.2f}"
                 )
     return "\n".join(lines)
@@ -230,7 +235,9 @@ def main(argv: list[str] | None = None) -> int:
         label=lambda t: f"{t[0]}{' + ' + t[3] if t[3] else ''} {t[1]}",
     )
     print(table(results))
-    print(f"\n{len(tasks)} runs of {a.duration:g} s of fish time in {time.perf_counter() - t0:.0f} s")
+    wall = time.perf_counter() - t0
+    runs = f"{len(tasks)} run{'s' if len(tasks) != 1 else ''}"
+    print(f"\n{runs} of {a.duration:g} s of fish time in {wall:.2f} s of wall time")
     if a.json:
         a.json.write_text(
             json.dumps([{k: v for k, v in r.items() if k != "trace"} for r in results], indent=1)
