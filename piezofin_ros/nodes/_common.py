@@ -439,9 +439,9 @@ def battery_reading(msg: Any) -> tuple[float, float, float]:
     fish's battery reads (NaN, as the message's "unmeasured", is refused with the reason)."""
     voltage, current = float(msg.voltage), float(msg.current)
     if not (math.isfinite(voltage) and 0.0 < voltage <= BATTERY_MOST_V):
-        raise ValueError(f"voltage = {voltage!r} V is no battery's (within (0, {BATTERY_MOST_V:g}])")
+        raise MessageRefused(f"voltage = {voltage!r} V is no battery's (within (0, {BATTERY_MOST_V:g}])")
     if not (math.isfinite(current) and abs(current) <= BATTERY_MOST_A):
-        raise ValueError(f"current = {current!r} A is no battery's (within +-{BATTERY_MOST_A:g})")
+        raise MessageRefused(f"current = {current!r} A is no battery's (within +-{BATTERY_MOST_A:g})")
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, voltage, current
 
 
