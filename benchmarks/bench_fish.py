@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from piezofin_ros import workers
-from piezofin_ros.control.fishrun import STRATEGIES, Trace, drive_for, swim_run
+from piezofin_ros.control.fishrun import MEASURED, STRATEGIES, Trace, drive_for, swim_run
 from piezofin_ros.control.plants import Plant
 from piezofin_ros.control.speedloop import SpeedLoopConfig
 from piezofin_ros.control.swimming import Fish
@@ -70,6 +70,55 @@ def fish(fin: str, unseen: str | None = None) -> tuple[Fish, Fish, Plant]:
     return f, truth, Plant(model.fin, effects=effects, amplifier=amp, name=name)
 
 
+#: Fish the stack is not told (issue 39): another body (more drag, a linear term), another amplifier
+#: and battery draw, a speed sensor with a bias, and a fin with effects (the nominal M8528-P1 with
+#: softening and more drag; with a dielectric loss, a field-dependent coupling and more added mass).
+#: Each is given the paper's twin as its prior (``config/fish.yaml``'s model), wrong on purpose.
+STRANGERS: dict[str, dict[str, Any]] = {
+    "stranger 1": {
+        "effects": {"electroelastic_softening": [0.3], "drag_offset": [2.5]},
+        "body": {"mass_kg": 0.55, "added_mass_kg": 0.06, "drag_area_m2": 1.8e-3, "drag_linear_n_s_m": 0.004},
+        "amplifier": {"efficiency": 0.75, "recovered": 0.2, "quiescent_w": 0.08, "bus_v": 7.4},
+        "speed_bias_m_s": 0.001,
+        "speed_noise_m_s": 0.003,
+        "setpoints_m_s": (0.066, 0.086),
+    },
+    "stranger 2": {
+        "effects": {"dielectric_loss": [0.06], "field_coupling": [0.25, 2.0], "added_mass_offset": [1.15]},
+        "body": {"mass_kg": 0.4, "added_mass_kg": 0.04, "drag_area_m2": 1.5e-3, "drag_linear_n_s_m": 0.002},
+        "amplifier": {"efficiency": 0.9, "recovered": 0.6, "quiescent_w": 0.03, "bus_v": 7.4},
+        "speed_bias_m_s": -0.0015,
+        "speed_noise_m_s": 0.002,
+        "setpoints_m_s": (0.046, 0.06),
+    },
+}
+
+
+def stranger(name: str) -> tuple[Fish, Fish, Plant, dict[str, Any]]:
+    """The fish its builder is told (the twin, the mfc-fish body, fish-switching) and the stranger in
+    truth, with what the run needs besides (its sensor)."""
+    from dataclasses import replace
+
+    from piezofin_ros.physics.amplifier import SwitchingAmplifier
+    from piezofin_ros.physics.effects import make
+    from piezofin_ros.physics.fin import load_fin
+
+    spec = STRANGERS[name]
+    told = Fish(
+        load_model("paper-twin-M8528-P1"),
+        load_body("mfc-fish"),
+        load_battery("li-ion-2s-500mah"),
+        load_amplifier("fish-switching"),
+    )
+    fin = load_fin("M8528-P1")
+    effects = tuple(make(k, v) for k, v in spec["effects"].items())
+    amp = SwitchingAmplifier(name=f"{name}'s", **spec["amplifier"])
+    body = replace(told.body, name=f"{name}'s body", **spec["body"])
+    truth = Fish(Model(fin, effects), body, told.battery, amp)
+    plant = Plant(fin, effects=effects, amplifier=amp, name=name)
+    return told, truth, plant, spec
+
+
 def fastest_m_s(f: Fish) -> float:
     freqs = np.geomspace(1.0, 30.0, 400)
     return float(np.max(f.at(freqs, np.full_like(freqs, f.voltage_pp_max), ranges=False)["speed_m_s"]))
@@ -86,20 +135,36 @@ def least_supply_w(f: Fish, speed_m_s: float) -> float:
 
 def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
     fin, strategy, duration, unseen = task
-    f, truth, plant = fish(fin, unseen)
+    extra: dict[str, Any] = {}
+    if fin in STRANGERS:
+        f, truth, plant, spec = stranger(fin)
+        body = truth.body  # (the stranger swims with its own body; the speed loop is told mfc-fish)
+        extra = {
+            "estimator_model": f.model,
+            "speed_bias_m_s": spec["speed_bias_m_s"],
+            "speed_noise_m_s": spec["speed_noise_m_s"],
+            "measured_supply": True,
+            "setpoints_m_s": spec["setpoints_m_s"],
+        }
+    else:
+        f, truth, plant = fish(fin, unseen)
+        body = f.body
     top = fastest_m_s(truth)
     half = duration / 2
-    schedule = [(0.0, STEPS[0] * top), (half, STEPS[1] * top)]
+    first, second = extra.pop("setpoints_m_s", (STEPS[0] * top, STEPS[1] * top))
+    schedule = [(0.0, first), (half, second)]
     t0 = time.perf_counter()
     trace = swim_run(
         plant,
-        f.body,
+        body,
         drive_for(strategy, f.model, plant, f.amplifier),
         schedule,
         duration,
         f.battery,
         loop_config=SpeedLoopConfig(max_demand_n=CAP_N),
         seed=zlib.crc32(plant.name.encode()) % 1000,
+        told_body=f.body,
+        **extra,
     )
     wall = time.perf_counter() - t0
     steps = []
@@ -212,13 +277,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--unseen", nargs="*", default=[], metavar="EFFECT", help="also each twin with each of these effects"
     )
+    ap.add_argument(
+        "--strangers",
+        action="store_true",
+        help="the fish the stack is not told (STRANGERS), the paper's twin given as their prior",
+    )
     ap.add_argument("--plot", type=Path)
     ap.add_argument("--json", type=Path)
     workers.add_arguments(ap)
     a = ap.parse_args(argv)
-    bad = [s for s in a.strategies if s not in STRATEGIES]
+    bad = [s for s in a.strategies if s not in (*STRATEGIES, MEASURED)]
     if bad:
-        ap.error(f"unknown strategy {bad[0]!r}: one of {', '.join(STRATEGIES)}")
+        ap.error(f"unknown strategy {bad[0]!r}: one of {', '.join((*STRATEGIES, MEASURED))}")
+    if a.strangers:
+        a.fins = list(STRANGERS)
+        if a.strategies == list(STRATEGIES):
+            a.strategies = [MEASURED, "resonance, voltage from the loop"]
     if a.unseen:
         from bench_unseen import OUTSIDE
 

@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 
 from ..errors import ControlError
 from ..estimation.estimator import Estimate, EstimatorConfig
+from ..estimation.selfsense import Calibration
 from ..physics.amplifier import Amplifier
 from ..physics.model import Model
 from ..physics.swim import Battery, Body, thrust_at_speed
@@ -197,9 +198,17 @@ def _window(
     t1: float,
     rng: np.random.Generator,
     U: float,
+    estimator_model: Model | None = None,
+    meter: np.random.Generator | None = None,
 ) -> Estimate:
-    """The estimator's window ``[t0, t1)`` at the drive's point: self-sensed thrust and the watts."""
-    r = read(plant, f, v, t1, rng, "self", fin_of_estimator, "supply", amplifier)
+    """The estimator's window ``[t0, t1)`` at the drive's point: self-sensed thrust (calibrated by
+    ``estimator_model`` where the estimator has one) and the watts (the supply as its meter reads it,
+    the battery's, with ``meter``'s noise)."""
+    cal = None if estimator_model is None else Calibration.of_law(estimator_model.law(f, v))
+    r = read(plant, f, v, t1, rng, "self", fin_of_estimator, "supply", amplifier, cal)
+    measured = math.nan
+    if meter is not None:
+        measured = read(plant, f, v, t1, meter, "self", fin_of_estimator, "supply_measured").power_named_w
     nan = dict.fromkeys((x.name for x in fields(Estimate)), math.nan)
     return Estimate(
         **{
@@ -215,6 +224,7 @@ def _window(
             "admittance_re": r.admittance.real,
             "admittance_im": r.admittance.imag,
             "power_supply_w": r.power_named_w,
+            "power_supply_measured_w": measured,
         }
     )
 
@@ -231,16 +241,25 @@ def swim_run(
     deadband: float = 0.03,
     speed_noise_m_s: float = 0.002,
     seed: int = 0,
+    estimator_model: Model | None = None,
+    speed_bias_m_s: float = 0.0,
+    measured_supply: bool = False,
+    told_body: Body | None = None,
 ) -> Trace:
     """Swim for ``duration_s`` of fish time from rest; ``schedule``: (time, set-point m/s) steps.
 
     ``plant`` is the fin in truth (its amplifier the one that drains the battery: ``amplifier``
     overrides it); the estimator uses the plant's nominal fin (the paper's ``C_eq``, ``theta``,
-    ``c_m``), as the live estimator its fin file."""
+    ``c_m``), as the live estimator its fin file, or the calibration of ``estimator_model`` (the
+    live estimator's ``model``: the prior the fish is given, right or wrong).  The speed sensor
+    reads ``speed_bias_m_s`` high besides its noise; ``measured_supply``: the estimates carry the
+    supply watt as the fish's battery measures it (the true amplifier's draw, with a meter's noise).
+    ``told_body``: the body the speed loop is told, where it is not the one that swims.
+    """
     amp = amplifier or plant.amplifier
     rng = np.random.default_rng(seed)
     swimmer = FreeSwimmer(body, plant.fin.L, battery, speed_noise_m_s, seed)
-    loop = SpeedLoop(body, loop_config or SpeedLoopConfig())
+    loop = SpeedLoop(told_body or body, loop_config or SpeedLoopConfig())
     gate = DemandGate(deadband)
     steps = sorted(schedule)
     n = round(duration_s / LOOP_DT_S)
@@ -249,6 +268,7 @@ def swim_run(
     estimator = EstimatorConfig()
     steady_at, thrust0, supply = (math.nan, math.nan), 0.0, 0.0
     model = plant.model()
+    meter = np.random.default_rng(seed + 1) if measured_supply else None
     events: list[str] = []
     for k in range(n):
         t = k * LOOP_DT_S
@@ -261,7 +281,9 @@ def swim_run(
         if (f, v) != point:
             point, window_start = (f, v), t + estimator.settle_s
         elif v > 0 and t - window_start >= estimator.window_s - 1e-9:
-            e = _window(plant, plant.fin, amp, f, v, window_start, t, rng, swimmer.speed_m_s)
+            e = _window(
+                plant, plant.fin, amp, f, v, window_start, t, rng, swimmer.speed_m_s, estimator_model, meter
+            )
             loop.estimate(t, e.thrust_self_n)
             drive.add_estimate(t, e)
             window_start = t
@@ -275,7 +297,7 @@ def swim_run(
         else:
             thrust, supply = 0.0, 0.0
         swimmer.advance(LOOP_DT_S, thrust, f, supply)
-        loop.measure(t, swimmer.speed_reading())
+        loop.measure(t, swimmer.speed_reading() + speed_bias_m_s)
         demand = loop.update(t)
         if gate.due(t, demand):
             drive.set_demand(demand)
@@ -304,6 +326,10 @@ STRATEGIES = (
 )
 
 
+#: The fish stack as ``config/fish.yaml`` runs it: ranking by the supply watt its battery measures.
+MEASURED = "ours (measured supply watt)"
+
+
 def drive_for(
     name: str,
     known: Model,
@@ -319,7 +345,7 @@ def drive_for(
     freqs = np.geomspace(box.frequency_min_hz, box.frequency_max_hz, 400)
     res = float(freqs[int(np.argmax(known.predict(freqs, np.full_like(freqs, top)).tip_velocity_rms))])
     if name.startswith("ours"):
-        watt = "supply" if "supply" in name else "fin"
+        watt = "supply_measured" if "measured" in name else "supply" if "supply" in name else "fin"
         opt = Optimiser(
             known.fin,
             box,
@@ -348,4 +374,4 @@ def drive_for(
         return FixedDrive(res, top)
     if name == "paper (5.5 Hz, 800 Vpp)":
         return FixedDrive(5.5, min(800.0, top))
-    raise ControlError(f"unknown strategy {name!r}: one of {', '.join(STRATEGIES)}")
+    raise ControlError(f"unknown strategy {name!r}: one of {', '.join((*STRATEGIES, MEASURED))}")

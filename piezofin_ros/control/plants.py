@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..estimation.selfsense import lighthill_thrust, self_sensed_tip
+from ..estimation.selfsense import Calibration, lighthill_thrust, self_sensed_tip
 from ..physics.amplifier import PAPER_BENCH, Amplifier, power_in
 from ..physics.effects import DielectricLoss, Effect, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
@@ -119,11 +119,13 @@ def read(
     fin: Fin | None = None,
     watt: str = "fin",
     amplifier: Amplifier | None = None,
+    calibration: Calibration | None = None,
 ) -> Reading:
     """One trial as ``thrust_estimator`` reports it, with noise: the thrust of ``source`` computed with
     the estimator's fin (``fin``, default the plant's own, i.e. the paper's ``c_m``, ``C_eq`` and
     ``theta`` without the plant's effects): Lighthill on the tip velocity (``vibrometer``), on the
-    self-sensed tip velocity (``self``), or the load cell's reading (``loadcell``)."""
+    self-sensed tip velocity (``self``; with the estimator's ``calibration`` where it has one, as
+    ``thrust_estimator`` with a ``model``), or the load cell's reading (``loadcell``)."""
     fin = fin or plant.fin
     p = plant.model(t).predict(frequency_hz, voltage_pp)
     n = plant.noise
@@ -133,7 +135,10 @@ def read(
     v_amp = 0.5 * float(np.asarray(p.voltage_pp_drive))  # (as the voltage monitor reads it)
     y = complex(np.asarray(p.admittance))
     y = complex(2.0 * power / v_amp**2, y.imag + n.admittance_rel * abs(y) * rng.standard_normal())
-    if source == "self":
+    if source == "self" and calibration is not None:
+        tip = self_sensed_tip(fin, y * v_amp, v_amp, 2 * np.pi * frequency_hz, calibration)
+        thrust = float(lighthill_thrust(fin, abs(complex(tip)) / np.sqrt(2), calibration, frequency_hz))
+    elif source == "self":
         tip = self_sensed_tip(fin, y * v_amp, v_amp, 2 * np.pi * frequency_hz)
         thrust = float(lighthill_thrust(fin, abs(complex(tip)) / np.sqrt(2)))
     else:

@@ -63,6 +63,21 @@ class SpeedLoopConfig:
         60.0,
     )
 
+    widen_after_s: float = setting(
+        60.0,
+        "saturated this long while the fin gives what is asked (by its estimate) and the fish is short "
+        "of its set-point: the estimates read high against the speed; the most asked grows by 25 %, s",
+        1.0,
+        3600.0,
+    )
+    max_widening: float = setting(
+        3.0,
+        "the most the loop may ask grows to at most this many times max_demand_n (1: never): the drive's "
+        "own limits hold whatever is asked",
+        1.0,
+        100.0,
+    )
+
     def __post_init__(self) -> None:
         for name in (
             "max_demand_n",
@@ -103,6 +118,15 @@ class SpeedLoop:
     _disagree_since: float = math.nan
     _thrust: float = math.nan  # the fin's estimated thrust (what it gives), N
     _thrust_t: float = -math.inf
+    #: the most the loop asks now, N: ``max_demand_n``, widened (up to ``max_widening`` times) while
+    #: the fish stays short of its set-point with the fin giving what is asked (the estimates read
+    #: high: a fin model given that is wrong; issue 39's fish sat at its 8 mN cap 12-23 % slow)
+    cap_n: float = math.nan
+    widened: list[str] = field(default_factory=list)  # what was said each time it widened
+    _saturated_since: float = math.nan
+
+    def __post_init__(self) -> None:
+        self.cap_n = self.config.max_demand_n
 
     def set_setpoint(self, speed_m_s: float) -> str:
         """A new set-point (m/s, >= 0); returns what is said about it ("" when it is reachable)."""
@@ -110,8 +134,8 @@ class SpeedLoop:
             raise ControlError(f"speed set-point {speed_m_s!r}: a finite speed >= 0 m/s")
         self.setpoint_m_s = float(speed_m_s)
         top = self.fastest_m_s()
-        if self.feed_forward_n(speed_m_s) > self.config.max_demand_n:
-            most = self.config.max_demand_n * 1e3
+        if self.feed_forward_n(speed_m_s) > self.cap_n:
+            most = self.cap_n * 1e3
             return (
                 f"set-point {speed_m_s:.3g} m/s is beyond the {most:.3g} mN per fin the loop may ask for: "
                 f"it will swim at most {top:.3g} m/s"
@@ -120,7 +144,7 @@ class SpeedLoop:
 
     def fastest_m_s(self) -> float:
         """The speed the largest allowed demand gives through the drag law (U term neglected), m/s."""
-        return float(self.body.steady_speed(self.config.max_demand_n, 1e6, 1.0))
+        return float(self.body.steady_speed(self.cap_n, 1e6, 1.0))
 
     def feed_forward_n(self, speed_m_s: float) -> float:
         """Thrust per fin that holds ``speed_m_s`` against the drag law (the ``U`` term of Eq. 19 is
@@ -169,8 +193,9 @@ class SpeedLoop:
             return 0.0
         ff = self.feed_forward_n(self.setpoint_m_s)
         fresh = t - self._speed_t <= cfg.sensor_timeout_s
+        cap = self.cap_n
         if not fresh:
-            self.demand_n = min(max(ff, cfg.min_demand_n), cfg.max_demand_n)
+            self.demand_n = min(max(ff, cfg.min_demand_n), cap)
             self.kind = "silent" if math.isfinite(self._speed_t) else "unread"
             self.state = (
                 f"speed sensor silent for {t - self._speed_t:.1f} s: feed-forward only "
@@ -187,11 +212,41 @@ class SpeedLoop:
         # to a new demand (its trials take tens of seconds) is no error of the drag law.  A fin that
         # gives more (the controller meets a demand with a margin) winds it: the speed is what counts
         delivered = t - self._thrust_t <= 60.0 and self._thrust >= 0.85 * self.demand_n
-        if delivered and (raw < cfg.max_demand_n or e < 0) and (raw > cfg.min_demand_n or e > 0):
+        if delivered and (raw < cap or e < 0) and (raw > cfg.min_demand_n or e > 0):
             self.integral_n += kp / cfg.ti_s * e * dt
-        self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cfg.max_demand_n)
+        self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cap)
         self.kind, self.state = self._judge(t, e)
+        self._widen(t, e, delivered)
         return self.demand_n
+
+    def _widen(self, t: float, e: float, delivered: bool) -> None:
+        """A loop saturated while the fin gives what it asks (by the estimates) and the fish is still
+        short by more than the sensor's share (2 %), and 5 % slower than that thrust gives through
+        the drag law, is a contradiction, not a state to sit in: the estimated thrust reads high
+        against the speed (or the body drags more than its law says: at a steady speed only their
+        ratio shows).  After ``widen_after_s`` of it, the most asked
+        grows by 25 % (up to ``max_widening`` times ``max_demand_n``), said each time."""
+        short = e > 0.02 * self.setpoint_m_s
+        # (and slower than the estimated thrust gives through the drag law: a set-point beyond what
+        # the fin gives, estimated right, is no contradiction)
+        expected = float(self.body.steady_speed(self._thrust, 1e6, 1.0)) if delivered else math.nan
+        slow = self._speed < 0.95 * expected
+        if not (self.kind == "saturated" and delivered and short and slow):
+            self._saturated_since = math.nan
+            return
+        if math.isnan(self._saturated_since):
+            self._saturated_since = t
+        most = self.config.max_widening * self.config.max_demand_n
+        if t - self._saturated_since < self.config.widen_after_s or self.cap_n >= most:
+            return
+        before, self.cap_n = self.cap_n, min(1.25 * self.cap_n, most)
+        self._saturated_since = t
+        self.widened.append(
+            f"saturated at {before * 1e3:.3g} mN per fin for {self.config.widen_after_s:.0f} s with the fin "
+            f"giving it by its estimate and the fish {e * 100:.2g} cm/s short: its thrust estimates read "
+            f"high against the speed (the fin model it was given, or the body's drag, is not this "
+            f"fish's); asking up to {self.cap_n * 1e3:.3g} mN"
+        )
 
     def _judge(self, t: float, e: float) -> tuple[str, str]:
         """What is said of the loop now (its kind and its sentence): holding, saturated, or a sensor
@@ -210,8 +265,8 @@ class SpeedLoop:
                 f"gives {expected:.3g} m/s through the drag law, for {t - self._disagree_since:.0f} s: a "
                 "sensor that lies, a fouled body, or a drag law that is wrong"
             )
-        if self.demand_n >= self.config.max_demand_n and e > 0:
-            most = self.config.max_demand_n * 1e3
+        if self.demand_n >= self.cap_n and e > 0:
+            most = self.cap_n * 1e3
             return "saturated", f"at the most thrust allowed ({most:.3g} mN per fin): {e:+.3g} m/s short"
         return "holding", f"holding {self.setpoint_m_s:.3g} m/s ({e:+.2g} m/s)"
 

@@ -153,6 +153,9 @@ class SpeedLoopNode(Node):
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         demand = self.loop.update(t)
+        for said in self.loop.widened:  # (a wrong prior acted on: said once, each time)
+            self.get_logger().warning(said)
+        self.loop.widened.clear()
         kind = self.loop.kind
         if self._gate.due(t, demand) or kind != self._published:
             self._pub.publish(Float64(data=demand))

@@ -181,3 +181,37 @@ def test_a_fin_that_cannot_give_the_demand_is_no_lying_sensor() -> None:
         loop.estimate(t, thrust)
         u += 0.1 * capped.acceleration(u, thrust, 1e6, 1.0)
     assert "lies" not in loop.state and "at the most thrust allowed" in loop.state
+
+
+def test_a_loop_saturated_on_estimates_that_read_high_widens_what_it_asks() -> None:
+    """Issue 39: a fish given a fin model that reads its thrust 1.6 times high sat at its 8 mN cap,
+    12-23 % slow, for ever.  Saturated with the fin giving what is asked (by its estimate) and the fish
+    slower than that thrust gives through the drag law, the loop asks more, 25 % at a time (said), up
+    to ``max_widening`` times its cap; the fish reaches its set-point."""
+    body = load_body("mfc-fish")
+    loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.004))
+    rng = np.random.default_rng(2)
+    u, thrust, said = 0.0, 0.0, []
+    loop.set_setpoint(0.08)  # its drag asks 3.8 mN in truth: 6.1 mN as the fin's estimates read it
+    for k in range(6000):
+        t = 0.1 * k
+        loop.measure(t, u + 0.002 * rng.standard_normal())
+        demand = loop.update(t)
+        said += loop.widened
+        loop.widened.clear()
+        thrust += (demand / 1.6 - thrust) * 0.1 / 2.0  # the fin gives the demand as its estimate reads it
+        loop.estimate(t, 1.6 * thrust)
+        u += 0.1 * body.acceleration(u, thrust, 1e6, 1.0)
+    assert said and "read high against the speed" in said[0], said
+    assert 0.004 < loop.cap_n <= 3 * 0.004
+    assert abs(u / 0.08 - 1.0) < 0.03 and loop.kind == "holding", (u, loop.state)
+
+
+def test_a_set_point_beyond_a_fin_estimated_right_widens_nothing() -> None:
+    """The same saturation with estimates that are right: the speed is what the thrust gives, so the
+    cap is what binds, and stays (the unreachable set-point is said, as before)."""
+    body = load_body("mfc-fish")
+    loop = SpeedLoop(body, SpeedLoopConfig(max_demand_n=0.004))
+    _, u, d = swim(loop, body, [(0.0, 0.12)], 300.0)
+    assert loop.cap_n == 0.004 and d.max() == pytest.approx(0.004) and not loop.widened
+    assert u[-1] == pytest.approx(loop.fastest_m_s(), rel=0.03)
