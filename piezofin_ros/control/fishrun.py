@@ -299,6 +299,8 @@ def swim_run(
         swimmer.advance(LOOP_DT_S, thrust, f, supply)
         loop.measure(t, swimmer.speed_reading() + speed_bias_m_s)
         demand = loop.update(t)
+        events += [f"{t:.1f} s: {said}" for said in loop.widened]
+        loop.widened.clear()
         if gate.due(t, demand):
             drive.set_demand(demand)
         out["t"][k], out["setpoint_m_s"][k], out["speed_m_s"][k] = t, loop.setpoint_m_s, swimmer.speed_m_s
