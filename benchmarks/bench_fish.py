@@ -77,7 +77,7 @@ def fish(fin: str, unseen: str | None = None) -> tuple[Fish, Fish, Plant]:
 STRANGERS: dict[str, dict[str, Any]] = {
     "stranger 1": {
         "effects": {"electroelastic_softening": [0.3], "drag_offset": [2.5]},
-        "body": {"mass_kg": 0.55, "added_mass_kg": 0.06, "drag_area_m2": 1.8e-3, "drag_linear_n_s_m": 0.004},
+        "body": {"mass_kg": 0.55, "added_mass_kg": 0.06, "drag_area_m2": 1.4e-3, "drag_linear_n_s_m": 0.004},
         "amplifier": {"efficiency": 0.75, "recovered": 0.2, "quiescent_w": 0.08, "bus_v": 7.4},
         "speed_bias_m_s": 0.001,
         "speed_noise_m_s": 0.003,
@@ -87,7 +87,7 @@ STRANGERS: dict[str, dict[str, Any]] = {
         "effects": {"dielectric_loss": [0.06], "field_coupling": [0.25, 2.0], "added_mass_offset": [1.15]},
         "body": {"mass_kg": 0.4, "added_mass_kg": 0.04, "drag_area_m2": 1.5e-3, "drag_linear_n_s_m": 0.002},
         "amplifier": {"efficiency": 0.9, "recovered": 0.6, "quiescent_w": 0.03, "bus_v": 7.4},
-        "speed_bias_m_s": -0.0015,
+        "speed_bias_m_s": -0.0008,
         "speed_noise_m_s": 0.002,
         "setpoints_m_s": (0.046, 0.06),
     },

@@ -97,6 +97,9 @@ class DriveLoop:
         assert self._last_estimate_t is not None
         dt = max(0.0, t - self._t_last)
         self._t_last = t
+        said = self.optimiser.said  # (appended by the fit's thread: taken one at a time)
+        while said:
+            self.events.append(said.pop(0))
         # the point the finished fit proposed first, then the trial that waited: taken the other way
         # round, a fit slower than a trial (x10 on a loaded machine) kept the drive where it was for as
         # long as trials came, each learnt there (a live fish, 4 to 7 trials at its first point)
