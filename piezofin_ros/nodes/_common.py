@@ -88,14 +88,30 @@ def _declare(node: Node, name: str, default: Any, desc: ParameterDescriptor) -> 
     """
     if not getattr(node, "_piezofin_command_line", False):
         node._piezofin_command_line = True  # type: ignore[attr-defined]
-        import yaml
-
         for target, pname, raw in command_line_values(_ARGV.get(id(node.context), ())):
             if target in ("", node.get_name()):
-                # (rcl reads the value as YAML; one it cannot read stays as rcl kept it)
-                with contextlib.suppress(yaml.YAMLError, TypeError):
-                    node._parameter_overrides[pname] = Parameter(pname, value=yaml.safe_load(raw))
+                # (a value rcl could not take stays as rcl kept it)
+                with contextlib.suppress(ValueError, TypeError):
+                    node._parameter_overrides[pname] = Parameter(pname, value=command_line_value(raw))
     return node.declare_parameter(name, default, desc)
+
+
+def command_line_value(raw: str) -> Any:
+    """A ``-p name:=value``'s value as rcl reads it: YAML, and a number where rcl's ``strtod`` reads
+    one that YAML 1.1 leaves a string (``1e3``, ``1e400``)."""
+    import yaml
+
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise ValueError(str(exc)) from None
+    if isinstance(value, str) and raw.strip()[:1] not in ("'", '"'):  # (quoted: the string it is)
+        for number in (int, float):
+            try:
+                return number(raw)
+            except ValueError:
+                pass
+    return value
 
 
 def float_param(

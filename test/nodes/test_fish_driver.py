@@ -24,16 +24,24 @@ RUN_S = 75.0
 
 
 def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, str], tmp_path: Path) -> None:
-    truth = tmp_path / "truth.csv"
-    launch = Launch(ros_env, tmp_path, *STACK[4:], file=STACK[3])
+    truth, said = tmp_path / "truth.csv", tmp_path / "driver.log"
+    # the fish first (its drive at 0 V: the estimator learns the battery's fixed draw there), then the stack
     driver = subprocess.Popen(
         [sys.executable, *DRIVER[1:], "-p", f"truth_file:={truth}"],  # (this venv's python)
         env=ros_env,
         cwd=ROOT,
         stdin=subprocess.DEVNULL,
-        stdout=open(tmp_path / "driver.log", "w"),  # noqa: SIM115 (closed with the process)
+        stdout=open(said, "w"),  # noqa: SIM115 (closed with the process)
         stderr=subprocess.STDOUT,
     )
+    t0 = time.monotonic()
+    while "driving the fin from cmd" not in said.read_text() and time.monotonic() - t0 < 60.0:
+        time.sleep(0.2)
+    try:
+        launch = Launch(ros_env, tmp_path, *STACK[4:], file=STACK[3], besides=("/fish/fish_driver",))
+    except BaseException:
+        stop(driver)
+        raise
     try:
         launch.wait_for("the supply watt is measured on /fish/battery", 60.0)
         nodes = node_list(ros_env, {"/fish/speed_loop", "/fish/fish_driver"})

@@ -346,6 +346,7 @@ def test_launch_testing(ros_env: dict[str, str], tmp_path: Path, case: str) -> N
         (("-p", "speed_m_s:=0.066", "--params-file", "config/fish.yaml"), "0.066"),  # (as rclcpp: -p last)
         (("--params-file", "config/fish.yaml", "-p", "speed_loop:speed_m_s:=0.07", "-p", "x:s:=1"), "0.07"),
         (("--params-file", "config/fish.yaml"), "0.06"),
+        (("--params-file", "config/fish.yaml", "-p", "speed_m_s:=66e-3"), "0.066"),  # (strtod's, not YAML's)
     ],
 )
 def test_the_command_line_overrides_a_parameter_file(
