@@ -103,8 +103,8 @@ def command_line_value(raw: str) -> Any:
 
     try:
         value = yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
-        raise ValueError(str(exc)) from None
+    except yaml.YAMLError:
+        return raw  # (rcl refused it already, or kept the string)
     if isinstance(value, str) and raw.strip()[:1] not in ("'", '"'):  # (quoted: the string it is)
         for number in (int, float):
             try:

@@ -47,9 +47,11 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
         nodes = node_list(ros_env, {"/fish/speed_loop", "/fish/fish_driver"})
         assert "/fish/fin_sim" not in nodes and {"/fish/speed_loop", "/fish/fish_driver"} <= nodes, nodes
         time.sleep(max(0.0, RUN_S - (time.monotonic() - launch.started)))
-    finally:
-        stop(driver)
-        out = launch.interrupt()
+    finally:  # (the stack first, as the fish's operator would, then the fish)
+        try:
+            out = launch.interrupt()
+        finally:
+            stop(driver)
     assert "[ERROR]" not in out and "Traceback" not in out, out[-3000:]
     assert "fin_sim" not in out, out[-3000:]
     rows = np.loadtxt(truth, delimiter=",", skiprows=1, ndmin=2)
