@@ -216,16 +216,52 @@ def table(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def plot_strangers(results: list[dict[str, Any]], path: Path) -> None:
+    """Per stranger: the speed in truth per strategy against the set-point; what the speed loop asks,
+    the thrust in truth and the stack's self-sensed estimate (ours)."""
+    import matplotlib.pyplot as plt
+
+    fins = list(dict.fromkeys(r["fin"] for r in results))
+    fig, ax = plt.subplots(2, len(fins), figsize=(6 * len(fins), 7), constrained_layout=True, squeeze=False)
+    for k, fin in enumerate(fins):
+        mine = [r for r in results if r["fin"] == fin]
+        ours: Trace = next(r["trace"] for r in mine if r["strategy"].startswith("ours"))
+        for r in mine:
+            tr: Trace = r["trace"]
+            ax[0, k].plot(
+                tr.t,
+                tr.speed_m_s * 100,
+                lw=1.4 if r["strategy"].startswith("ours") else 0.8,
+                label=r["strategy"],
+            )
+        sp = ours.setpoint_m_s * 100
+        ax[0, k].plot(ours.t, sp, "k--", lw=1, label="set-point")
+        ax[0, k].fill_between(ours.t, sp * 0.95, sp * 1.05, color="k", alpha=0.08, label="within 5 %")
+        ax[0, k].set_ylabel("speed in truth, cm/s")
+        ax[0, k].set_title(f"{fin}: the paper's twin given as its fin's model")
+        ax[0, k].legend(fontsize=7)
+        ax[1, k].plot(ours.t, ours.demand_n * 1e3, label="demand (speed loop)")
+        ax[1, k].plot(ours.t, ours.thrust_n * 1e3, label="thrust in truth")
+        ax[1, k].plot(ours.t, ours.thrust_estimate_n * 1e3, ".", ms=2, label="the stack's thrust estimate")
+        ax[1, k].set_ylabel("thrust per fin, mN")
+        ax[1, k].set_xlabel("fish time, s")
+        ax[1, k].legend(fontsize=7)
+    fig.savefig(path, dpi=90)
+
+
 def plot(results: list[dict[str, Any]], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if all(r["fin"] in STRANGERS for r in results):
+        plot_strangers(results, path)
+        return
     fin = results[0]["fin"]
     mine = [r for r in results if r["fin"] == fin]
     fig, ax = plt.subplots(4, 1, figsize=(9, 11), constrained_layout=True)
-    ours: Trace = next(r["trace"] for r in mine if r["strategy"] == "ours (supply watt)")
+    ours: Trace = next(r["trace"] for r in mine if r["strategy"].startswith("ours"))
     for r in mine:
         tr: Trace = r["trace"]
         ax[0].plot(

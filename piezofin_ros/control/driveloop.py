@@ -58,6 +58,7 @@ class DriveLoop:
     _t_settled_from: float | None = None
     _last_estimate_t: float | None = None
     _windows: list[tuple[float, float]] = field(default_factory=list)
+    _partial: tuple[Any, ...] | None = None  # the trial's last window as an observation, till it settles
     background: bool = False  # fit in a worker thread (the node: the heartbeat must not wait)
     _next: tuple[float, float] | None = None
     _pending: list[Future[None]] = field(default_factory=list)  # the fit thread's work, in order
@@ -169,33 +170,20 @@ class DriveLoop:
         power = e.power_w
         if not (math.isfinite(thrust) and math.isfinite(power)):
             return False
+        admittance = complex(getattr(e, "admittance_re", math.nan), getattr(e, "admittance_im", math.nan))
+        # the point as commanded, which is how the optimiser knows it again (``held`` commands it, its
+        # trials group by it): the measured amplitude drifts with the monitor's gain and noise
+        named = self._named_watt(e)
+        args = (e.t_end, f, self.target[1], thrust, power, admittance, named, e.voltage_pp)
         self._windows.append((thrust, power))
+        self._partial = args
         w = self._windows
         agree = len(w) >= 2 and all(
             abs(a / b - 1) <= self.settle_tolerance for a, b in zip(w[-1], w[-2], strict=True)
         )
         if not (agree or len(w) >= self.max_windows):
             return True
-        admittance = complex(getattr(e, "admittance_re", math.nan), getattr(e, "admittance_im", math.nan))
-        self._windows = []
-        # the point as commanded, which is how the optimiser knows it again (``held`` commands it, its
-        # trials group by it): the measured amplitude drifts with the monitor's gain and noise
-        watt = self.optimiser.watt
-        named = e.power(watt) if watt != "fin" else math.nan
-        if watt == "supply_measured" and not math.isfinite(named):
-            # nothing measures the supply (no supply topic, no battery, or its fixed draw not known
-            # yet): the amplifier's model is the fallback, said once each time it starts
-            named = e.power("supply")
-            if not self._supply_modelled:
-                self.events.append(
-                    "no measured supply watt in the estimates: ranking by the amplifier model's "
-                    "till one comes"
-                )
-            self._supply_modelled = True
-        elif watt == "supply_measured" and self._supply_modelled:
-            self._supply_modelled = False
-            self.events.append("the supply watt is measured again: ranking by it")
-        args = (e.t_end, f, self.target[1], thrust, power, admittance, named, e.voltage_pp)
+        self._windows, self._partial = [], None
         if self.background:
             # the fit takes a few tenths of a second: off the heartbeat's thread, so that the drive's
             # commands keep coming (fin_sim's watchdog would trip at x10).  While it runs, the latest
@@ -211,6 +199,25 @@ class DriveLoop:
             self._learn(*args)
             self._take_next()
         return True
+
+    def _named_watt(self, e: Any) -> float:
+        """The estimate's watt in the optimiser's ``watt`` (NaN: the fin's); on ``supply_measured``
+        with nothing measuring the supply (no supply topic, no battery, or its fixed draw not known
+        yet) the amplifier's model is the fallback, said each time it starts and ends."""
+        watt = self.optimiser.watt
+        named = e.power(watt) if watt != "fin" else math.nan
+        if watt == "supply_measured" and not math.isfinite(named):
+            named = e.power("supply")
+            if not self._supply_modelled:
+                self.events.append(
+                    "no measured supply watt in the estimates: ranking by the amplifier model's "
+                    "till one comes"
+                )
+            self._supply_modelled = True
+        elif watt == "supply_measured" and self._supply_modelled:
+            self._supply_modelled = False
+            self.events.append("the supply watt is measured again: ranking by it")
+        return named
 
     def set_demand(self, demand_n: float | None) -> None:
         """A new demand: taken by the heartbeat (:meth:`tick`) when it is due (class docstring), by
@@ -246,19 +253,27 @@ class DriveLoop:
                 self._pending.append(self._worker().submit(self._learn, *args))
             return
         if self._demand_ready(t):
+            # a trial the demand cuts short is learnt from its last window, not lost: one that gave
+            # far less than asked slows the fish, the speed loop's demand jumps and cuts it, and,
+            # unlearnt, the fit proposed the same point again (a stranger fish, issue 39: 0.5 mN
+            # where 2 were asked, twice in 40 s, the speed 40 % down each time)
+            cut, self._partial, self._windows = self._partial, None, []
             self._demand_due, self._demand_taken_t, self._demand_since = False, t, None
             self._demand_trials, self._demand_in_force = self.trials, self._demand_wanted
             if self.background:
                 self._demand_queued = True
-                self._pending.append(self._worker().submit(self._latest_demand))
+                self._pending.append(self._worker().submit(self._latest_demand, cut))
             else:
-                self._demand(self._demand_wanted)
+                self._demand(self._demand_wanted, cut)
 
-    def _latest_demand(self) -> None:
+    def _latest_demand(self, cut: tuple[Any, ...] | None = None) -> None:
         self._demand_queued = False  # (a demand set from now on queues a new fit)
-        self._demand(self._demand_wanted)
+        self._demand(self._demand_wanted, cut)
 
-    def _demand(self, demand_n: float | None) -> None:
+    def _demand(self, demand_n: float | None, cut: tuple[Any, ...] | None = None) -> None:
+        if cut is not None:
+            self.optimiser.observe(*cut)
+            self.trials += 1
         self.optimiser.set_demand(demand_n)
         self._refit_done()
 
@@ -294,6 +309,7 @@ class DriveLoop:
         if new is not None and new != self.target:
             self.target = new
             self._t_settled_from = None
+            self._windows, self._partial = [], None  # (the windows of the point left)
 
     def status(self) -> dict[str, Any]:
         return {

@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import faulthandler
+import gc
 import math
 import os
 import signal
@@ -682,12 +683,22 @@ def run_node(
             code = next((n.exit_code for n in nodes if getattr(n, "exit_code", None) is not None), None)
         faulthandler.cancel_dump_traceback_later()
         watchdog = TeardownWatchdog(int(code or 0)).start()
+        # and a backstop that needs no Python thread: a C++ destructor or the interpreter's own
+        # exit can block holding the GIL (the Timer above cannot run then) with SIGINT and SIGTERM
+        # ignored (see StopFlag.restore); faulthandler's watchdog thread dumps the stacks and ends
+        # the process (status 1) however the teardown or the exit hangs.  Left armed: the
+        # interpreter cancels it once it has exited cleanly.
+        faulthandler.dump_traceback_later(2 * TeardownWatchdog.TEARDOWN_S, exit=True)
         for node in nodes:
             node.destroy_node()
         if executor is not None:
             executor.shutdown()
         if context.ok():
             rclpy.shutdown(context=context)
+        # the executor's and the nodes' destructors run here, watched, not at an unwatched return
+        executor = None
+        nodes.clear()
+        gc.collect()
         watchdog.cancel()
         stop.restore()
         _ARGV.pop(id(context), None)
