@@ -642,7 +642,7 @@ def run_node(
     _ARGV[id(context)] = argv
     stop = StopFlag().install()
     nodes: list[Any] = []
-    executor = None
+    executor = built = keep = None
     code: int | None = None
     try:
         built = factory(context)
@@ -652,7 +652,7 @@ def run_node(
         if start is not None:
             for node in nodes:
                 start(node)  # after the checks: nothing is driven with a mistyped parameter
-        keep = after_start(nodes) if after_start is not None else None  # noqa: F841 (kept alive)
+        keep = after_start(nodes) if after_start is not None else None  # (kept alive while spinning)
         executor = EventsExecutor(context=context)
         for node in nodes:
             executor.add_node(node)
@@ -696,7 +696,7 @@ def run_node(
         if context.ok():
             rclpy.shutdown(context=context)
         # the executor's and the nodes' destructors run here, watched, not at an unwatched return
-        executor = None
+        executor = built = keep = node = close = None  # (each holds a node: the loops' variables too)
         nodes.clear()
         gc.collect()
         watchdog.cancel()

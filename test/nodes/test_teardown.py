@@ -3,6 +3,7 @@ launch once saw ``fin_sims`` killed with -9 after closing both fins on a loaded 
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -34,3 +35,50 @@ def test_a_hung_teardown_ends_with_the_status_and_the_stacks() -> None:
 def test_a_teardown_in_time_is_left_alone() -> None:
     out, _ = run("watchdog.cancel()\ntime.sleep(1.0)\nprint('exited normally')")
     assert out.returncode == 0 and out.stdout.strip() == "exited normally" and not out.stderr
+
+
+NODE = """
+import atexit, re, sys
+from rclpy.node import Node
+from piezofin_ros.nodes._common import TeardownWatchdog, run_node
+TeardownWatchdog.TEARDOWN_S = 1.0
+
+class Node_(Node):
+    def __init__(self, context):
+        super().__init__("teardown_probe", context=context)
+    {method}
+
+sys.exit(run_node(Node_, ["probe"], until=lambda node: True))
+"""
+
+
+def run_node_with(method: str) -> tuple[subprocess.CompletedProcess[str], float]:
+    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    t0 = time.monotonic()
+    out = subprocess.run(
+        [sys.executable, "-c", NODE.format(method=method)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
+    return out, time.monotonic() - t0
+
+
+def test_a_destructor_that_hangs_runs_watched_not_at_the_return() -> None:
+    """The nodes' and the executor's destructors run inside the watched teardown: before, they ran at
+    ``run_node``'s return, after the watchdog was cancelled and with SIGINT and SIGTERM ignored (a
+    stopping node that stays is killed by launch after 15 s, without a word)."""
+    out, took = run_node_with("def __del__(self):\n        while True: pass")
+    assert out.returncode == 0 and took < 20, (out.returncode, took, out.stderr[-2000:])
+    assert "tearing down the ROS entities took over 1 s" in out.stderr
+    assert "__del__" in out.stderr  # where it waited
+
+
+def test_an_exit_that_hangs_holding_the_interpreter_still_ends() -> None:
+    """A hang no Python thread can interrupt (C code holding the GIL at the interpreter's exit, as a
+    middleware's destructor can): faulthandler's own thread dumps the stacks and ends the process."""
+    hang = "re.match(r'(a+)+$', 'a' * 64 + 'b')"  # (a backtracking regex: C code that keeps the GIL)
+    out, took = run_node_with(f"def close(self):\n        atexit.register(lambda: {hang})")
+    assert out.returncode == 1 and took < 30, (out.returncode, took, out.stderr[-2000:])
+    assert "Timeout (0:00:02)!" in out.stderr, out.stderr[-2000:]
