@@ -642,7 +642,8 @@ def run_node(
     _ARGV[id(context)] = argv
     stop = StopFlag().install()
     nodes: list[Any] = []
-    executor = built = keep = None
+    executor = built = None
+    keep: object = None
     code: int | None = None
     try:
         built = factory(context)
@@ -696,7 +697,8 @@ def run_node(
         if context.ok():
             rclpy.shutdown(context=context)
         # the executor's and the nodes' destructors run here, watched, not at an unwatched return
-        executor = built = keep = node = close = None  # (each holds a node: the loops' variables too)
+        del keep  # (what after_start returned)
+        executor = built = node = close = None  # (each holds a node: the loops' variables too)
         nodes.clear()
         gc.collect()
         watchdog.cancel()
