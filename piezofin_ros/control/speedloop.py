@@ -171,6 +171,11 @@ class SpeedLoop:
             self._thrust, self._thrust_t = float(thrust_n), float(t)
 
     @property
+    def speed_m_s(self) -> float:
+        """The speed as the loop reads it (low-passed; NaN: no reading yet), m/s."""
+        return self._speed
+
+    @property
     def thrust_estimate_n(self) -> float:
         """The fin's latest estimated thrust (NaN: none yet), N."""
         return self._thrust

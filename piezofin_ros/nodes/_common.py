@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import copy
 import faulthandler
 import gc
 import math
@@ -11,6 +12,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
@@ -36,8 +38,22 @@ QOS_DATA = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-#: Commands and status: reliable, short history.
+#: The estimates: as the blocks, and transient-local, so that a late joiner that asks for it
+#: (``ros2 topic echo --once``, a monitor started after the run) reads the latest ones at once; a
+#: volatile reader (the controller, the speed loop, the recorder) is sent none from before it joined.
+QOS_ESTIMATE = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=200,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+#: Commands: reliable, short history.
 QOS_COMMAND = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: A status (JSON in a String), sent when it changes: transient-local, the latest one kept, so that
+#: `ros2 topic echo --once` answers a late joiner at once (volatile, it waited for the next change).
+QOS_STATUS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
 #: /clock as rosbag2 and the ROS time source expect it.
 QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
@@ -165,8 +181,19 @@ def int_param(node: Node, name: str, default: int, lo: int, hi: int, description
     return int(_declare(node, name, int(default), desc).value)
 
 
-def str_param(node: Node, name: str, default: str, description: str, *, read_only: bool = False) -> str:
-    desc = ParameterDescriptor(description=description, read_only=read_only)
+def str_param(
+    node: Node,
+    name: str,
+    default: str,
+    description: str,
+    *,
+    read_only: bool = False,
+    choices: Sequence[str] = (),
+) -> str:
+    constraints = f"one of: {', '.join(choices)}" if choices else ""
+    desc = ParameterDescriptor(
+        description=description, read_only=read_only, additional_constraints=constraints
+    )
     return str(_declare(node, name, default, desc).value)
 
 
@@ -212,7 +239,7 @@ def declare(node: Node, cls: type[T], prefix: str = "", base: T | None = None) -
         elif isinstance(default, float):
             value = float_param(node, name, default, lo, hi, s.description, read_only=s.read_only)
         elif isinstance(default, str):
-            value = str_param(node, name, default, s.description, read_only=s.read_only)
+            value = str_param(node, name, default, s.description, read_only=s.read_only, choices=s.choices)
             if s.choices and value not in s.choices:
                 raise StartupError(f"parameter {name}: {value!r} is not one of {', '.join(s.choices)}")
         elif isinstance(default, tuple):
@@ -263,6 +290,17 @@ def freeze_parameters(
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(callback)
+    # and said where tools look (`ros2 param describe`, rqt_reconfigure): every parameter but the live
+    # ones read-only (rclpy then refuses a change itself: "Trying to set a read-only parameter")
+    for name in list(node._parameters):
+        if name == "use_sim_time" or (live is not None and live_prefix and name.startswith(live_prefix)):
+            continue
+        old = node.describe_parameter(name)  # (the node's own: changed by set_descriptor only)
+        if not old.read_only:
+            desc = copy.deepcopy(old)
+            desc.read_only = True
+            desc.description += " (fixed at start: restart the node to change it)"
+            node.set_descriptor(name, desc)
 
 
 # -------------------------------------------------------------------------------------- inbox
@@ -295,8 +333,13 @@ class Inbox:
         self._helper: Node | None = None
         self._polls: list[tuple[Any, str, Callable[[Any], None], Callable[[Any], Any] | None, int]] = []
         self.refused: collections.Counter[str] = collections.Counter()
+        self.refused_at = -math.inf  # (time.monotonic) the latest refusal
         self.failed: collections.Counter[str] = collections.Counter()
         self.polled_count: collections.Counter[str] = collections.Counter()  # messages taken by polls
+
+    def refused_recently(self, within_s: float = 2.0) -> bool:
+        """Whether a message was refused in the last ``within_s`` of wall time."""
+        return time.monotonic() - self.refused_at <= within_s
 
     def latest(
         self,
@@ -380,6 +423,7 @@ class Inbox:
             value = msg if check is None else check(msg)
         except (PiezofinError, ValueError, TypeError, ArithmeticError, KeyError, IndexError) as exc:
             self.refused[topic] += 1
+            self.refused_at = time.monotonic()
             self._say(
                 topic, f"refused {self.refused[topic]} message(s) on {self._name(topic)}; the latest: {exc}"
             )

@@ -178,6 +178,8 @@ class Suite:
 
             sim_extra = {"realtime_factor": args.realtime_factor, "publish_clock": k == 0, "start_time_s": t0}
             sim_extra["autostart"] = False
+            # each fin its own noise: the k-th adds k to the seed it is given (two fins shared seed 0)
+            sim_extra["seed"] = int(node_parameters(doc, "fin_sim", ns).get("seed", 0)) + k
             if args.medium:
                 sim_extra["medium"] = args.medium
             if args.frequency_max is not None:

@@ -40,6 +40,7 @@ from ..physics.model import load_model
 from ..physics.waveforms import ProtocolTiming
 from ._common import (
     QOS_COMMAND,
+    QOS_STATUS,
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
@@ -54,6 +55,7 @@ from ._common import (
     run_node,
     scalar,
 )
+from ._diagnostics import ERROR, OK, STALE, WARN, Diagnostics, Report
 
 
 @dataclass(frozen=True)
@@ -128,6 +130,10 @@ class ControllerConfig:
     duration_s: float = setting(0.0, "optimise: stop after this long (0: never)", 0.0, 1e7)
 
 
+#: no estimate for this long (wall time) is STALE on /diagnostics (they come every second or faster)
+ESTIMATES_STALE_S = 3.0
+
+
 class Controller(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "controller", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
@@ -145,7 +151,7 @@ class Controller(Node):
         else:
             self.strategy, summary = self._trials(c)
         self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
-        self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_COMMAND)
+        self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_STATUS)
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         # polled (a flood of estimates held the executor, and the heartbeat with it: the watchdog tripped)
         self.inbox.polled(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20)
@@ -161,7 +167,48 @@ class Controller(Node):
         self._silence = SilenceWatch(
             self, "time (the heartbeat)", "with use_sim_time: is fin_sim publishing /clock?"
         )
+        self._estimate_wall = -math.inf  # (time.monotonic) the latest estimate taken
+        self.diagnostics = Diagnostics(self, c.model or c.fin)
+        self.diagnostics.add("drive", self._diagnose_drive)
+        self.diagnostics.add("estimates", self._diagnose_estimates)
         self.get_logger().info(summary)
+
+    def _diagnose_drive(self) -> Report:
+        status = self.strategy.status()
+        values = {k: v for k, v in status.items() if isinstance(v, (int, float, str, bool)) or v is None}
+        loop = self.loop
+        if loop is None:
+            runner, mode, chosen = self.runner, self.config.mode, self.chosen
+            if runner.aborted:
+                return Report(ERROR, f"{mode}: stopped, {runner.aborted}", values)
+            if not self.finished:
+                return Report(OK, f"{mode}: trial {runner.index + 1} of {len(runner.plan.points)}", values)
+            if self.config.after == "hold" and chosen is not None:
+                held = f"{chosen.frequency_hz:.3g} Hz at {chosen.voltage_pp:.0f} Vpp"
+                return Report(OK, f"{mode}: done, holding the point chosen, {held}", values)
+            return Report(OK, f"{mode}: done, the drive is off", values)
+        state = loop.state
+        f, v = loop.target if loop.target is not None else (math.nan, math.nan)
+        if loop.halted:
+            return Report(OK, "finished: the drive is off", values)
+        if state == "holding":
+            return Report(WARN, f"no estimates: holding {f:.3g} Hz, {v:.0f} Vpp", values)
+        if state in ("ramping down", "stopped"):
+            return Report(ERROR, f"no estimates: drive {state} (it retries)", values)
+        return Report(OK, f"driving {f:.3g} Hz at {loop.command_v:.0f} Vpp ({loop.trials} trials)", values)
+
+    def _diagnose_estimates(self) -> Report:
+        ago = time.monotonic() - self._estimate_wall
+        topic = self.resolve_topic_name(TOPIC_ESTIMATE)
+        values = {
+            "seconds since the latest (wall time)": ago,
+            "publishers": self.count_publishers(TOPIC_ESTIMATE),
+        }
+        if not math.isfinite(ago):
+            return Report(STALE, f"none yet on {topic}", values)
+        if ago > ESTIMATES_STALE_S:
+            return Report(STALE, f"none for {ago:.0f} s on {topic}: is thrust_estimator running?", values)
+        return Report(OK, f"taking estimates from {topic}", values)
 
     def _optimiser(self, c: ControllerConfig) -> tuple[Strategy, str]:
         """The thrust-per-watt optimiser's strategy (``mode:=optimise``), and what it says at start."""
@@ -298,6 +345,7 @@ class Controller(Node):
                 log.info(event.text)
         strategy.events.clear()
         self._send(*command)
+        self.diagnostics.update()
         if strategy.status_due(t):
             self._publish_status()
 
@@ -308,6 +356,7 @@ class Controller(Node):
         )
 
     def _on_estimate(self, e: Estimate) -> None:
+        self._estimate_wall = time.monotonic()
         if self.strategy.add_estimate(self._now(), e):
             self._publish_status()
 

@@ -87,6 +87,10 @@ from ._common import (
     msg_block,
     run_node,
 )
+from ._diagnostics import ERROR, OK, STALE, WARN, Diagnostics, Report
+
+#: A battery with less than this share of its charge left is WARN on /diagnostics.
+BATTERY_LOW = 0.2
 
 #: The watchdog never trips on less than this much wall time without a command (see the module).
 WATCHDOG_MIN_WALL_S = 0.5
@@ -211,6 +215,14 @@ class FinSim(LifecycleNode):
         self._unlogged = 0
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         self.inbox.subscribe(Float64MultiArray, TOPIC_CMD, self._on_command, QOS_COMMAND)
+        self._clamped_ns = self._monitor_off_ns = -(2**62)  # (steady clock) the last clamp or refusal, ...
+        self._last_reason = ""
+        self._monitor = (math.nan, math.nan)  # the voltage monitor's reading and the drive's peak, V
+        self.diagnostics = Diagnostics(self, c.model or c.fin, stamp=self._fin_time)
+        self.diagnostics.add("drive", self._diagnose_drive)
+        self.diagnostics.add("voltage monitor", self._diagnose_monitor)
+        if self._battery is not None:
+            self.diagnostics.add("battery", self._diagnose_battery)
 
     # ------------------------------------------------------------------------------ lifecycle
     def on_configure(self, state: State) -> TransitionCallbackReturn:
@@ -422,8 +434,82 @@ class FinSim(LifecycleNode):
         floor = WATCHDOG_MIN_WALL_S * self._factor
         return replace(limits, command_timeout_s=max(limits.command_timeout_s, floor))
 
+    # --------------------------------------------------------------------------- diagnostics
+    #: a clamp, a refusal or a monitor at odds with the drive shows as WARN this long after the last one
+    DIAGNOSED_S = 2.0
+
+    def _fin_time(self) -> float:
+        return self._rig.drive.t if self._rig is not None else self.get_clock().now().nanoseconds * 1e-9
+
+    def _recent(self, ns: int) -> bool:
+        return (self._steady.now().nanoseconds - ns) * 1e-9 <= self.DIAGNOSED_S
+
+    def _diagnose_drive(self) -> Report:
+        rig = self._rig
+        counts = {f"commands {k}": n for k, n in sorted(self.command_counts.items())}
+        if rig is None:
+            return Report(OK, "not configured: no drive", counts)
+        d, lim = rig.drive, rig.drive.limits
+        values = {
+            "frequency_hz": d.frequency_hz,
+            "voltage_pp": d.voltage_pp,
+            "target_voltage_pp": 2 * d.target,
+            "limits.voltage_pp_max": lim.voltage_pp_max,
+            "limits.slew_vpp_per_s": lim.slew_vpp_per_s,
+            "watchdog_s": lim.command_timeout_s,
+            "tripped": d.tripped,
+            **counts,
+        }
+        if self.battery_empty:
+            return Report(ERROR, "the battery is empty: the drive is stopped and takes no command", values)
+        if d.tripped:
+            return Report(
+                ERROR,
+                f"watchdog tripped (no command for over {lim.command_timeout_s:g} s): the drive ramped to "
+                "0 V; on-commands are refused until an off command re-arms it",
+                values,
+            )
+        if self._recent(self._clamped_ns):
+            return Report(WARN, self._last_reason, values)
+        if not self._running:
+            return Report(OK, "inactive: the drive is off", values)
+        if d.voltage_pp == 0 and d.target == 0:
+            return Report(OK, "off", values)
+        return Report(OK, f"driving {d.frequency_hz:.3g} Hz at {d.voltage_pp:.0f} Vpp", values)
+
+    def _diagnose_monitor(self) -> Report:
+        reading, applied = self._monitor
+        values = {"reading_peak_V": reading, "applied_peak_V": applied}
+        if self._recent(self._monitor_off_ns):
+            return Report(
+                WARN,
+                f"the voltage monitor reads {reading:.0f} V where the drive applies {applied:.0f} V: "
+                "its gain is off",
+                values,
+            )
+        return Report(OK, "agrees with the drive", values)
+
+    def _diagnose_battery(self) -> Report:
+        fish = self._swimmer
+        if fish is None or fish.battery is None:
+            return Report(STALE, "not configured: no battery reading yet")
+        r = fish.reading()
+        values = {
+            "voltage_V": r.voltage_v,
+            "current_A": r.current_a,
+            "percentage": r.percentage * 100,
+            "charge_Ah": r.charge_ah,
+            "capacity_Ah": r.capacity_ah,
+        }
+        if r.empty:
+            return Report(ERROR, f"empty ({r.voltage_v:.2f} V under load): the drive is stopped", values)
+        if r.percentage < BATTERY_LOW:
+            return Report(WARN, f"low: {r.percentage * 100:.0f} % left ({r.voltage_v:.2f} V)", values)
+        return Report(OK, f"{r.percentage * 100:.0f} % left ({r.voltage_v:.2f} V)", values)
+
     def _log_command(self, reason: str) -> None:
         """Keep and log the reason; bursts are logged once a second with the count of the rest."""
+        self._clamped_ns, self._last_reason = self._steady.now().nanoseconds, reason
         self.command_counts[reason.split(":", 1)[0]] += 1
         self.command_log.append(reason)
         if len(self.command_log) > 1000:
@@ -439,6 +525,7 @@ class FinSim(LifecycleNode):
             self._unlogged = 0
         else:
             self._unlogged += 1
+        self.diagnostics.update()
 
     def _tick(self) -> None:
         if not self._running:
@@ -482,7 +569,9 @@ class FinSim(LifecycleNode):
         for event in b.events:
             self.get_logger().warning(event)
         reading = float(np.max(np.abs(b.voltage))) if b.voltage.size else 0.0
+        self._monitor = (reading, float(b.applied_peak_v))
         if reading > 1.05 * b.applied_peak_v + 5.0 * self._rig_config.voltage_noise_v + 1.0:
+            self._monitor_off_ns = self._steady.now().nanoseconds
             # a reading above what the drive applies is the monitor's (its gain), never the drive
             cap = rig.drive.limits.voltage_pp_max
             self.get_logger().warning(
@@ -507,6 +596,7 @@ class FinSim(LifecycleNode):
         self.blocks_published += 1
         if self._swimmer is not None:
             self._swim(b, n)
+        self.diagnostics.update()  # (a level that changed: on the monitor now, not at the next second)
 
     def _swim(self, b: RigBlock, n: int) -> None:
         """The body and the battery after this block (:class:`~piezofin_ros.rig.fish.FreeSwimmer`)."""
@@ -535,6 +625,15 @@ class FinSim(LifecycleNode):
                 BatteryState.POWER_SUPPLY_HEALTH_DEAD if r.empty else BatteryState.POWER_SUPPLY_HEALTH_GOOD
             )
             msg.present = True
+            # as sensor_msgs/BatteryState asks: NaN where nothing measures it, one entry per cell (the
+            # model's cells share the pack's voltage alike)
+            cells = self._battery.cells if self._battery is not None else 1
+            msg.temperature = math.nan
+            msg.cell_voltage = [float(r.voltage_v) / cells] * cells
+            msg.cell_temperature = [math.nan] * cells
+            msg.header.frame_id = "base_link"
+            msg.location = "fish body"
+            msg.serial_number = f"simulated {self._battery.name}" if self._battery is not None else ""
             self._battery_pub.publish(msg)  # type: ignore[attr-defined]
         if r.empty and not self.battery_empty:
             self.battery_empty = True

@@ -28,7 +28,7 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
@@ -39,6 +39,7 @@ from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
     QOS_DATA,
+    QOS_STATUS,
     TOPIC_BATTERY,
     TOPIC_CMD,
     TOPIC_DEMAND,
@@ -57,6 +58,7 @@ from ._common import (
     never,
     run_node,
 )
+from ._diagnostics import ERROR, OK, Diagnostics, Report
 
 F64A = "std_msgs/msg/Float64MultiArray"
 #: The suite's topics per fin (relative names) with their types.
@@ -104,11 +106,6 @@ THIN_LOOKS = 20
 PLOT_TOPICS = (TOPIC_ESTIMATE, TOPIC_CMD)
 FLOAT64 = "std_msgs/msg/Float64"
 STRING = "std_msgs/msg/String"
-#: The recorder's status (JSON in a String: the bag, what it holds, what it lost), sent when it changes
-#: (checked once a second); transient-local, so `ros2 topic echo --once` answers a late joiner.
-QOS_STATUS = QoSProfile(
-    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
-)
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
 
 
@@ -220,7 +217,16 @@ class Recorder(Node):
         for topic, type_name in wanted.items():
             self.add_topic(topic, type_name)
         self.create_timer(0.5, self._discover)
+        self.diagnostics = Diagnostics(self, str(self.path))
+        self.diagnostics.add("bag", self._diagnose)
         self.get_logger().info(f"recording {len(self._subs)} topics to {self.path}")
+
+    def _diagnose(self) -> Report:
+        total = sum(self.bag.counts.values())
+        values = {"path": self.path, "messages": total, "topics": len(self.bag.counts)}
+        if self.exit_code is not None:
+            return Report(ERROR, f"cannot write to {self.path}: recording stopped", values)
+        return Report(OK, f"recording {total} messages on {len(self.bag.counts)} topics", values)
 
     def _wanted(self, topics: list[str], namespaces: list[str]) -> dict[str, str]:
         if topics:
@@ -410,6 +416,7 @@ class Recorder(Node):
         )
         self.bag.abandon()
         self.exit_code = 1
+        self.diagnostics.update()
 
     def destroy_node(self) -> None:
         if self._helper is not None:

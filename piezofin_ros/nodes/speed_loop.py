@@ -27,6 +27,7 @@ from ..estimation.estimator import THRUST_MOST_N
 from ..physics.swim import SPEED_MOST_M_S, load_body
 from ._common import (
     QOS_COMMAND,
+    QOS_STATUS,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
     TOPIC_LOOP_STATUS,
@@ -40,6 +41,7 @@ from ._common import (
     run_node,
     scalar,
 )
+from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 
 
 def fin_thrust(msg: Float64MultiArray) -> float:
@@ -87,7 +89,7 @@ class SpeedLoopNode(Node):
             raise StartupError(str(exc)) from None
         freeze_parameters(self, "speed_m_s", self._on_setpoint)
         self._pub = self.create_publisher(Float64, TOPIC_DEMAND, QOS_COMMAND)
-        self._status = self.create_publisher(String, TOPIC_LOOP_STATUS, QOS_COMMAND)
+        self._status = self.create_publisher(String, TOPIC_LOOP_STATUS, QOS_STATUS)
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         # the newest reading only, polled: a flood costs one reading per look
         self.inbox.latest(
@@ -107,7 +109,22 @@ class SpeedLoopNode(Node):
             f"at most {self.loop.config.max_demand_n * 1e3:g} mN per fin on "
             f"{self.resolve_topic_name(TOPIC_DEMAND)}, fastest {self.loop.fastest_m_s():.3g} m/s"
         )
+        self.diagnostics = Diagnostics(self, body.name)
+        self.diagnostics.add("speed loop", self._diagnose)
         self._set(own.speed_m_s)
+
+    def _diagnose(self) -> Report:
+        loop = self.loop
+        values = {
+            "setpoint_m_s": loop.setpoint_m_s,
+            "speed_m_s": loop.speed_m_s,
+            "demand_n": loop.demand_n,
+            "thrust_estimate_n": loop.thrust_estimate_n,
+            "cap_n": loop.cap_n,
+            "state": loop.kind,
+        }
+        level = {"silent": STALE, "unread": STALE, "lies": WARN, "saturated": WARN}.get(loop.kind, OK)
+        return Report(level, loop.state, values)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -161,6 +178,7 @@ class SpeedLoopNode(Node):
             self._pub.publish(Float64(data=demand))
             self._status.publish(String(data=self.loop.state))
             self._published = kind
+        self.diagnostics.update()
         # A new kind of state is said at once, at most one line a second of wall time (a sensor that
         # flips between kinds cannot flood the log), and the kind that lasts is always said: one that
         # came too soon after the last line is said at the next tick after the second is over.

@@ -34,7 +34,7 @@ from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.fin import MEDIA, Fin, load_fin
 from ..physics.swim import SPEED_MOST_M_S
 from ._common import (
-    QOS_DATA,
+    QOS_ESTIMATE,
     TOPIC_BATTERY,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
@@ -53,6 +53,7 @@ from ._common import (
     samples,
     scalar,
 )
+from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 
 
 @dataclass(frozen=True)
@@ -114,7 +115,7 @@ class ThrustEstimator(Node):
         self.core = StreamEstimator(self.fin, config, calibrate, amplifier, own.medium, fixed)
         self._meter = ""  # where the supply watt is measured, as last said
         self.estimates: list[Estimate] = []
-        self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
+        self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_ESTIMATE)
         # every message from another process through one door: checked there, refused with the reason
         self.inbox = inbox = Inbox(self)
         # every sampled topic polled, each at most BLOCKS_A_LOOK blocks a look: a flood on one (a spoofed
@@ -134,11 +135,42 @@ class ThrustEstimator(Node):
         self._silence = SilenceWatch(
             self, f"{self.resolve_topic_name(TOPIC_DRIVE)}", "is fin_sim (or the rig driver) running?"
         )
+        self.diagnostics = Diagnostics(self, self.fin.name, stamp=self._fin_time)
+        self.diagnostics.add("estimates", self._diagnose)
         self.get_logger().info(
             f"{self.fin.name} (psi {self.fin.psi:.2f}, c_m {self.fin.c_m:.3f}), {amplifier.describe()}: "
             f"estimating from {self.resolve_topic_name(TOPIC_DRIVE)} to "
             f"{self.resolve_topic_name(TOPIC_ESTIMATE)}"
         )
+
+    def _fin_time(self) -> float:
+        return self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
+
+    def _diagnose(self) -> Report:
+        drive = self.resolve_topic_name(TOPIC_DRIVE)
+        last = self.estimates[-1] if self.estimates else None
+        values: dict[str, object] = {
+            "estimates": len(self.estimates),
+            **{f"blocks on {self.resolve_topic_name(k)}": n for k, n in self.received.items()},
+            "refused": self.rejected,
+            "supply watt measured on": self._meter or "nothing (the amplifier's model)",
+        }
+        if last is not None:
+            values.update(
+                frequency_hz=last.frequency_hz,
+                voltage_pp=last.voltage_pp,
+                thrust_n=last.thrust_n,
+                thrust_self_n=last.thrust_self_n,
+                power_w=last.power_w,
+                power_supply_w=last.power_supply_w,
+            )
+        if self.received[TOPIC_DRIVE] == 0:
+            return Report(STALE, f"waiting for the first block on {drive}", values)
+        if self._silence.silent:
+            return Report(STALE, f"nothing on {drive}: is fin_sim (or the rig driver) running?", values)
+        if self.rejected and self.inbox.refused_recently():
+            return Report(WARN, "refusing messages (their reasons are in the log)", values)
+        return Report(OK, f"estimating from {drive}: {len(self.estimates)} estimates", values)
 
     @property
     def rejected(self) -> int:
@@ -148,6 +180,8 @@ class ThrustEstimator(Node):
     def _on_drive(self, b: Block) -> None:
         self.received[TOPIC_DRIVE] += 1
         self._silence.heard()
+        if self.received[TOPIC_DRIVE] == 1:
+            self.diagnostics.update()
         self._last_t = float(b["t_s"][-1])
         self._emit(self.core.add_drive(b["t_s"], b["voltage_V"], b["current_A"]))
 

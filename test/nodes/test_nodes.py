@@ -209,7 +209,7 @@ def test_parameters_have_ranges_and_reasons() -> None:
         assert result.reason
         result = sim.set_parameters([Parameter("block_s", value=0.1)])[0]
         assert not result.successful
-        assert "fixed at start" in result.reason
+        assert "read-only" in result.reason  # (descriptors say it: `ros2 param describe`)
         with pytest.raises((InvalidParameterValueException, StartupError), match=r"limits\.voltage_pp_max"):
             FinSim(
                 context=g.context, node_name="over", parameter_overrides=params(limits__voltage_pp_max=2000.0)

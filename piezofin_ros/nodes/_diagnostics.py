@@ -1,0 +1,118 @@
+"""``/diagnostics`` for every node: what rqt_robot_monitor and the diagnostic aggregators read.
+
+``diagnostic_updater`` (C++ and Python) is not among the ``ros-jazzy-*`` wheels, so this is the small
+part of it the nodes need, with its conventions: one ``diagnostic_msgs/DiagnosticArray`` on the
+absolute ``/diagnostics`` (whatever the node's namespace) about once a second of wall time (the
+steady clock: a node on ``use_sim_time`` whose ``/clock`` stopped, its fin_sim gone, still reports),
+stamped on the node's clock (the fin's time),
+one ``DiagnosticStatus`` per task named ``"<node name>: <task>"`` with the node's ``hardware_id`` (the
+fin it drives or estimates), at OK, WARN, ERROR or STALE, and every figure as a ``KeyValue``.  A task
+whose level changes is published at once (:meth:`Diagnostics.update`), not at the next second: a
+watchdog trip is on the monitor within the tick that saw it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+OK, WARN, ERROR, STALE = (int.from_bytes(x, "little") if isinstance(x, bytes) else int(x) for x in (
+    DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, DiagnosticStatus.STALE
+))  # fmt: skip
+LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
+
+TOPIC_DIAGNOSTICS = "/diagnostics"
+#: as diagnostic_updater publishes them (reliable; a monitor that joins reads the next second's)
+QOS_DIAGNOSTICS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
+)
+
+
+@dataclass(frozen=True)
+class Report:
+    """One task's state: its level, one sentence, and its figures (any values; shown as text)."""
+
+    level: int
+    message: str
+    values: Mapping[str, Any] = field(default_factory=dict)
+
+
+def _text(x: Any) -> str:
+    if isinstance(x, float):
+        return "nan" if math.isnan(x) else f"{x:.6g}"
+    return str(x)
+
+
+class Diagnostics:
+    """A node's tasks on ``/diagnostics`` (module docstring).  ``add(task, check)`` with ``check()``
+    returning a :class:`Report`; the node calls :meth:`update` where a state may have changed."""
+
+    def __init__(
+        self, node: Node, hardware_id: str, period_s: float = 1.0, stamp: Callable[[], float] | None = None
+    ) -> None:
+        from rclpy.clock import Clock, ClockType
+
+        self._node = node
+        self._stamp = stamp  # the stamp, s (None: the node's clock)
+        self.hardware_id = hardware_id
+        self._tasks: list[tuple[str, Callable[[], Report]]] = []
+        self._levels: dict[str, int] = {}
+        self._pub = node.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, QOS_DIAGNOSTICS)
+        self._timer = node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.published = 0
+
+    def add(self, task: str, check: Callable[[], Report]) -> None:
+        self._tasks.append((task, check))
+
+    def _statuses(self) -> list[DiagnosticStatus]:
+        out = []
+        name = self._node.get_name()
+        for task, check in self._tasks:
+            try:
+                r = check()
+            except Exception as exc:  # (a check that fails is itself an error to show, not a crash)
+                r = Report(ERROR, f"the check failed: {type(exc).__name__}: {exc}")
+            self._levels[task] = r.level
+            out.append(
+                DiagnosticStatus(
+                    level=bytes([r.level]),
+                    name=f"{name}: {task}",
+                    message=r.message,
+                    hardware_id=self.hardware_id,
+                    values=[KeyValue(key=str(k), value=_text(v)) for k, v in r.values.items()],
+                )
+            )
+        return out
+
+    def publish(self) -> None:
+        """All tasks now (the timer's call)."""
+        if not self._tasks:
+            return
+        msg = DiagnosticArray(status=self._statuses())
+        if self._stamp is None:
+            msg.header.stamp = self._node.get_clock().now().to_msg()
+        else:
+            t = self._stamp()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(max(0, round(t * 1e9)), 1_000_000_000)
+        self._pub.publish(msg)
+        self.published += 1
+
+    def update(self) -> None:
+        """Publish now if any task's level changed since it was last published."""
+        for task, check in self._tasks:
+            try:
+                level = check().level
+            except Exception:
+                level = ERROR
+            if self._levels.get(task) != level:
+                self.publish()
+                return
+
+    def close(self) -> None:
+        self._timer.cancel()
