@@ -295,11 +295,16 @@ def freeze_parameters(
     for name in list(node._parameters):
         if name == "use_sim_time" or (live is not None and live_prefix and name.startswith(live_prefix)):
             continue
-        old = node.describe_parameter(name)  # (the node's own: changed by set_descriptor only)
-        if not old.read_only:
-            desc = copy.deepcopy(old)
-            desc.read_only = True
-            desc.description += " (fixed at start: restart the node to change it)"
+        old = node.describe_parameter(name)  # (the node's own descriptor, not a copy)
+        if old.read_only:
+            continue
+        desc = copy.deepcopy(old)
+        desc.read_only = True
+        desc.description += " (fixed at start: restart the node to change it)"
+        if node._parameters[name].type_ == Parameter.Type.NOT_SET:
+            # (an empty typed array: rclpy's set_descriptor reads its value, which raises)
+            old.read_only, old.description = desc.read_only, desc.description
+        else:
             node.set_descriptor(name, desc)
 
 
