@@ -525,15 +525,27 @@ class SilenceWatch:
 
     Runs on the steady clock, so it speaks even when the silence is the simulated clock itself
     (``fin_sim`` killed: ``/clock`` stops, and with it every timer on ROS time).  One warning when
-    the silence starts (only after the first arrival), one line when it ends.
+    the silence starts (only after the first arrival), one line when it ends.  With a ``topic``,
+    one warning too when nothing has ever come and nothing publishes it ``first_s`` after the start
+    (``sim:=false`` with no rig driver sat 35 s without a word).
     """
 
-    def __init__(self, node: Node, what: str, hint: str, after_s: float = 3.0) -> None:
+    def __init__(
+        self,
+        node: Node,
+        what: str,
+        hint: str,
+        after_s: float = 3.0,
+        topic: str | None = None,
+        first_s: float = 10.0,
+    ) -> None:
         from rclpy.clock import Clock, ClockType
 
         self._node, self._what, self._hint, self._after_s = node, what, hint, after_s
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_ns: int | None = None
+        self._topic, self._first_s = topic, first_s
+        self._start_ns = self._clock.now().nanoseconds
         self.silent = False
         node.create_timer(min(1.0, after_s / 3), self._check, clock=self._clock)
 
@@ -544,6 +556,13 @@ class SilenceWatch:
             self._node.get_logger().info(f"{self._what}: back")
 
     def _check(self) -> None:
+        if self._last_ns is None and self._topic is not None:
+            waited = (self._clock.now().nanoseconds - self._start_ns) * 1e-9
+            if waited >= self._first_s and self._node.count_publishers(self._topic) == 0:
+                self._topic = None  # (said once)
+                self._node.get_logger().warning(
+                    f"{self._what}: nothing, and no publisher, after {waited:.0f} s; {self._hint}"
+                )
         if self._last_ns is None or self.silent:
             return
         quiet_s = (self._clock.now().nanoseconds - self._last_ns) * 1e-9

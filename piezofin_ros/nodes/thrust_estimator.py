@@ -132,9 +132,8 @@ class ThrustEstimator(Node):
         inbox.polled(BatteryState, TOPIC_BATTERY, self._on_battery, battery_reading, depth=50, most=10)
         self._last_t = float("nan")
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
-        self._silence = SilenceWatch(
-            self, f"{self.resolve_topic_name(TOPIC_DRIVE)}", "is fin_sim (or the rig driver) running?"
-        )
+        drive = self.resolve_topic_name(TOPIC_DRIVE)
+        self._silence = SilenceWatch(self, drive, "is fin_sim (or the rig driver) running?", topic=drive)
         self.diagnostics = Diagnostics(self, self.fin.name, stamp=self._fin_time)
         self.diagnostics.add("estimates", self._diagnose)
         self.get_logger().info(

@@ -98,3 +98,24 @@ def test_a_clamp_a_silent_estimator_and_a_watchdog_trip_each_reach_the_monitor_a
     finally:
         outs = stop(sim, est, ctl)
     assert not any("Traceback" in o for o in outs), outs
+
+
+@pytest.mark.slow
+def test_an_estimator_with_no_driver_says_so_in_its_log_and_on_the_monitor(tmp_path) -> None:
+    """``sim:=false`` with no rig driver: 35 s went by without a word.  Now the estimator's status is
+    STALE from its first second, and its log says within 10 s that nothing publishes its drive."""
+    log = tmp_path / "estimator.log"
+    est = start("thrust_estimator", "-r", "__ns:=/nodriver", log=log)
+    mon = Monitor()
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("monitor", context=g.context))
+            node.create_subscription(DiagnosticArray, "/diagnostics", mon.take, QOS_DIAGNOSTICS)
+            name = "thrust_estimator: estimates"
+            g.spin_until(lambda: mon.level(name) == STALE, timeout=60.0, what="the estimator's STALE")
+            assert mon.latest[name][1] == "waiting for the first block on /nodriver/drive", mon.said()
+            g.spin_until(lambda: "no publisher" in log.read_text(), timeout=40.0, what="the warning")
+    finally:
+        stop(est)
+    said = log.read_text()
+    assert "[WARN]" in said and "/nodriver/drive: nothing, and no publisher, after 10 s" in said, said
