@@ -83,6 +83,7 @@ from ..physics.effects import (
 from ..physics.fin import Fin
 from ..physics.model import Model, Prediction
 from .gp import ResidualGP
+from .objective import THRUST_PER_WATT, Objective
 from .response import EstimateNoise, PlantResponse
 
 FloatArray = NDArray[Any]
@@ -323,9 +324,9 @@ class Surface:
     def fin_w(self) -> FloatArray:
         return self.power_w if self.power_fin_w is None else self.power_fin_w
 
-    def objective(self, demand_n: float | None) -> FloatArray:
-        thrust = self.thrust_n if demand_n is None else np.minimum(self.thrust_n, demand_n)
-        return np.asarray(thrust / np.maximum(self.power_w, 1e-300))
+    def objective(self, demand_n: float | None, objective: Objective = THRUST_PER_WATT) -> FloatArray:
+        """The figure of merit (:mod:`.objective`) at each point, the thrust counted up to the demand."""
+        return objective(self.thrust_n, self.power_w, demand_n)
 
 
 @dataclass
@@ -341,6 +342,8 @@ class Optimiser:
     #: the watt of the thrust per watt (physics/amplifier.py): the map's power in it comes through
     #: ``amplifier`` (supply, and supply_measured, whose trials bring the meter's reading)
     watt: str = "fin"
+    #: what it maximises in that watt (:mod:`.objective`): thrust per watt unless told otherwise
+    objective: Objective = THRUST_PER_WATT
     amplifier: Amplifier = PAPER_BENCH
     noise: EstimateNoise = field(default_factory=EstimateNoise)
     z_demand: float = 2.0  # the demand is met with this many standard deviations of margin
@@ -713,7 +716,7 @@ class Optimiser:
             i = int(np.argmax(surface.thrust_n))
             feasible_here = False
         else:
-            score = surface.objective(self.demand_n) * np.exp(
+            score = surface.objective(self.demand_n, self.objective) * np.exp(
                 optimism * np.hypot(surface.sigma_thrust, surface.sigma_power)
             )
             i = int(np.argmax(np.where(feasible, score, -np.inf)))
@@ -777,9 +780,9 @@ class Optimiser:
             low = t * math.exp(-self.z_demand * math.hypot(noise_t, bound))
             if self.demand_n is not None:
                 if low >= self.demand_n:
-                    out.append((self.demand_n / o.named_w, o, float(t)))
+                    out.append((float(self.objective(self.demand_n, o.named_w, self.demand_n)), o, float(t)))
             elif low >= self.min_thrust_n and abs(o.voltage_pp - self.voltage_pp) <= 0.01 * self.voltage_pp:
-                out.append((float(t) / o.named_w, o, float(t)))
+                out.append((float(self.objective(t, o.named_w)), o, float(t)))
         return out
 
     def _candidate(self) -> tuple[float, float] | None:
@@ -1029,7 +1032,7 @@ class Optimiser:
         """The map's relative gain in the task's objective from ``here`` to ``there`` (both on the map,
         so that the map's bias cancels; with a demand, where both meet it, the power's ratio)."""
         s = self._surface(np.array([here[0], there[0]]), np.array([here[1], there[1]]))
-        obj = s.objective(self.demand_n)
+        obj = s.objective(self.demand_n, self.objective)
         return float(obj[1] / max(float(obj[0]), 1e-300) - 1.0)
 
     @property
@@ -1154,6 +1157,7 @@ class Optimiser:
             "predicted_thrust_n": c.thrust_n,
             "predicted_power_w": c.power_w,  # in the optimiser's watt
             "watt": self.watt,
+            "objective": self.objective.name,
             "held": held,
             "source": self.source,
             "self_sensing_bound": self.self_sensing_bound,

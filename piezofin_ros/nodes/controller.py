@@ -28,6 +28,7 @@ from std_srvs.srv import Trigger
 from ..bags.blocks import Block
 from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.driveloop import DriveLoop
+from ..control.objective import OBJECTIVES
 from ..control.optimise import OperatingBox, Optimiser
 from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
@@ -89,6 +90,18 @@ class ControllerConfig:
         "the watt of the thrust per watt that ranks points: supply (what the battery pays, through the "
         "estimator's amplifier), supply_measured (the supply topic), fin (mean(v i)) or apparent",
         choices=tuple(WATTS),
+    )
+    objective: str = setting(
+        "thrust_per_watt",
+        "optimise: what it maximises in that watt: thrust_per_watt (the paper's), or range (a fish's "
+        "speed per watt, sqrt(thrust) / (watt + fixed_draw_w)); under a demand both take the least watt",
+        choices=tuple(OBJECTIVES),
+    )
+    fixed_draw_w: float = setting(
+        0.0,
+        "optimise, objective range: the draw paid whatever the fin does (a fish's hotel load), W",
+        0.0,
+        1e3,
     )
     after: str = setting(
         "stop", "after the trials: stop (0 V) or hold (drive the chosen point)", choices=("stop", "hold")
@@ -227,6 +240,7 @@ class Controller(Node):
                 min_thrust_n=c.min_thrust_n,
                 source=c.source,
                 watt=c.watt,
+                objective=OBJECTIVES[c.objective](c.fixed_draw_w),
                 amplifier=self.amplifier,
                 model=model,
                 z_demand=c.demand_margin_z,
@@ -247,7 +261,7 @@ class Controller(Node):
         goal = (
             f"demand {c.demand_n * 1e3:.2f} mN" if c.demand_n else f"best frequency at {c.voltage_pp:g} Vpp"
         )
-        summary = f"optimising thrust per {c.watt} watt from {c.source} estimates, {goal}"
+        summary = f"optimising {optimiser.objective.name} ({c.watt} watt) from {c.source} estimates, {goal}"
         return OptimiseStrategy(loop, c.duration_s, c.after), summary
 
     def _trials(self, c: ControllerConfig) -> tuple[Strategy, str]:

@@ -227,6 +227,21 @@ def test_parameters_have_ranges_and_reasons() -> None:
             FinSim(context=g.context, node_name="nofin", parameter_overrides=params(fin="M0000-X"))
         )
         assert bad_fin.trigger_configure() == TransitionCallbackReturn.FAILURE
+        with pytest.raises(StartupError, match="objective"):
+            Controller(context=g.context, node_name="c3", parameter_overrides=params(objective="speed"))
+        fish = g.add(
+            Controller(
+                context=g.context,
+                node_name="c4",
+                parameter_overrides=params(mode="optimise", objective="range", fixed_draw_w=0.3),
+            )
+        )
+        assert (
+            fish.loop is not None
+            and fish.loop.optimiser.objective.name == "speed per watt with 0.3 W of fixed draw (range)"
+        )
+        assert fish.describe_parameter("objective").additional_constraints == "one of: thrust_per_watt, range"
+        assert fish.describe_parameter("objective").read_only
 
 
 def test_fin_sim_and_controller_load_a_diagnosed_model(tmp_path: Any) -> None:
