@@ -139,16 +139,27 @@ class Background:
 
     def start(self, env: dict[str, str], cwd: Path) -> None:
         if self.launch is None:
+            # a fresh CLI daemon: the one of this domain may still list the nodes of a suite an earlier
+            # test ran and killed, till their lease ends (the CI run of stop 45: `topic list` showed a
+            # dead /fin/estimate, then `echo` found none and `param describe` no /fin/fin_sim)
+            subprocess.run(["ros2", "daemon", "stop"], env=env, capture_output=True, timeout=60)
             self.launch = Launch(env, cwd, "realtime_factor:=10", log="background-launch.log")
             self.launch.wait_for("trial 1.000 Hz", 60.0)  # estimates flow
-            # ... and the command line sees them: as a user would wait for `ros2 topic list` to show
-            # the topics before echoing one (on a loaded machine the CLI's discovery lags the graph)
+            # ... and the command line sees them: as a user would wait for `ros2 node list` and
+            # `ros2 topic list` to show them (on a loaded machine the CLI's discovery lags the graph)
             t0 = time.monotonic()
             while time.monotonic() - t0 < 60.0:
-                listed = subprocess.run(
-                    ["ros2", "topic", "list"], env=env, capture_output=True, text=True, timeout=60
-                ).stdout.split()
-                if "/fin/estimate" in listed and "/fin/cmd" in listed:
+                listed = [
+                    subprocess.run(
+                        ["ros2", kind, "list"], env=env, capture_output=True, text=True, timeout=60
+                    ).stdout.split()
+                    for kind in ("node", "topic")
+                ]
+                nodes, topics = listed
+                if {"/fin/fin_sim", "/fin/thrust_estimator", "/fin/controller"} <= set(nodes) and {
+                    "/fin/estimate",
+                    "/fin/cmd",
+                } <= set(topics):
                     break
                 time.sleep(0.5)
 

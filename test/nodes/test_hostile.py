@@ -209,7 +209,7 @@ def test_no_node_takes_use_sim_time_live(name: str, tmp_path) -> None:
     finally:
         out = finish(proc)
     assert replies, out[-2000:]
-    assert not replies[0].successful and "read-only" in replies[0].reason, replies[0]
+    assert not replies[0].successful and "fixed at start" in replies[0].reason, replies[0]
     assert "Traceback" not in out
 
 
