@@ -184,6 +184,8 @@ class Controller(Node):
         self.diagnostics = Diagnostics(self, c.model or c.fin)
         self.diagnostics.add("drive", self._diagnose_drive)
         self.diagnostics.add("estimates", self._diagnose_estimates)
+        if self.loop is not None:
+            self.diagnostics.add("fin model", self._diagnose_model)
         self.get_logger().info(summary)
 
     def _diagnose_drive(self) -> Report:
@@ -209,6 +211,21 @@ class Controller(Node):
         if state in ("ramping down", "stopped"):
             return Report(ERROR, f"no estimates: drive {state} (it retries)", values)
         return Report(OK, f"driving {f:.3g} Hz at {loop.command_v:.0f} Vpp ({loop.trials} trials)", values)
+
+    def _diagnose_model(self) -> Report:
+        """Whether the fin model it was given still explains the trials (issue 39: a wrong prior)."""
+        assert self.loop is not None
+        opt = self.loop.optimiser
+        given = self.config.model or self.config.fin
+        values = {
+            "given": given,
+            "trials": len(opt.observations),
+            "self_sensing_bound": opt.self_sensing_bound,
+            "optimiser_mode": str(opt.mode),
+        }
+        if opt.prior_dropped:
+            return Report(WARN, opt.prior_dropped, values)
+        return Report(OK, f"{given}, corrected by {len(opt.observations)} trials", values)
 
     def _diagnose_estimates(self) -> Report:
         ago = time.monotonic() - self._estimate_wall

@@ -242,6 +242,8 @@ def test_parameters_have_ranges_and_reasons() -> None:
         )
         assert fish.describe_parameter("objective").additional_constraints == "one of: thrust_per_watt, range"
         assert fish.describe_parameter("objective").read_only
+        model = fish._diagnose_model()  # (on /diagnostics as "c4: fin model": WARN once a prior is dropped)
+        assert model.level == 0 and model.message == "M8528-P1, corrected by 0 trials", model
 
 
 def test_fin_sim_and_controller_load_a_diagnosed_model(tmp_path: Any) -> None:
