@@ -144,7 +144,7 @@ class SpeedLoop:
 
     def fastest_m_s(self) -> float:
         """The speed the largest allowed demand gives through the drag law (U term neglected), m/s."""
-        return float(self.body.steady_speed(self.cap_n, 1e6, 1.0))
+        return float(self.body.steady_speed(self.cap_n))
 
     def feed_forward_n(self, speed_m_s: float) -> float:
         """Thrust per fin that holds ``speed_m_s`` against the drag law (the ``U`` term of Eq. 19 is
@@ -183,8 +183,7 @@ class SpeedLoop:
     def kp(self) -> float:
         if self.config.kp_n_per_m_s > 0:
             return self.config.kp_n_per_m_s
-        u = max(self.setpoint_m_s, 1e-3)
-        slope = self.body.rho_w * self.body.drag_area_m2 * u + self.body.drag_linear_n_s_m
+        slope = float(self.body.drag_slope_n_s_m(max(self.setpoint_m_s, 1e-3)))
         return 0.5 * slope / self.body.fins  # (a loop gain of 1/2: stable behind a trial's delay)
 
     def update(self, t: float) -> float:
@@ -234,7 +233,7 @@ class SpeedLoop:
         short = e > 0.02 * self.setpoint_m_s
         # (and slower than the estimated thrust gives through the drag law: a set-point beyond what
         # the fin gives, estimated right, is no contradiction)
-        expected = float(self.body.steady_speed(self._thrust, 1e6, 1.0)) if delivered else math.nan
+        expected = float(self.body.steady_speed(self._thrust)) if delivered else math.nan
         slow = self._speed < 0.95 * expected
         if not (self.kind == "saturated" and delivered and short and slow):
             self._saturated_since = math.nan
@@ -257,7 +256,7 @@ class SpeedLoop:
         """What is said of the loop now (its kind and its sentence): holding, saturated, or a sensor
         at odds with the drag law."""
         judged = t - self._thrust_t <= 60.0  # (an estimate of the fin's thrust in the last minute)
-        expected = float(self.body.steady_speed(self._thrust, 1e6, 1.0)) if judged else math.nan
+        expected = float(self.body.steady_speed(self._thrust)) if judged else math.nan
         off = abs(self._speed - expected) / max(expected, 1e-3) if judged else 0.0
         if off > self.config.disagreement:
             if math.isnan(self._disagree_since):

@@ -60,13 +60,16 @@ class SwimError(PhysicsError):
     """A body or a battery that cannot be (negative mass, zero capacity, ...): one line, the field."""
 
 
-def bending_speed(frequency_hz: ArrayLike, length_m: float) -> FloatArray:
-    """``c = omega L / 1.3765``: the swimming speed at which a fin beating at ``f`` gives no thrust."""
+def bending_speed(frequency_hz: ArrayLike | None, length_m: float | None) -> FloatArray:
+    """``c = omega L / 1.3765``: the swimming speed at which a fin beating at ``f`` gives no thrust
+    (infinite without a frequency: Eq. (19)'s speed term left out)."""
+    if frequency_hz is None or length_m is None:
+        return np.asarray(np.inf)
     return 2 * math.pi * np.asarray(frequency_hz, float) * length_m / TIP_SLOPE_L  # type: ignore[no-any-return]
 
 
 def thrust_at_speed(
-    thrust0_n: ArrayLike, frequency_hz: ArrayLike, length_m: float, U: ArrayLike
+    thrust0_n: ArrayLike, frequency_hz: ArrayLike | None, length_m: float | None, U: ArrayLike
 ) -> FloatArray:
     """Eq. (19) with its ``U`` term: ``T_0 (1 - (U / c)^2)`` (module docstring), N."""
     c = bending_speed(frequency_hz, length_m)
@@ -140,31 +143,49 @@ class Body:
         if isinstance(self.fins, bool) or not isinstance(self.fins, int) or not 1 <= self.fins <= 4:
             raise SwimError(f"{where}: fins = {self.fins!r} must be 1, 2, 3 or 4")
 
+    # The drag law and its closed forms, side by side (each tested against the others): the law, its
+    # slope, the speed it balances and the surge equation.  Every other module takes them from here.
     def drag_n(self, U: ArrayLike) -> FloatArray:
+        """``D(U) = (1/2) rho C_D S U |U| + b U``, N."""
         u = np.asarray(U, float)
         return 0.5 * self.rho_w * self.drag_area_m2 * u * np.abs(u) + self.drag_linear_n_s_m * u  # type: ignore[no-any-return]
 
-    def steady_speed(self, thrust0_n: ArrayLike, frequency_hz: ArrayLike, fin_length_m: float) -> FloatArray:
+    def drag_slope_n_s_m(self, U: ArrayLike) -> FloatArray:
+        """``dD/dU = rho C_D S |U| + b``, N s/m: the body's own damping at ``U``."""
+        return self.rho_w * self.drag_area_m2 * np.abs(np.asarray(U, float)) + self.drag_linear_n_s_m  # type: ignore[no-any-return]
+
+    def steady_speed(
+        self, thrust0_n: ArrayLike, frequency_hz: ArrayLike | None = None, fin_length_m: float | None = None
+    ) -> FloatArray:
         """The speed at which ``fins`` fins of still-water thrust ``thrust0_n`` (each, at
-        ``frequency_hz``) balance the drag, m/s (0 without thrust)."""
+        ``frequency_hz``) balance the drag, m/s (0 without thrust): the positive root of
+        ``D(U) = n T_0 (1 - (U/c)^2)``; without a frequency, of ``D(U) = n T_0`` (no speed term)."""
         t0 = np.maximum(np.asarray(thrust0_n, float), 0.0) * self.fins
         c = bending_speed(frequency_hz, fin_length_m)
         a = t0 / c**2 + 0.5 * self.rho_w * self.drag_area_m2
         b = self.drag_linear_n_s_m
         return (-b + np.sqrt(b * b + 4 * a * t0)) / (2 * a)  # type: ignore[no-any-return]
 
-    def acceleration(self, U: float, thrust0_n: float, frequency_hz: float, fin_length_m: float) -> float:
-        """``dU/dt`` at speed ``U`` (the surge equation), m/s^2."""
-        t = self.fins * float(thrust_at_speed(max(thrust0_n, 0.0), frequency_hz, fin_length_m, U))
-        return (t - float(self.drag_n(U))) / (self.mass_kg + self.added_mass_kg)
+    def surge_acceleration(self, thrust_n: float, U: float) -> float:
+        """The surge equation: ``dU/dt = (T - D(U)) / (m + m_a)`` for the fins' total thrust ``T`` at
+        the speed ``U`` (negative where a fin slower than the fish drags), m/s^2."""
+        return (thrust_n - float(self.drag_n(U))) / (self.mass_kg + self.added_mass_kg)
 
-    def time_constant_s(self, thrust0_n: float, frequency_hz: float, fin_length_m: float) -> float:
+    def acceleration(
+        self, U: float, thrust0_n: float, frequency_hz: float | None = None, fin_length_m: float | None = None
+    ) -> float:
+        """``dU/dt`` at speed ``U`` with ``fins`` fins of still-water thrust ``thrust0_n`` each (Eq. (19)'s
+        speed term at ``frequency_hz``; none without one), m/s^2."""
+        t = self.fins * float(thrust_at_speed(max(thrust0_n, 0.0), frequency_hz, fin_length_m, U))
+        return self.surge_acceleration(t, U)
+
+    def time_constant_s(
+        self, thrust0_n: float, frequency_hz: float | None = None, fin_length_m: float | None = None
+    ) -> float:
         """How fast a speed step settles: ``(m + m_a)`` over the slope of net drag at the steady speed."""
         U = float(self.steady_speed(thrust0_n, frequency_hz, fin_length_m))
         c = float(bending_speed(frequency_hz, fin_length_m))
-        slope = (
-            self.rho_w * self.drag_area_m2 * U + self.drag_linear_n_s_m + 2 * self.fins * thrust0_n * U / c**2
-        )
+        slope = float(self.drag_slope_n_s_m(U)) + 2 * self.fins * thrust0_n * U / c**2
         return (self.mass_kg + self.added_mass_kg) / slope if slope > 0 else math.inf
 
     def cost_of_transport(self, power_w: ArrayLike, U: ArrayLike) -> FloatArray:

@@ -59,8 +59,7 @@ class FreeSwimmer:
     def advance(self, dt_s: float, thrust_n: float, frequency_hz: float, supply_w: float) -> None:
         """One block of ``dt_s``: its mean thrust per fin (at the present speed) and supply power."""
         b = self.body
-        drag = float(b.drag_n(self.speed_m_s))
-        accel = (b.fins * thrust_n - drag) / (b.mass_kg + b.added_mass_kg)
+        accel = b.surge_acceleration(b.fins * thrust_n, self.speed_m_s)
         self.speed_m_s = max(self.speed_m_s + accel * dt_s, -1.0)
         self.distance_m += self.speed_m_s * dt_s
         if self.battery is not None and not self.empty:

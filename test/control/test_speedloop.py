@@ -45,7 +45,7 @@ def swim(
             loop.estimate(t, thrust)
         demand = loop.update(t)
         thrust += (demand - thrust) * DT / lag_s
-        u += DT * truth.acceleration(u, thrust, 1e6, 1.0)
+        u += DT * truth.acceleration(u, thrust)
         ts.append(t), us.append(u), ds.append(demand)
     return np.array(ts), np.array(us), np.array(ds)
 
@@ -109,7 +109,7 @@ def test_behind_the_optimisers_trials_the_loop_does_not_oscillate(drag_error: fl
         thrust += (held - thrust) * DT / 3.0
         if k % 50 == 0:
             loop.estimate(t, thrust)
-        u += DT * truth.acceleration(u, thrust, 1e6, 1.0)
+        u += DT * truth.acceleration(u, thrust)
         speeds.append(u)
     late = np.array(speeds[-int(200.0 / DT) :])
     assert np.all(np.abs(late / 0.05 - 1) <= 0.05), (late.min(), late.max())
@@ -179,7 +179,7 @@ def test_a_fin_that_cannot_give_the_demand_is_no_lying_sensor() -> None:
         loop.measure(t, u + 0.002 * rng.standard_normal())
         thrust = min(loop.update(t), 0.0035)
         loop.estimate(t, thrust)
-        u += 0.1 * capped.acceleration(u, thrust, 1e6, 1.0)
+        u += 0.1 * capped.acceleration(u, thrust)
     assert "lies" not in loop.state and "at the most thrust allowed" in loop.state
 
 
@@ -201,7 +201,7 @@ def test_a_loop_saturated_on_estimates_that_read_high_widens_what_it_asks() -> N
         loop.widened.clear()
         thrust += (demand / 1.6 - thrust) * 0.1 / 2.0  # the fin gives the demand as its estimate reads it
         loop.estimate(t, 1.6 * thrust)
-        u += 0.1 * body.acceleration(u, thrust, 1e6, 1.0)
+        u += 0.1 * body.acceleration(u, thrust)
     assert said and "read high against the speed" in said[0], said
     assert 0.004 < loop.cap_n <= 3 * 0.004
     assert abs(u / 0.08 - 1.0) < 0.03 and loop.kind == "holding", (u, loop.state)

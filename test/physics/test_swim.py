@@ -66,6 +66,35 @@ def test_the_steady_speed_is_where_the_surge_equation_rests(thrust, f, area, lin
     assert 0 < tau < math.inf
 
 
+@settings(max_examples=30, deadline=None)
+@given(
+    thrust=st.floats(1e-4, 0.05),
+    U=st.floats(-0.5, 0.5),
+    area=st.floats(5e-4, 1e-2),
+    linear=st.floats(0.0, 0.05),
+    fins=st.integers(1, 2),
+)
+def test_the_drag_law_its_slope_and_its_balance_agree(thrust, U, area, linear, fins) -> None:
+    """The drag law once, its closed forms beside it (issue 40: written four times before): the slope
+    against the law's central difference, the speed without Eq. (19)'s term against a root of
+    ``D(U) = n T`` (scipy) and as the limit of a fin beating ever faster, the surge equation's
+    rest there, and the loop's time constant against the slope."""
+    body = Body(drag_area_m2=area, drag_linear_n_s_m=linear, fins=fins)
+    h = 1e-6
+    numeric = (float(body.drag_n(U + h)) - float(body.drag_n(U - h))) / (2 * h)
+    assert float(body.drag_slope_n_s_m(U)) == pytest.approx(
+        numeric, rel=1e-6, abs=2e-5
+    )  # (U |U| at 0: h rho A)
+    U0 = float(body.steady_speed(thrust))
+    root = optimize.brentq(lambda u: float(body.drag_n(u)) - fins * thrust, 0.0, 10.0, xtol=1e-14)
+    assert pytest.approx(root, rel=1e-9) == U0
+    assert pytest.approx(float(body.steady_speed(thrust, 1e6, 1.0)), rel=1e-9) == U0
+    assert body.acceleration(U0, thrust) == pytest.approx(0.0, abs=1e-12)
+    assert body.surge_acceleration(fins * thrust, U0) == pytest.approx(0.0, abs=1e-12)
+    tau = body.time_constant_s(thrust)
+    assert tau == pytest.approx((body.mass_kg + body.added_mass_kg) / float(body.drag_slope_n_s_m(U0)))
+
+
 def _endurance_by_quadrature(battery: Battery, power: float) -> float:
     """One charge's endurance at constant power, by scipy's quadrature of ``3600 C / I(q)`` down to
     the state of charge where the terminal voltage meets the cut-off."""
