@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..physics.amplifier import Amplifier, LinearAmplifier, SwitchingAmplifier
+from ..physics.amplifier import Amplifier
 from ..physics.model import Model
 from ..physics.swim import Battery, Body, Swim
 
@@ -139,9 +139,7 @@ class Fish:
         dense = np.geomspace(1.0, 30.0, 240)
         volts = self.voltage_grid()
         top = self.voltage_pp_max
-        quiet = self.amplifier
-        if isinstance(quiet, LinearAmplifier | SwitchingAmplifier):  # (every kind has a quiescent draw)
-            quiet = replace(quiet, quiescent_w=0.0)
+        quiet = self.amplifier.without_quiescent()
 
         def beyond(fixed_w: float) -> float:
             fish = replace(self, battery=replace(self.battery, hotel_w=fixed_w), amplifier=quiet)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -120,6 +120,13 @@ class Amplifier:
 
     def describe(self) -> str:
         raise NotImplementedError
+
+    def without_quiescent(self) -> Amplifier:
+        """This amplifier with no draw at rest (every kind has ``quiescent_w``; a kind without one is
+        itself): what the fins' own watts cost, the fixed draw counted apart."""
+        if any(f.name == "quiescent_w" for f in fields(self)):
+            return replace(self, quiescent_w=0.0)  # type: ignore[call-arg]  # (each kind declares it)
+        return self
 
     def _quiescent(self) -> str:
         q = float(getattr(self, "quiescent_w", 0.0))
