@@ -3,7 +3,7 @@
     python benchmarks/bench_controller.py [--seeds 6] [--plot docs/controller.png]
                                           [--plants ...] [--workers 2] [--ray ADDRESS] [--no-drift]
 
-Plants (``piezofin_ros.control.plants``), each with measurement noise, parameters drawn per seed: the
+Plants (``piezofin_ros.bench.plants``), each with measurement noise, parameters drawn per seed: the
 nominal model; electroelastic softening (resonance down by 10-40 % at 800 Vpp); dielectric loss
 (tan delta 0.05-0.3); and softening, loss and a resonance off by up to 15 % together.  Two tasks:
 a thrust demand of 30 % of the fin's nominal maximum, and the paper's convention (best frequency
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from piezofin_ros import workers
-from piezofin_ros.control.evaluation import (
+from piezofin_ros.bench.evaluation import (
     TRIAL_S_CONTINUOUS,
     TRIAL_S_PROTOCOL,
     campaign,
@@ -39,8 +39,8 @@ from piezofin_ros.control.evaluation import (
     score,
     true_optimum,
 )
+from piezofin_ros.bench.plants import Plant
 from piezofin_ros.control.optimise import OperatingBox, Optimiser
-from piezofin_ros.control.plants import Plant
 from piezofin_ros.physics.fin import load_fin
 
 LIMITS = OperatingBox(1.0, 20.0, 50.0, 800.0)

@@ -7,9 +7,9 @@
 Each fin as the paper's twin (``config/models/paper-twin-<fin>.yaml``) carries the body
 ``mfc-fish`` with the battery ``li-ion-2s-500mah`` and the amplifier ``fish-switching``, and swims
 from rest for ``--duration`` s of fish time with a set-point of 65 % of its fastest steady speed,
-stepped to 85 % halfway (:func:`~piezofin_ros.control.fishrun.swim_run`: the fish stack's science
+stepped to 85 % halfway (:func:`~piezofin_ros.bench.fishrun.swim_run`: the fish stack's science
 without ROS, the speed loop with its defaults and ``config/fish.yaml``'s 8 mN cap).  The drives
-(:data:`~piezofin_ros.control.fishrun.STRATEGIES`): the optimising controller on the drive's voltage
+(:data:`~piezofin_ros.bench.fishrun.STRATEGIES`): the optimising controller on the drive's voltage
 and current alone, ranking by the supply watt or by the fin's ``mean(v i)``; the resonance with the
 loop's demand turned into a voltage through the model; the paper's grid measured in the tank, its
 cheapest point that meets the demand; the resonance at full voltage; the paper's 5.5 Hz / 800 Vpp.
@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 
 from piezofin_ros import workers
-from piezofin_ros.control.fishrun import MEASURED, STRATEGIES, Trace, drive_for, swim_run
-from piezofin_ros.control.plants import Plant
+from piezofin_ros.bench.fishrun import MEASURED, STRATEGIES, Trace, drive_for, swim_run
+from piezofin_ros.bench.plants import Plant
 from piezofin_ros.control.speedloop import SpeedLoopConfig
 from piezofin_ros.control.swimming import Fish
 from piezofin_ros.physics.amplifier import load_amplifier

@@ -48,16 +48,16 @@ from typing import Any
 import numpy as np
 
 from piezofin_ros import workers
-from piezofin_ros.control.evaluation import (
+from piezofin_ros.bench.evaluation import (
     TRIAL_S_CONTINUOUS,
     TRIAL_S_PROTOCOL,
     campaign,
     score,
     true_optimum,
 )
+from piezofin_ros.bench.plants import Plant, read
 from piezofin_ros.control.gp import ResidualGP
 from piezofin_ros.control.optimise import OperatingBox, Optimiser
-from piezofin_ros.control.plants import Plant, read
 from piezofin_ros.physics.amplifier import (
     WATTS,
     Amplifier,

@@ -37,6 +37,7 @@ LAYERS = (
     "estimation",
     "identification",
     "control",
+    "bench",
     "diagnosis",
     "cli",
     "nodes",

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from piezofin_ros.bench.fishrun import MEASURED, STRATEGIES, FixedDrive, drive_for, swim_run
+from piezofin_ros.bench.plants import Plant
 from piezofin_ros.control.driveloop import DriveLoop
-from piezofin_ros.control.fishrun import MEASURED, STRATEGIES, FixedDrive, drive_for, swim_run
 from piezofin_ros.control.optimise import Correction, OperatingBox, Optimiser
-from piezofin_ros.control.plants import Plant
 from piezofin_ros.control.speedloop import DemandGate, SpeedLoopConfig
 from piezofin_ros.errors import ControlError
 from piezofin_ros.physics.amplifier import load_amplifier
@@ -216,7 +216,7 @@ def test_the_benchmarks_fish_controller_is_config_fish_yamls() -> None:
     """``fishrun``'s fish controller settings are the ones the fish's launch gives its controller."""
     import yaml
 
-    from piezofin_ros.control import fishrun
+    from piezofin_ros.bench import fishrun
 
     root = Path(__file__).resolve().parents[2]
     params = yaml.safe_load((root / "config" / "fish.yaml").read_text())["/**/controller"]["ros__parameters"]

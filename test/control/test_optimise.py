@@ -13,11 +13,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from piezofin_ros.control import evaluation
+from piezofin_ros.bench import evaluation
+from piezofin_ros.bench.evaluation import score, true_optimum
+from piezofin_ros.bench.plants import Plant, read
 from piezofin_ros.control.driveloop import DriveLoop
-from piezofin_ros.control.evaluation import score, true_optimum
 from piezofin_ros.control.optimise import Correction, Observation, OperatingBox, Optimiser
-from piezofin_ros.control.plants import Plant, read
 from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.physics.effects import Leakage
 from piezofin_ros.physics.fin import Fin, load_fin
@@ -373,7 +373,7 @@ def test_the_self_sensed_thrust_is_taken_at_the_voltage_the_fin_got(m8528: Fin, 
     each trial's self-sensed thrust from the drive's admittance: taken at the commanded voltage it
     read the motional current (V_cmd / V_drive) times too strong, and the thrust that squared (+227 %
     on M8514-P1 with a current limit in ``bench_unseen``); at the monitor's voltage it is the truth."""
-    from piezofin_ros.control.plants import read
+    from piezofin_ros.bench.plants import read
     from piezofin_ros.physics.effects import make
 
     plant = Plant(m8528, effects=(make(effect, [4.0]),))  # (1/mA: 0.25 mA, below the 0.39 mA at 8 Hz)

@@ -13,9 +13,9 @@ import math
 import numpy as np
 import pytest
 
-from piezofin_ros.control.evaluation import campaign, run_trial, score, true_optimum
+from piezofin_ros.bench.evaluation import campaign, run_trial, score, true_optimum
+from piezofin_ros.bench.plants import Plant, read
 from piezofin_ros.control.optimise import OperatingBox, Optimiser
-from piezofin_ros.control.plants import Plant, read
 from piezofin_ros.physics.effects import AddedMassOffset, DragOffset, make
 from piezofin_ros.physics.fin import load_fin
 

@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..control.response import EstimateNoise, PlantResponse
 from ..estimation.selfsense import Calibration, lighthill_thrust, self_sensed_tip
 from ..physics.amplifier import PAPER_BENCH, Amplifier, power_in
 from ..physics.effects import DielectricLoss, Effect, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
-from .response import EstimateNoise, PlantResponse
 
 FloatArray = NDArray[Any]
 

@@ -37,6 +37,9 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from ..control.driveloop import DriveLoop
+from ..control.optimise import OperatingBox, Optimiser
+from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 from ..errors import ControlError
 from ..estimation.estimator import Estimate, EstimatorConfig
 from ..estimation.selfsense import Calibration
@@ -44,10 +47,7 @@ from ..physics.amplifier import Amplifier
 from ..physics.model import Model
 from ..physics.swim import Battery, Body, thrust_at_speed
 from ..rig.fish import FreeSwimmer
-from .driveloop import DriveLoop
-from .optimise import OperatingBox, Optimiser
 from .plants import Plant, read
-from .speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 
 FloatArray = NDArray[np.float64]
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .optimise import OperatingBox, Optimiser
+from ..control.optimise import OperatingBox, Optimiser
 from .plants import Plant, read
 
 FloatArray = NDArray[Any]
