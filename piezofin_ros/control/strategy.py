@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 from ..estimation.estimator import Estimate
 from .driveloop import DriveLoop
+from .objective import THRUST_PER_WATT, Objective
 from .trials import SOURCES, Mode, TrialResult, TrialRunner, choose, watt_label
 
 Command = tuple[float, float, float]  # (frequency_hz, voltage_pp, on)
@@ -85,6 +86,7 @@ class TrialStrategy:
     max_missing: int = 2
     after: str = "stop"  # stop (0 V) or hold (drive the chosen point)
     watt: str = "fin"  # the watt of the thrust per watt that chooses (physics/amplifier.py, WATTS)
+    objective: Objective = THRUST_PER_WATT  # what chooses, in that watt (control/objective.py)
     takes_demand: bool = False
     finished: bool = False
     chosen: TrialResult | None = None
@@ -141,7 +143,7 @@ class TrialStrategy:
     def _finish(self) -> None:
         self.finished = True
         self._changed = True
-        self.chosen = choose(self.runner.results, self.source, self.min_thrust_n, self.watt)
+        self.chosen = choose(self.runner.results, self.source, self.min_thrust_n, self.watt, self.objective)
         if self.chosen is not None:
             e = self.chosen.estimate
             assert e is not None

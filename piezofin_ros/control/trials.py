@@ -28,6 +28,7 @@ from ..errors import ControlError
 from ..estimation.estimator import THRUST_FIELDS, Estimate
 from ..physics.amplifier import check_watt
 from ..physics.waveforms import ProtocolTiming
+from .objective import THRUST_PER_WATT, Objective
 
 #: Which estimate ranks the operating points (a fish has only ``self``): its thrust field.
 SOURCES = THRUST_FIELDS
@@ -184,10 +185,15 @@ def _agree(a: Estimate, b: Estimate, tolerance: float) -> bool:
 
 
 def choose(
-    results: Sequence[TrialResult], source: str = "vibrometer", min_thrust_n: float = 0.0, watt: str = "fin"
+    results: Sequence[TrialResult],
+    source: str = "vibrometer",
+    min_thrust_n: float = 0.0,
+    watt: str = "fin",
+    objective: Objective = THRUST_PER_WATT,
 ) -> TrialResult | None:
-    """The trial with the most thrust per watt (in ``watt``, :data:`~piezofin_ros.physics.amplifier.WATTS`)
-    among those giving at least ``min_thrust_n``.
+    """The trial with the best ``objective`` (thrust per watt unless told, :mod:`.objective`) in
+    ``watt`` (:data:`~piezofin_ros.physics.amplifier.WATTS`) among those giving at least
+    ``min_thrust_n``.
 
     If none reaches ``min_thrust_n``, the one with the most thrust.  ``None`` without results.
     """
@@ -198,8 +204,17 @@ def choose(
         return None
     ok = [r for r in done if getattr(r.estimate, thrust_key) >= min_thrust_n]
     if ok:
-        return max(ok, key=lambda r: _finite(r.estimate.thrust_per(watt, source) if r.estimate else math.nan))
+        return max(ok, key=lambda r: _score(r, thrust_key, watt, objective))
     return max(done, key=lambda r: getattr(r.estimate, thrust_key))
+
+
+def _score(r: TrialResult, thrust_key: str, watt: str, objective: Objective) -> float:
+    """A trial's ``objective`` (-inf where its watt is not measured)."""
+    assert r.estimate is not None
+    power = r.estimate.power(watt)
+    if not (math.isfinite(power) and power > 0):
+        return -math.inf
+    return _finite(float(objective(getattr(r.estimate, thrust_key), power)))
 
 
 def watt_label(watt: str) -> str:

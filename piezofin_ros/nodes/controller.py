@@ -93,8 +93,9 @@ class ControllerConfig:
     )
     objective: str = setting(
         "thrust_per_watt",
-        "optimise: what it maximises in that watt: thrust_per_watt (the paper's), or range (a fish's "
-        "speed per watt, sqrt(thrust) / (watt + fixed_draw_w)); under a demand both take the least watt",
+        "what chooses a point in that watt (the optimiser and the trial modes): thrust_per_watt (the "
+        "paper's), or range (a fish's speed per watt, sqrt(thrust) / (watt + fixed_draw_w)); under a "
+        "demand both take the least watt",
         choices=tuple(OBJECTIVES),
     )
     fixed_draw_w: float = setting(
@@ -302,10 +303,13 @@ class Controller(Node):
             )
         except PiezofinError as exc:
             raise StartupError(f"trial plan: {exc}") from None
-        strategy = TrialStrategy(TrialRunner(plan), c.source, c.min_thrust_n, c.max_missing, c.after, c.watt)
+        objective = OBJECTIVES[c.objective](c.fixed_draw_w)
+        strategy = TrialStrategy(
+            TrialRunner(plan), c.source, c.min_thrust_n, c.max_missing, c.after, c.watt, objective
+        )
         n = len(plan.points)
         fin_time = f", {n * plan.trial_s:.0f} s of fin time" if plan.mode is Mode.PROTOCOL else ""
-        return strategy, f"{n} {c.mode} trials{fin_time}, choosing by thrust per {c.watt} watt"
+        return strategy, f"{n} {c.mode} trials{fin_time}, choosing by {objective.name} ({c.watt} watt)"
 
     # what tests, bringup and users look at: the strategy's own state
     @property

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import pytest
 
+from piezofin_ros.control.objective import range_per_charge
 from piezofin_ros.control.trials import Mode, TrialPlan, TrialRunner, choose
 from piezofin_ros.estimation.estimator import Estimate
 
@@ -81,6 +82,10 @@ def test_choose_most_thrust_per_watt_above_the_demand() -> None:
     assert choose(runner.results, min_thrust_n=1e-3).frequency_hz == 5.0
     assert choose(runner.results, min_thrust_n=0.0).frequency_hz == 2.0
     assert choose(runner.results, min_thrust_n=1.0).frequency_hz == 9.0  # none meets it: most thrust
+    # by the objective given (control/objective.py): a fish paying 0.3 W besides goes farthest on the
+    # most thrust, sqrt(15 mN) / 0.32 W against sqrt(2 mN) / 0.301 W
+    fish = range_per_charge(0.3)
+    assert choose(runner.results, min_thrust_n=1e-3, objective=fish).frequency_hz == 9.0
 
 
 @pytest.mark.parametrize(
