@@ -3,8 +3,10 @@
 Subscribes ``swim_speed`` (std_msgs/Float64, m/s: the fish's speed sensor) and publishes
 ``thrust_demand`` (std_msgs/Float64, N per fin) at ``rate_hz`` on the node's clock, with what it is
 doing on ``speed_loop/status`` (std_msgs/String).  The set-point is the parameter ``speed_m_s``,
-settable live (``ros2 param set /fish/speed_loop speed_m_s 0.06``); everything else is fixed at
-start.  The loop itself is :class:`~piezofin_ros.control.speedloop.SpeedLoop`: feed-forward through
+settable live (``ros2 param set /fish/speed_loop speed_m_s 0.06``), or a fish stack's ``cmd_vel``
+(``geometry_msgs/Twist``, or ``TwistStamped`` with ``cmd_vel_stamped``): its ``linear.x``, back to 0
+when none comes for ``cmd_vel_timeout_s`` (0.5 s), as ROS base controllers stop; everything else is
+fixed at start.  The loop itself is :class:`~piezofin_ros.control.speedloop.SpeedLoop`: feed-forward through
 the body's drag law, feedback on the measured speed, the demand never above ``loop.max_demand_n``.
 """
 
@@ -15,6 +17,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+from geometry_msgs.msg import Twist, TwistStamped
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -42,6 +45,25 @@ from ._common import (
     scalar,
 )
 from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
+
+#: A fish stack's velocity command, relative: ``/fish/cmd_vel`` in the fish's namespace.
+TOPIC_CMD_VEL = "cmd_vel"
+#: The fastest yaw rate any fish's command may ask, rad/s (either way): beyond, it is no command.
+YAW_RATE_MOST_RAD_S = 100.0
+
+
+def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
+    """The door's check of a ``cmd_vel``: (forward speed m/s, yaw rate rad/s), each finite and within
+    what any fish does (a stamped one's twist)."""
+    twist = msg.twist if isinstance(msg, TwistStamped) else msg
+    forward, yaw = float(twist.linear.x), float(twist.angular.z)
+    if not (math.isfinite(forward) and abs(forward) <= SPEED_MOST_M_S):
+        raise MessageRefused(f"linear.x = {forward!r} m/s is no fish's speed (within +-{SPEED_MOST_M_S:g})")
+    if not (math.isfinite(yaw) and abs(yaw) <= YAW_RATE_MOST_RAD_S):
+        raise MessageRefused(
+            f"angular.z = {yaw!r} rad/s is no fish's turn (within +-{YAW_RATE_MOST_RAD_S:g})"
+        )
+    return forward, yaw
 
 
 def fin_thrust(msg: Float64MultiArray) -> float:
@@ -74,6 +96,16 @@ class SpeedLoopNodeConfig:
         0.0,
         1.0,
     )
+    cmd_vel_timeout_s: float = setting(
+        0.5,
+        "a fish stack's cmd_vel (geometry_msgs/Twist, linear.x m/s) sets the set-point; none for this "
+        "long (node clock) after one came: the set-point falls to 0, as ROS base controllers stop, s",
+        0.05,
+        60.0,
+    )
+    cmd_vel_stamped: bool = setting(
+        False, "cmd_vel is geometry_msgs/TwistStamped (nav2's default since Jazzy), not Twist"
+    )
 
 
 class SpeedLoopNode(Node):
@@ -97,6 +129,13 @@ class SpeedLoopNode(Node):
         )
         self.inbox.polled(
             Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, fin_thrust, depth=200, most=20
+        )
+        # a fish stack's velocity command (teleop, nav2): its forward speed is the set-point
+        self._cmd_vel_timeout_s = own.cmd_vel_timeout_s
+        self._cmd_vel_t = math.nan  # (node clock, s) the latest cmd_vel; NaN: none yet, or timed out
+        self._cmd_vel_said: set[str] = set()
+        self.inbox.latest(
+            TwistStamped if own.cmd_vel_stamped else Twist, TOPIC_CMD_VEL, self._on_cmd_vel, velocity_command
         )
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
@@ -152,6 +191,42 @@ class SpeedLoopNode(Node):
         self.inbox.close()  # (its hidden helper node, which holds the polled subscriptions)
         super().destroy_node()
 
+    def _on_cmd_vel(self, command: tuple[float, float]) -> None:
+        """A velocity command: its forward speed becomes the set-point (what this fish cannot do, it
+        says once: swim backwards, turn, beyond its fastest)."""
+        forward, yaw_rate = command
+        self._cmd_vel_t = self._now()
+        if forward < 0:
+            self._say_once(
+                "backwards", f"cmd_vel asks {forward:.3g} m/s: this fish does not swim backwards (0)"
+            )
+        if yaw_rate != 0:
+            self._say_once("turn", f"cmd_vel asks {yaw_rate:.3g} rad/s of yaw: this fish does not turn yet")
+        speed = max(forward, 0.0)
+        top = self.loop.fastest_m_s()
+        if speed > top:
+            self._say_once(
+                "fast", f"cmd_vel asks {speed:.3g} m/s: beyond the fastest this fish swims, {top:.3g}"
+            )
+        if abs(speed - self.loop.setpoint_m_s) > 1e-6:
+            self.loop.set_setpoint(speed)  # (beyond its fastest: said once above, the loop at its cap)
+
+    def _say_once(self, key: str, text: str) -> None:
+        if key not in self._cmd_vel_said:
+            self._cmd_vel_said.add(key)
+            self.get_logger().warning(text)
+
+    def _cmd_vel_expired(self, t: float) -> None:
+        """No cmd_vel for ``cmd_vel_timeout_s`` after one came: stop swimming (set-point 0), said."""
+        if math.isnan(self._cmd_vel_t) or t - self._cmd_vel_t <= self._cmd_vel_timeout_s:
+            return
+        self.get_logger().warning(
+            f"no cmd_vel for {t - self._cmd_vel_t:.2f} s (> {self._cmd_vel_timeout_s:g} s): set-point 0, "
+            "no thrust asked"
+        )
+        self._cmd_vel_t = math.nan
+        self.loop.set_setpoint(0.0)
+
     def _on_speed(self, speed_m_s: float) -> None:
         if not self.loop.measure(self._now(), speed_m_s):
             self.refused += 1
@@ -169,6 +244,7 @@ class SpeedLoopNode(Node):
         t = self._now()
         if t == 0.0:
             return  # use_sim_time and no /clock yet
+        self._cmd_vel_expired(t)
         demand = self.loop.update(t)
         for said in self.loop.widened:  # (a wrong prior acted on: said once, each time)
             self.get_logger().warning(said)
