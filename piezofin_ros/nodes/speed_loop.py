@@ -18,12 +18,14 @@ import time
 from dataclasses import dataclass
 
 from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray, String
 
 from ..config import setting
+from ..control.odometry import UNKNOWN, DeadReckoning
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 from ..errors import PiezofinError
 from ..estimation.estimator import THRUST_MOST_N
@@ -48,6 +50,8 @@ from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 
 #: A fish stack's velocity command, relative: ``/fish/cmd_vel`` in the fish's namespace.
 TOPIC_CMD_VEL = "cmd_vel"
+#: Where the fish is, dead-reckoned (nav_msgs/Odometry), relative: ``/fish/odom``.
+TOPIC_ODOM = "odom"
 #: The fastest yaw rate any fish's command may ask, rad/s (either way): beyond, it is no command.
 YAW_RATE_MOST_RAD_S = 100.0
 
@@ -106,6 +110,15 @@ class SpeedLoopNodeConfig:
     cmd_vel_stamped: bool = setting(
         False, "cmd_vel is geometry_msgs/TwistStamped (nav2's default since Jazzy), not Twist"
     )
+    speed_sigma_m_s: float = setting(
+        0.002, "odom: the speed sensor's noise per reading, m/s (the covariance it fills)", 0.0, 10.0
+    )
+    speed_bias_m_s: float = setting(
+        0.001,
+        "odom: the most the speed sensor's bias may be, m/s (the position's error grows with it)",
+        0.0,
+        10.0,
+    )
 
 
 class SpeedLoopNode(Node):
@@ -137,6 +150,9 @@ class SpeedLoopNode(Node):
         self.inbox.latest(
             TwistStamped if own.cmd_vel_stamped else Twist, TOPIC_CMD_VEL, self._on_cmd_vel, velocity_command
         )
+        # where the fish is, dead-reckoned from its speed (control/odometry.py), as ROS tools read it
+        self.odometry = DeadReckoning(own.speed_sigma_m_s, own.speed_bias_m_s)
+        self._odom = self.create_publisher(Odometry, TOPIC_ODOM, QOS_COMMAND)
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
         self._said = self._published = ""
@@ -216,6 +232,27 @@ class SpeedLoopNode(Node):
             self._cmd_vel_said.add(key)
             self.get_logger().warning(text)
 
+    def _publish_odometry(self) -> None:
+        """``odom`` (nav_msgs/Odometry): ``odom`` to ``base_link``, the fish on its heading (x), its
+        covariance filled; what it does not observe (across, the heading: it swims straight) unknown."""
+        o, msg = self.odometry, Odometry()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+        msg.pose.pose.position.x = o.x_m
+        msg.pose.pose.orientation.w = 1.0
+        pose = [0.0] * 36
+        pose[0] = o.x_var_m2
+        for k in (7, 14, 21, 28, 35):  # y, z, roll, pitch, yaw: not observed
+            pose[k] = UNKNOWN
+        msg.pose.covariance = pose
+        msg.twist.twist.linear.x = o.speed_m_s
+        twist = [0.0] * 36
+        twist[0] = o.speed_var_m2_s2
+        for k in (7, 14, 21, 28, 35):
+            twist[k] = UNKNOWN
+        msg.twist.covariance = twist
+        self._odom.publish(msg)
+
     def _cmd_vel_expired(self, t: float) -> None:
         """No cmd_vel for ``cmd_vel_timeout_s`` after one came: stop swimming (set-point 0), said."""
         if math.isnan(self._cmd_vel_t) or t - self._cmd_vel_t <= self._cmd_vel_timeout_s:
@@ -228,7 +265,9 @@ class SpeedLoopNode(Node):
         self.loop.set_setpoint(0.0)
 
     def _on_speed(self, speed_m_s: float) -> None:
-        if not self.loop.measure(self._now(), speed_m_s):
+        now = self._now()
+        self.odometry.add(now, speed_m_s)
+        if not self.loop.measure(now, speed_m_s):
             self.refused += 1
             self.get_logger().warning(
                 f"refused a speed reading of {speed_m_s!r} m/s (not a finite speed)",
@@ -245,6 +284,7 @@ class SpeedLoopNode(Node):
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         self._cmd_vel_expired(t)
+        self._publish_odometry()
         demand = self.loop.update(t)
         for said in self.loop.widened:  # (a wrong prior acted on: said once, each time)
             self.get_logger().warning(said)

@@ -4,6 +4,7 @@ command is refused at the door, whatever its field."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from pathlib import Path
@@ -75,3 +76,41 @@ def test_cmd_vel_sets_the_speed_and_its_silence_stops_the_fish(tmp_path: Path) -
     assert "no cmd_vel for" in out and "set-point 0" in out, out[-3000:]
     # (refusals are said at most once a second per topic, with their count and the latest reason)
     assert "message(s) on /cv/cmd_vel; the latest:" in out and "Traceback" not in out, out[-3000:]
+
+
+@pytest.mark.slow
+def test_odometry_is_dead_reckoned_from_the_speed_sensor_with_its_covariance() -> None:
+    """``odom`` (nav_msgs/Odometry) as a fish stack reads it: the distance the speed readings give
+    (their trapezoid), the speed as twist, ``odom`` to ``base_link``, stamps that advance, and the
+    covariance of the sensor's noise and bias (control/odometry.py), the unobserved axes unknown."""
+    from nav_msgs.msg import Odometry
+
+    from piezofin_ros.control.odometry import UNKNOWN
+
+    proc = start("speed_loop", "-r", "__ns:=/odo", "-p", "rate_hz:=20.0", "-p", "speed_bias_m_s:=0.002")
+    odoms: list[Odometry] = []
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("sensor", namespace="odo", context=g.context))
+            speed = node.create_publisher(Float64, "swim_speed", QOS_COMMAND)
+            node.create_subscription(Odometry, "odom", odoms.append, QOS_COMMAND)
+            g.spin_until(lambda: speed.get_subscription_count() > 0 and odoms, timeout=60.0, what="match")
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 3.0:
+                speed.publish(Float64(data=0.05))
+                g.spin_for(0.05)
+            swum = time.monotonic() - t0
+            g.spin_for(0.3)
+    finally:
+        stop(proc)
+    last = odoms[-1]
+    assert last.header.frame_id == "odom" and last.child_frame_id == "base_link"
+    assert last.pose.pose.orientation.w == 1.0 and last.twist.twist.linear.x == pytest.approx(0.05)
+    x = last.pose.pose.position.x
+    assert x == pytest.approx(0.05 * swum, rel=0.1), (x, swum)  # (the first reading starts it: ~50 ms)
+    stamps = [o.header.stamp.sec + o.header.stamp.nanosec * 1e-9 for o in odoms]
+    assert all(b >= a for a, b in itertools.pairwise(stamps)) and stamps[-1] > stamps[0]
+    pose = list(last.pose.covariance)
+    assert pose[0] == pytest.approx(0.002**2 * 0.05 * (x / 0.05) + (0.002 * x / 0.05) ** 2, rel=0.3)
+    assert all(pose[k] == UNKNOWN for k in (7, 14, 21, 28, 35))
+    assert last.twist.covariance[0] == pytest.approx(0.002**2)

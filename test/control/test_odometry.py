@@ -1,0 +1,42 @@
+"""The fish's dead reckoning against its closed forms: the distance of a known speed, and the
+variance of the sensor's noise and bias."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from piezofin_ros.control.odometry import DeadReckoning
+from piezofin_ros.errors import ControlError
+
+
+def test_a_constant_speed_gives_its_distance_and_the_variance_grows_as_its_closed_form() -> None:
+    odo = DeadReckoning(speed_sigma_m_s=0.002, speed_bias_m_s=0.001)
+    dt, T, u = 0.05, 100.0, 0.06
+    for t in np.arange(0.0, T + dt / 2, dt):
+        odo.add(float(t), u)
+    assert odo.x_m == pytest.approx(u * T, rel=1e-9)
+    assert odo.swum_s == pytest.approx(T, rel=1e-9)
+    assert odo.x_var_m2 == pytest.approx(0.002**2 * dt * T + (0.001 * T) ** 2, rel=1e-9)
+
+
+def test_a_ramp_is_integrated_exactly_and_a_silence_counts_at_most_its_bound() -> None:
+    odo = DeadReckoning(max_gap_s=1.0)
+    for t in np.linspace(0.0, 10.0, 201):  # U = 0.01 t: x = 0.005 t^2 (the trapezoid is exact)
+        odo.add(float(t), 0.01 * float(t))
+    assert odo.x_m == pytest.approx(0.5, rel=1e-12)
+    odo.add(40.0, 0.1)  # 30 s without a reading: counted as 1 s
+    assert odo.swum_s == pytest.approx(11.0) and odo.x_m == pytest.approx(0.5 + 0.1, rel=1e-12)
+    odo.add(39.0, 5.0)  # (a reading from before the last: ignored)
+    odo.add(math.nan, 0.1)
+    assert odo.x_m == pytest.approx(0.6, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    "bad", [{"speed_sigma_m_s": -1.0}, {"speed_bias_m_s": math.nan}, {"max_gap_s": math.inf}]
+)
+def test_an_impossible_sensor_is_one_clear_error(bad: dict[str, float]) -> None:
+    with pytest.raises(ControlError, match="odometry"):
+        DeadReckoning(**bad)
