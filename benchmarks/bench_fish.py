@@ -242,7 +242,12 @@ def plot_strangers(results: list[dict[str, Any]], path: Path) -> None:
         ax[0, k].legend(fontsize=7)
         ax[1, k].plot(ours.t, ours.demand_n * 1e3, label="demand (speed loop)")
         ax[1, k].plot(ours.t, ours.thrust_n * 1e3, label="thrust in truth")
-        ax[1, k].plot(ours.t, ours.thrust_estimate_n * 1e3, ".", ms=2, label="the stack's thrust estimate")
+        ax[1, k].plot(
+            ours.t, ours.thrust_estimate_n * 1e3, ".", ms=2, label="self-sensed (the twin's calibration)"
+        )
+        ax[1, k].set_title(
+            "ours: what the speed loop asks, what the fin gives, what the estimator reads", fontsize=9
+        )
         ax[1, k].set_ylabel("thrust per fin, mN")
         ax[1, k].set_xlabel("fish time, s")
         ax[1, k].legend(fontsize=7)
