@@ -22,6 +22,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
 
 OK, WARN, ERROR, STALE = (int.from_bytes(x, "little") if isinstance(x, bytes) else int(x) for x in (
     DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, DiagnosticStatus.STALE
@@ -67,19 +68,22 @@ class Diagnostics:
         self._looked = -math.inf  # (time.monotonic) the last look of update()
         self._pub = node.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, QOS_DIAGNOSTICS)
         self._timer = node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.published = 0
 
     def add(self, task: str, check: Callable[[], Report]) -> None:
         self._tasks.append((task, check))
+
+    @staticmethod
+    def _report(check: Callable[[], Report]) -> Report:
+        try:
+            return check()
+        except Exception as exc:  # (a check that fails is an error shown, never a node's end)
+            return Report(ERROR, f"the check failed: {type(exc).__name__}: {exc}")
 
     def _statuses(self) -> list[DiagnosticStatus]:
         out = []
         name = self._node.get_name()
         for task, check in self._tasks:
-            try:
-                r = check()
-            except Exception as exc:  # (a check that fails is an error shown, never a node's end)
-                r = Report(ERROR, f"the check failed: {type(exc).__name__}: {exc}")
+            r = self._report(check)
             self._levels[task] = r.level
             out.append(
                 DiagnosticStatus(
@@ -97,13 +101,13 @@ class Diagnostics:
         if not self._tasks:
             return
         msg = DiagnosticArray(status=self._statuses())
-        if self._stamp is None:
-            msg.header.stamp = self._node.get_clock().now().to_msg()
-        else:
-            t = self._stamp()
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(max(0, round(t * 1e9)), 1_000_000_000)
+        now = (
+            self._node.get_clock().now()
+            if self._stamp is None
+            else Time(nanoseconds=max(0, round(self._stamp() * 1e9)))
+        )
+        msg.header.stamp = now.to_msg()
         self._pub.publish(msg)
-        self.published += 1
 
     #: :meth:`update` looks at most this often (wall time): fin_sim calls it with each block, 800 a
     #: second at x40, and a level change still reaches the monitor within a tenth of a second
@@ -115,14 +119,5 @@ class Diagnostics:
         if now - self._looked < self.LOOK_S:
             return
         self._looked = now
-        for task, check in self._tasks:
-            try:
-                level = check().level
-            except Exception:
-                level = ERROR
-            if self._levels.get(task) != level:
-                self.publish()
-                return
-
-    def close(self) -> None:
-        self._timer.cancel()
+        if any(self._levels.get(task) != self._report(check).level for task, check in self._tasks):
+            self.publish()

@@ -56,6 +56,11 @@ TOPIC_ODOM = "odom"
 YAW_RATE_MOST_RAD_S = 100.0
 
 
+def _along_x(variance: float) -> list[float]:
+    """A 6x6 covariance (row-major) that knows x to ``variance`` and nothing of y, z, roll, pitch, yaw."""
+    return [variance if k == 0 else UNKNOWN if k % 7 == 0 else 0.0 for k in range(36)]
+
+
 def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
     """The door's check of a ``cmd_vel``: (forward speed m/s, yaw rate rad/s), each finite and within
     what any fish does (a stamped one's twist)."""
@@ -240,17 +245,9 @@ class SpeedLoopNode(Node):
         msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
         msg.pose.pose.position.x = o.x_m
         msg.pose.pose.orientation.w = 1.0
-        pose = [0.0] * 36
-        pose[0] = o.x_var_m2
-        for k in (7, 14, 21, 28, 35):  # y, z, roll, pitch, yaw: not observed
-            pose[k] = UNKNOWN
-        msg.pose.covariance = pose
+        msg.pose.covariance = _along_x(o.x_var_m2)
         msg.twist.twist.linear.x = o.speed_m_s
-        twist = [0.0] * 36
-        twist[0] = o.speed_var_m2_s2
-        for k in (7, 14, 21, 28, 35):
-            twist[k] = UNKNOWN
-        msg.twist.covariance = twist
+        msg.twist.covariance = _along_x(o.speed_var_m2_s2)
         self._odom.publish(msg)
 
     def _cmd_vel_expired(self, t: float) -> None:

@@ -143,6 +143,7 @@ class ThrustEstimator(Node):
         )
 
     def _fin_time(self) -> float:
+        """The fin's time: its latest drive sample's (the node's clock before the first), s."""
         return self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
 
     def _diagnose(self) -> Report:
@@ -199,13 +200,12 @@ class ThrustEstimator(Node):
     def _on_battery(self, reading: tuple[float, float, float]) -> None:
         t, voltage, current = reading
         if t == 0.0:  # (a driver that leaves the stamp empty: the reading is now's)
-            t = self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
+            t = self._fin_time()
         self._emit(self.core.add_battery(t, voltage, current))
 
     def _on_speed(self, speed_m_s: float) -> None:
         # The speed applies from the latest drive sample on (the fish stack's message has no stamp).
-        t = self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
-        self.core.add_speed(t, speed_m_s)
+        self.core.add_speed(self._fin_time(), speed_m_s)
 
     def _emit(self, estimates: list[Estimate]) -> None:
         if estimates and self.core.supply_meter != self._meter:
