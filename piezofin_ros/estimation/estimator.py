@@ -56,6 +56,7 @@ baseline of the load cell has been recorded.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Callable
@@ -372,6 +373,8 @@ def _baseline_at(baselines: list[tuple[float, float]], t: float) -> float:
 
 #: A new period is compared with the median of this many previous periods of its segment.
 REFERENCE_PERIODS = 5
+#: battery readings kept ahead of the drive data (a minute at 10 Hz)
+_UNPLACED_MOST = 600
 
 
 class _Channel:
@@ -464,6 +467,9 @@ class StreamEstimator:
         self.battery = _Channel()  # the fish's battery (terminal voltage, current), where it has one
         self.fixed_draw_w = fixed_draw_w  # what the battery feeds besides the fin's drive (None: learnt)
         self._idle_draws: deque[float] = deque(maxlen=60)  # the battery's draw with the drive off, W
+        # battery readings newer than the drive data, by time: placed (off or on) once the drive
+        # reaches them (at most _UNPLACED_MOST: a clock far ahead cannot grow it)
+        self._unplaced: list[tuple[float, float]] = []
         self._speed: deque[tuple[float, float]] = deque(maxlen=10_000)
         self._on = False
         self._last_above = -math.inf
@@ -493,6 +499,7 @@ class StreamEstimator:
             self._off_since = float(t[0])
         self.drive.append(t, np.column_stack([v, i]))
         self._segment_drive(t, np.nan_to_num(v))
+        self._place_battery(self.drive.latest)
         self._prune()
         return self._finish_ready()
 
@@ -524,10 +531,19 @@ class StreamEstimator:
         draw = abs(float(voltage) * float(current))
         if not (math.isfinite(t) and math.isfinite(draw)):
             return []
-        if not self._on and self._off_since <= t <= self.drive.latest:
-            self._idle_draws.append(draw)
+        bisect.insort(self._unplaced, (float(t), draw))
+        del self._unplaced[: max(0, len(self._unplaced) - _UNPLACED_MOST)]
+        self._place_battery(self.drive.latest)
         self.battery.append(np.array([float(t)]), np.array([[float(voltage), float(current)]]))
         return self._finish_ready()
+
+    def _place_battery(self, until: float) -> None:
+        """The battery readings up to ``until`` (drive data reaches them, the drive still off since
+        ``_off_since``): those while the drive was off are idle draws, the others are passed over."""
+        k = bisect.bisect_right(self._unplaced, (until, math.inf))
+        if not self._on:
+            self._idle_draws.extend(draw for t, draw in self._unplaced[:k] if self._off_since <= t)
+        del self._unplaced[:k]
 
     @property
     def battery_fixed_draw_w(self) -> float:
@@ -575,6 +591,7 @@ class StreamEstimator:
         if np.any(above):
             first_above = float(t[np.argmax(above)])
             if not self._on:
+                self._place_battery(first_above - 0.1)  # (the readings before: taken with it off)
                 self._on = True
                 self._on_event(first_above)
             self._last_above = float(t[len(above) - 1 - np.argmax(above[::-1])])

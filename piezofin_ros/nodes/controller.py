@@ -10,6 +10,8 @@ drive is switched off (``after``).
 The first trial waits (drive off) until a ``thrust_estimator`` publishes on ``estimate``, at most
 ``wait_estimator_s`` of wall time: under ``ros2 launch`` the nodes start in any order, and on a
 loaded machine the estimator may be the last, which used to cost the first trial its estimate.
+Once it is there the drive stays off :data:`ESTIMATOR_SETTLE_S` more, so that the estimator hears
+the rig at rest (a fish learns its battery's fixed draw there).
 """
 
 from __future__ import annotations
@@ -146,6 +148,10 @@ class ControllerConfig:
 
 #: no estimate for this long (wall time) is STALE on /diagnostics (they come every second or faster)
 ESTIMATES_STALE_S = 3.0
+#: the drive held off this long (fin time) after an estimator appears, so that it hears the rig at
+#: rest: a fish learns its battery's fixed draw there (stop 45 saw a stack that drove 0.2 s after the
+#: estimator appeared learn none, and rank by the amplifier's model)
+ESTIMATOR_SETTLE_S = 1.0
 
 
 class Controller(Node):
@@ -159,6 +165,7 @@ class Controller(Node):
             raise StartupError(f"parameter amplifier: {exc}") from None
         self._created = time.monotonic()
         self._waiting_logged = False
+        self._estimator_seen: float | None = None  # (the fin time it appeared)
         self.strategy: Strategy
         if c.mode == "optimise":
             self.strategy, summary = self._optimiser(c)
@@ -341,9 +348,15 @@ class Controller(Node):
         self._cmd_pub.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on})))
 
     def _estimator_ready(self) -> bool:
-        """True once an estimator publishes ``estimate`` (or ``wait_estimator_s`` passed); else drive off."""
-        if self.count_publishers(TOPIC_ESTIMATE) > 0:
-            return True
+        """True :data:`ESTIMATOR_SETTLE_S` after an estimator publishes ``estimate`` (or once
+        ``wait_estimator_s`` passed without one); else drive off."""
+        if self._estimator_seen is None and self.count_publishers(TOPIC_ESTIMATE) > 0:
+            self._estimator_seen = self._now()
+        if self._estimator_seen is not None:
+            if self._now() - self._estimator_seen >= ESTIMATOR_SETTLE_S:
+                return True
+            self._send(0.0, 0.0, 0.0)
+            return False
         waited = time.monotonic() - self._created
         if waited >= self.config.wait_estimator_s:
             if self._waiting_logged:

@@ -1,14 +1,20 @@
-"""The nodes' console scripts (``ros2 run piezofin_ros <node>``): a Ctrl-C that comes while a node is
-still importing its modules ends it quietly, exit 0, as it would once running.
+"""The nodes' console scripts (``ros2 run piezofin_ros <node>``): a SIGINT or SIGTERM that comes while a
+node is still importing its modules or starting ends it quietly, exit 0, as it would once running.
 
 ``ros2 launch`` stops every node when one fails (:mod:`.launching`); a node stopped in its first
-second was still importing scipy, and Python printed a ``KeyboardInterrupt`` traceback for each.
-Once :func:`~._common.run_node` runs, it answers Ctrl-C itself.
+second is still importing scipy.  Raising there (Python's ``KeyboardInterrupt``, or a ``SystemExit``
+from a handler) does not always unwind: a signal handled inside a compiled extension's module
+initialisation (scipy's HiGHS wrapper, measured) turns into ``ImportError: initialization failed``
+and a traceback.  Until the node's own handlers take over (:class:`~._common.StopFlag`, installed as
+soon as rclpy is initialised), the process holds nothing to close (no node, no file, no DDS
+participant), so the handler ends it at once, without unwinding anything.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import os
 import signal
 import sys
 from functools import partial
@@ -16,15 +22,16 @@ from types import FrameType
 
 
 def _interrupted(signum: int, frame: FrameType | None) -> None:
-    sys.exit(0)  # (SystemExit unwinds the import: no traceback)
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # (a closed or broken pipe: nothing to say)
+            stream.flush()
+    os._exit(0)
 
 
 def _run(module: str, function: str = "main") -> int:
-    signal.signal(signal.SIGINT, _interrupted)
-    try:
-        main = getattr(importlib.import_module(f"{__package__}.{module}"), function)
-    finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _interrupted)  # (replaced by the node's StopFlag once rclpy is up)
+    main = getattr(importlib.import_module(f"{__package__}.{module}"), function)
     return int(main())
 
 

@@ -138,3 +138,29 @@ def test_a_battery_whose_fixed_draw_is_not_known_measures_nothing() -> None:
     stays; the controller ranks by it and says so)."""
     e = battery_drive(None, off_s=0.0)[-1]
     assert math.isnan(e.power_supply_measured_w) and math.isfinite(e.power_supply_w)
+
+
+@pytest.mark.parametrize("ahead_s", [0.0, 0.05, 0.3])
+def test_the_fixed_draw_is_learnt_from_readings_that_come_before_the_drive_data(ahead_s: float) -> None:
+    """Stop 45's flaky fish run: a battery reading stamped a moment past the drive data the estimator
+    had (its message came first) was passed over, and a stack that drove 0.3 s after start learnt no
+    fixed draw.  Now every reading is placed when the drive reaches its time: those with the drive
+    off count, those with it on do not, whichever came first; one stamped far ahead (a clock gone
+    wrong) holds nothing up."""
+    fin = load_fin("M8528-P1")
+    amp = AMPLIFIERS["fish"]
+    est = StreamEstimator(fin, amplifier=amp)
+    idle = amp.mean_draw(np.zeros(2), np.zeros(2))
+    hotel_w, block_s = 0.25, 0.05
+    est.add_battery(1e9, 7.4, -1.0)  # far ahead: never placed, never in the way
+    for k in range(40):  # 0.6 s off, then on
+        t = (k + np.arange(1, 51) / 50.0) * block_s
+        on = t[0] >= 0.6
+        v = 300.0 * np.sin(2 * np.pi * 6.0 * t) if on else np.zeros_like(t)
+        reading_t = float(t[-1]) + ahead_s  # (stamped ahead of the block it comes before)
+        if k % 4 == 0:  # 5 Hz
+            draw = hotel_w + idle + (1.0 if reading_t >= 0.6 else 0.0)
+            est.add_battery(reading_t, 7.4, -draw / 7.4)
+        est.add_drive(t, v, 1e-4 * v)
+    assert est.battery_fixed_draw_w == pytest.approx(hotel_w, rel=1e-9)
+    assert est.supply_meter == "battery"
