@@ -11,6 +11,50 @@ from .optimise import Optimiser
 
 
 @dataclass
+class DemandGate:
+    """Which demand the loop takes, and when (:class:`DriveLoop`'s docstring): the latest one, at most
+    once per ``hold_s``, after a trial was learnt unless it jumps by ``jump`` or waited ``wait_s``."""
+
+    #: a demand is taken at most once per this much time (the latest one): a demand that flips
+    #: faster than a trial would move the drive every fit and teach the optimiser nothing
+    hold_s: float = 1.0
+    #: a demand this far (relative) from the one in force is taken without waiting for a trial
+    jump: float = 0.25
+    #: nor one that has waited this long for a trial to end, s
+    wait_s: float = 20.0
+    wanted: float | None = None  # the latest demand set
+    due: bool = False  # set since the last taken
+    queued: bool = False  # taken, its fit not begun: a demand set now queues a new fit
+    since: float | None = None  # when the demand waiting was first ready to be weighed
+    trials_at: int = -1  # trials learnt when the last demand was taken (-1: none taken yet)
+    in_force: float | None = None
+    taken_t: float = -math.inf
+
+    def want(self, demand_n: float | None) -> None:
+        self.wanted = demand_n if demand_n is not None and demand_n > 0 else None
+        self.due = True
+
+    def ready(self, t: float, trials: int, mid_trial: bool) -> bool:
+        """Whether the demand waiting may be taken now, ``trials`` learnt, a trial half measured or not."""
+        if not self.due or self.queued or t - self.taken_t < self.hold_s:
+            return False
+        if self.since is None:
+            self.since = t
+        new, old = self.wanted, self.in_force
+        jump = (new is None) != (old is None) or (
+            new is not None and old is not None and abs(new / old - 1.0) > self.jump
+        )
+        between = trials > self.trials_at and not mid_trial
+        return self.trials_at < 0 or jump or between or t - self.since >= self.wait_s
+
+    def take(self, t: float, trials: int) -> float | None:
+        """The demand taken at ``t``."""
+        self.due, self.taken_t, self.since = False, t, None
+        self.trials_at, self.in_force = trials, self.wanted
+        return self.wanted
+
+
+@dataclass
 class DriveLoop:
     """The controller's loop around an :class:`Optimiser`: trials, settling, slew, safety.
 
@@ -31,14 +75,14 @@ class DriveLoop:
     stopped re-arm a rig whose watchdog tripped (a heartbeat that stalled), which would otherwise
     give no estimate ever again.  ``halted`` (a finished run) never retries.
 
-    Demands are taken at most once per ``demand_hold_s``, the latest one, and at most one waits for
-    the fit's thread: a flood of them is a fit a second, not a fit per message.  And a demand waits
-    for the trial it would cut short: once one is taken, the next is taken after a trial has been
-    learnt (and none is half-measured), unless it moves the demand by more than ``demand_jump``
-    (a new set-point) or has waited ``demand_wait_s``.  A speed loop's demand moves all the time
-    (its feedback on a noisy speed); taken at once, each new demand moved the drive to a new point
-    before its trial ended, no trial was ever learnt, and the optimiser held its first guess (the
-    fish of issue 27 swam at 3.4 cm/s for 700 s when asked for 5).
+    Demands are taken (:class:`DemandGate`) at most once per ``hold_s``, the latest one, and at most one
+    waits for the fit's thread: a flood of them is a fit a second, not a fit per message. And a demand
+    waits for the trial it would cut short: once one is taken, the next is taken after a trial has been
+    learnt (and none is half-measured), unless it moves the demand by more than ``jump`` (a new set-
+    point) or has waited ``wait_s``. A speed loop's demand moves all the time (its feedback on a noisy
+    speed); taken at once, each new demand moved the drive to a new point before its trial ended, no
+    trial was ever learnt, and the optimiser held its first guess (the fish of issue 27 swam at 3.4 cm/s
+    for 700 s when asked for 5).
     """
 
     optimiser: Optimiser
@@ -68,20 +112,7 @@ class DriveLoop:
     halted: bool = False  # the run is over: stopped stays stopped
     _stopped_since: float | None = None
     _retries: int = 0
-    _demand_wanted: float | None = None
-    _demand_queued: bool = False
-    #: a demand is taken at most once per this much time (the latest one): a demand that flips
-    #: faster than a trial would move the drive every fit and teach the optimiser nothing
-    demand_hold_s: float = 1.0
-    #: a demand this far (relative) from the one in force is taken without waiting for a trial
-    demand_jump: float = 0.25
-    #: nor one that has waited this long for a trial to end, s
-    demand_wait_s: float = 20.0
-    _demand_since: float | None = None  # when the demand waiting was first wanted
-    _demand_trials: int = -1  # trials learnt when the last demand was taken
-    _demand_in_force: float | None = None
-    _demand_due: bool = False
-    _demand_taken_t: float = -math.inf
+    gate: DemandGate = field(default_factory=lambda: DemandGate())  # which demand is taken when
     _waiting: tuple[Any, ...] | None = None  # a trial that agreed while a fit ran: learnt next
     _supply_modelled: bool = False  # ranking by the model's supply watt (none measured)
 
@@ -225,24 +256,10 @@ class DriveLoop:
         are taken are coalesced: the one waiting takes the latest.  The first is taken at once."""
         if demand_n is not None and not math.isfinite(demand_n):
             return  # (as the optimiser: ignored)
-        self._demand_wanted = demand_n if demand_n is not None and demand_n > 0 else None
-        self._demand_due = True
-        if not self.background and self._demand_trials < 0:
+        self.gate.want(demand_n)
+        if not self.background and self.gate.trials_at < 0:
             self._submit_demand(self._t_last if self._t_last is not None else 0.0)
             self._take_next()
-
-    def _demand_ready(self, t: float) -> bool:
-        """Whether the demand waiting may be taken now (class docstring)."""
-        if not self._demand_due or self._demand_queued or t - self._demand_taken_t < self.demand_hold_s:
-            return False
-        if self._demand_since is None:
-            self._demand_since = t
-        new, old = self._demand_wanted, self._demand_in_force
-        jump = (new is None) != (old is None) or (
-            new is not None and old is not None and abs(new / old - 1.0) > self.demand_jump
-        )
-        between = self.trials > self._demand_trials and not self._windows
-        return self._demand_trials < 0 or jump or between or t - self._demand_since >= self.demand_wait_s
 
     def _submit_demand(self, t: float) -> None:
         """The trial waiting, else the latest demand when it is due, to the fit's thread (or at once,
@@ -252,23 +269,22 @@ class DriveLoop:
                 args, self._waiting = self._waiting, None
                 self._pending.append(self._worker().submit(self._learn, *args))
             return
-        if self._demand_ready(t):
+        if self.gate.ready(t, self.trials, mid_trial=bool(self._windows)):
             # a trial the demand cuts short is learnt from its last window, not lost: one that gave
             # far less than asked slows the fish, the speed loop's demand jumps and cuts it, and,
             # unlearnt, the fit proposed the same point again (a stranger fish, issue 39: 0.5 mN
             # where 2 were asked, twice in 40 s, the speed 40 % down each time)
             cut, self._partial, self._windows = self._partial, None, []
-            self._demand_due, self._demand_taken_t, self._demand_since = False, t, None
-            self._demand_trials, self._demand_in_force = self.trials, self._demand_wanted
+            taken = self.gate.take(t, self.trials)
             if self.background:
-                self._demand_queued = True
+                self.gate.queued = True
                 self._pending.append(self._worker().submit(self._latest_demand, cut))
             else:
-                self._demand(self._demand_wanted, cut)
+                self._demand(taken, cut)
 
     def _latest_demand(self, cut: tuple[Any, ...] | None = None) -> None:
-        self._demand_queued = False  # (a demand set from now on queues a new fit)
-        self._demand(self._demand_wanted, cut)
+        self.gate.queued = False  # (a demand set from now on queues a new fit)
+        self._demand(self.gate.wanted, cut)
 
     def _demand(self, demand_n: float | None, cut: tuple[Any, ...] | None = None) -> None:
         if cut is not None:

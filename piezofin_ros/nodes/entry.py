@@ -7,7 +7,7 @@ from a handler) does not always unwind: a signal handled inside a compiled exten
 initialisation (scipy's HiGHS wrapper, measured) turns into ``ImportError: initialization failed``
 and a traceback.  Until the node's own handlers take over (:class:`~._common.StopFlag`, installed as
 soon as rclpy is initialised), the process holds nothing to close (no node, no file, no DDS
-participant), so the handler ends it at once, without unwinding anything.
+participant), so the handler says so in one line and ends it at once, without unwinding anything.
 """
 
 from __future__ import annotations
@@ -22,6 +22,10 @@ from types import FrameType
 
 
 def _interrupted(signum: int, frame: FrameType | None) -> None:
+    name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "node"
+    with contextlib.suppress(OSError, ValueError):
+        said = f"{name}: interrupted while starting ({signal.Signals(signum).name}): nothing started"
+        print(said, file=sys.stderr)
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError, ValueError):  # (a closed or broken pipe: nothing to say)
             stream.flush()

@@ -13,7 +13,7 @@ import pytest
 from piezofin_ros.bench.fishrun import MEASURED, STRATEGIES, FixedDrive, drive_for, swim_run
 from piezofin_ros.bench.plants import Plant
 from piezofin_ros.control.driveloop import DriveLoop
-from piezofin_ros.control.optimise import Correction, OperatingBox, Optimiser
+from piezofin_ros.control.optimise import Correction, OperatingBox, Optimiser, Tuning
 from piezofin_ros.control.speedloop import DemandGate, SpeedLoopConfig
 from piezofin_ros.errors import ControlError
 from piezofin_ros.physics.amplifier import load_amplifier
@@ -22,6 +22,8 @@ from piezofin_ros.physics.model import load_model
 from piezofin_ros.physics.swim import load_battery, load_body
 
 from .test_optimise import LIMITS, estimate
+
+COARSE = Tuning(n_grid=40)  # (a coarse map: fast)
 
 
 @pytest.fixture(scope="module")
@@ -65,9 +67,9 @@ def _settle_on_a_point(loop: DriveLoop, t: float) -> float:
 
 def test_a_demand_waits_for_the_trial_it_would_cut_short(m8528: Fin) -> None:
     """A speed loop's demand moves all the time: a small change waits until the running trial has
-    been learnt, a jump (a new set-point) or one that waited ``demand_wait_s`` goes at once.  Taken
+    been learnt, a jump (a new set-point) or one that waited ``wait_s`` goes at once.  Taken
     at once, every demand moved the drive before its trial ended and the optimiser learnt nothing."""
-    loop = DriveLoop(Optimiser(m8528, LIMITS, n_grid=40), slew_vpp_per_s=4000.0)  # (a coarse map: fast)
+    loop = DriveLoop(Optimiser(m8528, LIMITS, tuning=COARSE), slew_vpp_per_s=4000.0)
     loop.set_demand(3e-3)  # the first: at once
     assert loop.optimiser.demand_n == 3e-3
     t = _settle_on_a_point(loop, 0.0)
@@ -93,7 +95,7 @@ def test_a_demand_waits_for_the_trial_it_would_cut_short(m8528: Fin) -> None:
     f, v = loop.target
     loop.add_estimate(t, estimate(t + 5.0, f, v, 5e-3, 1e-2))
     loop.set_demand(5.2e-3)
-    for _ in range(int(loop.demand_wait_s / 0.1) + 20):  # no window comes: it waited long enough
+    for _ in range(int(loop.gate.wait_s / 0.1) + 20):  # no window comes: it waited long enough
         t += 0.1
         loop.tick(t)
     assert loop.optimiser.demand_n == 5.2e-3
@@ -157,7 +159,7 @@ def test_the_loops_own_moves_are_not_taken_for_a_dead_estimator(m8528: Fin) -> N
     5 s window), and the watchdog, counting from the last estimate, held and then ramped the fish to
     0 V for 30 s.  Silence counts only at a point the drive has reached; the estimator here is alive
     and gives its window 8 s after each arrival."""
-    loop = DriveLoop(Optimiser(m8528, LIMITS, n_grid=40, identify=False), slew_vpp_per_s=4000.0)
+    loop = DriveLoop(Optimiser(m8528, LIMITS, tuning=COARSE, identify=False), slew_vpp_per_s=4000.0)
     loop.set_demand(3e-3)
     t, demand = _ticks(loop, 0.0, 2.0), 3e-3
     for _ in range(3):
@@ -181,7 +183,7 @@ def test_moves_without_any_estimate_still_end_in_a_hold_then_a_ramp_down(m8528: 
     """The other side of the same clock: an estimator that is dead while demands keep jumping (an
     attacker's flip every 2 s) would restart it for ever; after three timeouts with no estimate at
     all the loop holds its point whatever the demands, and ramps down two timeouts later."""
-    loop = DriveLoop(Optimiser(m8528, LIMITS, n_grid=40), slew_vpp_per_s=4000.0, estimate_timeout_s=5.0)
+    loop = DriveLoop(Optimiser(m8528, LIMITS, tuning=COARSE), slew_vpp_per_s=4000.0, estimate_timeout_s=5.0)
     t, log = 0.0, []
     for k in range(300):  # 60 s, a demand flip every 2 s, no estimate
         if k % 10 == 0:
@@ -200,7 +202,7 @@ def test_no_trial_goes_to_a_point_measured_far_above_the_demand(m8528: Fin, over
     """A point whose one trial gave twice the demand at a low power is worth a confirming trial to a
     fin on a rig (the demand met at the least power); to a fish its thrust is speed: with
     ``overshoot`` 0.1 (``config/fish.yaml``'s ``trial_overshoot``) it is not driven again."""
-    opt = Optimiser(m8528, LIMITS, demand_n=3e-3, identify=False, n_grid=40, overshoot=overshoot)
+    opt = Optimiser(m8528, LIMITS, demand_n=3e-3, identify=False, tuning=COARSE, overshoot=overshoot)
     f, v = opt.propose()
     p = float(opt.correction.response(m8528, f, v).power_w)
     assert opt.observe(10.0, f, v, 6e-3, 0.5 * p)  # twice the demand, for half the map's power
@@ -229,7 +231,7 @@ def test_the_benchmarks_fish_controller_is_config_fish_yamls() -> None:
 )
 def test_an_impossible_margin_or_overshoot_is_one_clear_error(m8528: Fin, bad: dict[str, float]) -> None:
     with pytest.raises(ControlError, match="z_demand must be finite"):
-        Optimiser(m8528, LIMITS, demand_n=3e-3, n_grid=40, **bad)
+        Optimiser(m8528, LIMITS, demand_n=3e-3, tuning=COARSE, **bad)
 
 
 @pytest.mark.slow

@@ -17,7 +17,8 @@ from piezofin_ros.bench import evaluation
 from piezofin_ros.bench.evaluation import score, true_optimum
 from piezofin_ros.bench.plants import Plant, read
 from piezofin_ros.control.driveloop import DriveLoop
-from piezofin_ros.control.optimise import Correction, Observation, OperatingBox, Optimiser
+from piezofin_ros.control.optimise import Correction, Observation, OperatingBox, Optimiser, Tuning
+from piezofin_ros.control.proposal import calibration_point, f_res, is_quiet
 from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.physics.effects import Leakage
 from piezofin_ros.physics.fin import Fin, load_fin
@@ -385,9 +386,8 @@ def test_the_self_sensed_thrust_is_taken_at_the_voltage_the_fin_got(m8528: Fin, 
     assert opt.observe(6.0, f, v, r.thrust_n, r.power_w, r.admittance, math.nan, r.voltage_pp)
     o = opt.observations[-1]
     assert (o.voltage_pp, o.drive_vpp) == (v, r.voltage_pp)  # known by the point commanded
-    from piezofin_ros.control.optimise import Correction
 
-    estimated = float(opt._thrust_estimates(Correction(), [o])[0])  # (the paper's calibration)
+    estimated = float(opt.problem.thrust_estimates(Correction(), [o])[0])  # (the paper's calibration)
     assert estimated == pytest.approx(truth, rel=0.02)
     assert r.thrust_n == pytest.approx(truth, rel=0.02)  # (as the estimator read it)
 
@@ -428,8 +428,8 @@ def test_a_self_sensed_thrusts_noise_is_what_its_admittance_and_power_give(
     both the noise at the resonance was 0.96 % where the trials scatter 1.21 %, and a held point's
     repeats raised false "the fin changed" alarms that wiped its trials."""
     plant = Plant(m8528, loss_tan_delta=0.05)
-    opt = Optimiser(m8528, LIMITS, source="self")
-    opt.correction = Correction(loss_tan_delta=0.05)  # (the plant's own: the scatter is the noise alone)
+    problem = Optimiser(m8528, LIMITS, source="self").problem
+    plant_own = Correction(loss_tan_delta=0.05)  # (the plant's own: the scatter is the noise alone)
     rng = np.random.default_rng(0)
     trials = []
     for _ in range(600):
@@ -439,8 +439,8 @@ def test_a_self_sensed_thrusts_noise_is_what_its_admittance_and_power_give(
                 0.0, frequency_hz, 600.0, r.thrust_n, r.power_w, "self", r.admittance, math.nan, r.voltage_pp
             )
         )
-    estimates = opt._thrust_estimates(opt.correction, trials)
-    predicted = float(np.mean(opt._thrust_noise(opt.correction, trials, estimates)))
+    estimates = problem.thrust_estimates(plant_own, trials)
+    predicted = float(np.mean(problem.thrust_noise(plant_own, trials, estimates)))
     scatter = float(np.std(np.log(estimates)))
     assert 0.95 <= predicted / scatter <= 1.25, (predicted, scatter)
 
@@ -460,7 +460,7 @@ def test_a_self_sensed_thrust_takes_the_added_mass_at_the_motions_kc() -> None:
         Observation(0.0, a, b, math.nan, w, "self", complex(y))
         for a, b, w, y in zip(f, v, p.power_w, p.admittance, strict=True)
     ]
-    estimates = opt._thrust_estimates(opt.correction, obs)
+    estimates = opt.problem.thrust_estimates(opt.correction, obs)
     assert np.allclose(estimates, p.thrust_n, rtol=0.01), estimates / p.thrust_n
 
 
@@ -501,9 +501,9 @@ def test_a_fish_without_a_margin_takes_no_calibrating_trial(m8528: Fin) -> None:
     for _ in range(2):
         t = evaluation.run_trial(opt, plant, t, rng)
     assert opt.rule == "calibrate" and opt.self_sensing_bound > 1.0
-    assert opt._calibration_point(opt.incumbent()) is not None
+    assert calibration_point(opt, opt.incumbent()) is not None
     opt.z_demand = 0.0
-    assert opt._calibration_point(opt.incumbent()) is None
+    assert calibration_point(opt, opt.incumbent()) is None
 
 
 @pytest.mark.slow
@@ -591,7 +591,7 @@ def test_a_fish_whose_model_cannot_fit_takes_at_most_three_calibrating_trials(m8
     for _ in range(12):
         t = evaluation.run_trial(opt, plant, t, rng)
         rules.append(opt.rule)
-    assert 1 <= rules.count("calibrate") <= Optimiser.max_calibrating_trials, rules
+    assert 1 <= rules.count("calibrate") <= Tuning.max_calibrating_trials, rules
     held = opt.status()["held"]
     assert held is not None, rules
     truth = float(plant.steady(held["frequency_hz"], held["voltage_pp"]).thrust_n)
@@ -617,11 +617,11 @@ def test_a_swimming_fish_takes_no_trial_far_below_its_demand(m8528: Fin, plant_k
         t = evaluation.run_trial(opt, plant, t, rng)
     quiet = [k for k, x in enumerate(truths) if x < 0.5 * demand]
     assert quiet == [0], [round(x * 1e3, 2) for x in truths]  # the one from rest
-    assert any(opt._quiet(o) for o in opt.observations)  # still in the fit after 420 s
+    assert any(is_quiet(opt, o) for o in opt.observations)  # still in the fit after 420 s
     # (the map's own trials aim at the demand: the fit's error, not the design, may miss it by a little)
-    low = [x for x in truths[1:] if x < (1 - opt.hold_margin) * demand]
+    low = [x for x in truths[1:] if x < (1 - opt.tuning.hold_margin) * demand]
     assert len(low) <= 3, [round(x * 1e3, 2) for x in truths]
     opt.request_identification()
     opt.observe(t + 6, *opt.held(), demand, 1e-3)  # (a trial that was running when asked)
     f, _ = opt.propose()
-    assert f <= 0.7 * opt._f_res  # asked: the quiet trial next
+    assert f <= 0.7 * f_res(opt)  # asked: the quiet trial next

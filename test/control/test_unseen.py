@@ -93,7 +93,7 @@ def test_a_fish_calibrates_its_self_sensing_from_the_drive_alone() -> None:
     truth = float(plant.steady(last.frequency_hz, last.voltage_pp).thrust_n)
     raw = read(plant, last.frequency_hz, last.voltage_pp, 0.0, np.random.default_rng(3), "self").thrust_n
     assert abs(raw / truth - 1) > 0.15
-    estimate = float(opt._thrust_estimates(c, [last])[0])
+    estimate = float(opt.problem.thrust_estimates(c, [last])[0])
     bound = opt.status()["self_sensing_bound"]
     assert 0 < bound < 0.2  # (drive only: the coupling, the stiffness and c_m trade off)
     assert abs(estimate / truth - 1) <= max(bound, 0.01) + 0.01

@@ -1,0 +1,39 @@
+"""The optimiser's knobs, in one object (:class:`Tuning`), read by each of its rooms."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """The optimiser's knobs, each with the default the benchmarks were measured with."""
+
+    search_chi2: float = 4.0  # the model mispredicts when its residuals exceed this (per datum)
+    kappa: float = 1.0  # the search's optimism, in standard deviations of the map
+    trust_region: float = 0.15  # the search stays within f (1 +- this) of the incumbent
+    memory_s: float = 300.0  # forget measurements older than this
+    change_sigma: float = 4.0  # this many sigma off a point's earlier trials (or the map): a change
+    tolerance: float = 0.01  # a proposal this close (relative, see evidence.close) to a measured point
+    hold_gain: float = 0.01  # the incumbent is held unless the map expects this much more elsewhere
+    probe_every: int = 2  # once converged, every this many trials a probe beside the incumbent
+    probe_step: float = 0.03  # at f (1 +- this)
+    n_grid: int = 160  # frequencies in the map's first pass
+    #: On a fish (drive only) the stiffness cannot be told from the coupling (the motional admittance
+    #: is theta^2 times the mechanical response): it is held to the fin file's, within this (log) sigma.
+    stiffness_sigma: float = 0.05
+    #: on a fish under a demand (a finite ``overshoot``), no calibrating trial where the map expects
+    #: less thrust than the demand by more than this (relative), and the quiet identification trial
+    #: only from rest or when asked: its speed follows each trial's thrust (a re-identifying trial
+    #: dropped it 60-80 % for 20-30 s every 320-470 s)
+    hold_margin: float = 0.1
+    #: A diagnosed ``model`` given as the prior whose corrected fit misses the trials by more than
+    #: their noise while the fin file alone, corrected, fits them this many times better (chi-square),
+    #: is dropped for good (the paper's twin given to a fish whose fin was the nominal one, its
+    #: softening and KC added mass outside the correction, kept the fit 3-9 sigma off for 60 trials)
+    prior_drop_ratio: float = 2.0
+    #: a calibrating trial is taken when it shrinks the calibration's variance at the map's choice to
+    #: less than this fraction of what one more trial at the choice would
+    calibrate_gain: float = 0.5
+    #: and no more than this many calibrating trials are in memory
+    max_calibrating_trials: int = 3
