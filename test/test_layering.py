@@ -168,6 +168,24 @@ def test_the_controls_rooms_stay_small() -> None:
     assert big == [] and wide == []
 
 
+def test_no_watt_source_or_mode_is_compared_as_a_string_outside_its_registry() -> None:
+    """Issue 40: watts, sources and modes were strings compared in about ten places each; each is now
+    a table declared once (``physics.amplifier.WATT``, ``estimation.estimator.SOURCE``,
+    ``control.strategy.ControllerMode``), and its users ask the table."""
+    pattern = re.compile(
+        r"""\b(watt|source|mode)\b[\w.\[\]"']*\s*[!=]=\s*["']|["'](fin|self|vibrometer|loadcell|supply_measured|optimise)["']\s*[!=]="""
+    )
+    registries = {"physics/amplifier.py", "estimation/estimator.py", "control/strategy.py"}
+    found = [
+        f"{path.relative_to(PACKAGE)}:{k}: {line.strip()}"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if str(path.relative_to(PACKAGE)) not in registries
+        for k, line in enumerate(path.read_text().splitlines(), 1)
+        if pattern.search(line)
+    ]
+    assert found == []
+
+
 def test_only_the_nodes_import_ros_client_code() -> None:
     bad = []
     for path in _modules():

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..control.optimise import OperatingBox, Optimiser
+from ..physics.amplifier import watt_of
 from .plants import Plant, read
 
 FloatArray = NDArray[Any]
@@ -102,4 +103,4 @@ def campaign(
 
 def _true(watt: str) -> str:
     """The watt in truth: the supply the plant's amplifier truly draws, whichever model estimates it."""
-    return "supply" if watt == "supply_measured" else watt
+    return watt_of(watt).model.name

@@ -30,8 +30,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..control.response import EstimateNoise, PlantResponse
+from ..estimation.estimator import source_of
 from ..estimation.selfsense import Calibration, lighthill_thrust, self_sensed_tip
-from ..physics.amplifier import PAPER_BENCH, Amplifier, power_in
+from ..physics.amplifier import PAPER_BENCH, Amplifier, power_in, watt_of
 from ..physics.effects import DielectricLoss, Effect, Electroelastic, ResonanceOffset
 from ..physics.fin import Fin
 from ..physics.model import Model
@@ -135,25 +136,30 @@ def read(
     v_amp = 0.5 * float(np.asarray(p.voltage_pp_drive))  # (as the voltage monitor reads it)
     y = complex(np.asarray(p.admittance))
     y = complex(2.0 * power / v_amp**2, y.imag + n.admittance_rel * abs(y) * rng.standard_normal())
-    if source == "self" and calibration is not None:
+    how = source_of(source)
+    if how.self_sensed and calibration is not None:
         tip = self_sensed_tip(fin, y * v_amp, v_amp, 2 * np.pi * frequency_hz, calibration)
         thrust = float(lighthill_thrust(fin, abs(complex(tip)) / np.sqrt(2), calibration, frequency_hz))
-    elif source == "self":
+    elif how.self_sensed:
         tip = self_sensed_tip(fin, y * v_amp, v_amp, 2 * np.pi * frequency_hz)
         thrust = float(lighthill_thrust(fin, abs(complex(tip)) / np.sqrt(2)))
     else:
-        thrust = float(
-            lighthill_thrust(fin, p.tip_velocity_rms) if source == "vibrometer" else p.thrust_loadcell_n
-        )
+        thrust = float(p.thrust_loadcell_n if how.load_cell else lighthill_thrust(fin, p.tip_velocity_rms))
         thrust = thrust * (1 + n.thrust_rel * rng.standard_normal()) + n.thrust_abs_n * rng.standard_normal()
     named = math.nan
-    if watt != "fin":
+    if not watt_of(watt).is_fin:
         # the estimator's watts from the monitors (its own amplifier model for ``supply``); the supply's
         # meter reads the plant's true amplifier (``supply_measured``)
         i_rms = abs(y) * v_amp / math.sqrt(2)
-        if watt == "supply_measured":
+        if watt_of(watt).measured:
             truth = float(
-                power_in("supply", 2 * v_amp, float(p.current_rms), float(p.power_w), plant.amplifier)
+                power_in(
+                    watt_of(watt).model.name,
+                    2 * v_amp,
+                    float(p.current_rms),
+                    float(p.power_w),
+                    plant.amplifier,
+                )
             )
             named = truth * (1 + n.power_rel * rng.standard_normal())
         else:

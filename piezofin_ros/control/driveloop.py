@@ -7,6 +7,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..estimation.estimator import source_of
+from ..physics.amplifier import watt_of
 from .optimise import Optimiser
 
 
@@ -189,7 +191,7 @@ class DriveLoop:
             self.events.append(f"estimates are back: resuming from {self.state}")
             self.state = "driving"
             self._stopped_since = None
-        thrust = e.thrust_self_n if self.source == "self" else e.thrust_n
+        thrust = getattr(e, source_of(self.source).thrust_field)
         if self.target is None or self._t_settled_from is None:
             return False
         f, _ = self.target
@@ -235,17 +237,17 @@ class DriveLoop:
         """The estimate's watt in the optimiser's ``watt`` (NaN: the fin's); on ``supply_measured``
         with nothing measuring the supply (no supply topic, no battery, or its fixed draw not known
         yet) the amplifier's model is the fallback, said each time it starts and ends."""
-        watt = self.optimiser.watt
-        named = e.power(watt) if watt != "fin" else math.nan
-        if watt == "supply_measured" and not math.isfinite(named):
-            named = e.power("supply")
+        watt = watt_of(self.optimiser.watt)
+        named = math.nan if watt.is_fin else e.power(watt.name)
+        if watt.measured and not math.isfinite(named):
+            named = e.power(watt.model.name)
             if not self._supply_modelled:
                 self.events.append(
                     "no measured supply watt in the estimates: ranking by the amplifier model's "
                     "till one comes"
                 )
             self._supply_modelled = True
-        elif watt == "supply_measured" and self._supply_modelled:
+        elif watt.measured and self._supply_modelled:
             self._supply_modelled = False
             self.events.append("the supply watt is measured again: ranking by it")
         return named

@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..estimation.estimator import source_of
 from .objective import Objective
 
 #: Trials this close (relative, see :func:`close`) are at the same operating point.
@@ -41,6 +42,16 @@ class Observation:
     def point(self) -> tuple[float, float]:
         """The operating point commanded: (frequency Hz, Vpp)."""
         return (self.frequency_hz, self.voltage_pp)
+
+    @property
+    def self_sensed(self) -> bool:
+        """Its thrust was sensed from the drive's current alone, and the admittance that gives it is there
+        (the fit re-estimates it with its calibration)."""
+        return source_of(self.source).self_sensed and self.has_admittance
+
+    @property
+    def load_cell(self) -> bool:
+        return source_of(self.source).load_cell
 
     @property
     def drive_vpp(self) -> float:

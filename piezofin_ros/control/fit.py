@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
+from ..estimation.estimator import source_of
 from ..estimation.selfsense import lighthill_thrust, self_sensed_tip
 from ..physics.fin import Fin
 from ..physics.model import Model
@@ -95,7 +96,7 @@ class FitProblem:
         noise = np.array(noise, float, ndmin=1)
         noise_p = np.array(noise_p, float, ndmin=1)
         for k, o in enumerate(obs):
-            if o.source == "self" and o.has_admittance:
+            if o.self_sensed:
                 cal = c.calibration(self.fin, o.frequency_hz, o.drive_vpp)
                 w = 2 * math.pi * o.frequency_hz
                 y = o.admittance
@@ -135,13 +136,9 @@ class FitProblem:
         admittance with the fitted calibration, Lighthill's with the fitted ``c_m``, the load cell's
         as read."""
         out = np.array([o.thrust_n for o in obs], float)
-        selfs = [k for k, o in enumerate(obs) if o.source == "self" and o.has_admittance]
-        vib = [
-            k
-            for k, o in enumerate(obs)
-            if o.source == "vibrometer" or (o.source == "self" and k not in selfs)
-        ]
-        out[vib] *= c.added_mass
+        selfs = [k for k, o in enumerate(obs) if o.self_sensed]
+        lighthill = [k for k, o in enumerate(obs) if not (o.load_cell or o.self_sensed)]
+        out[lighthill] *= c.added_mass  # (Lighthill's with the base fin's c_m: the fitted one's)
         if selfs:
             f = np.array([obs[k].frequency_hz for k in selfs])
             v_amp = 0.5 * np.array([obs[k].drive_vpp for k in selfs])
@@ -167,12 +164,12 @@ class FitProblem:
         with np.errstate(divide="ignore", invalid="ignore"):
             rp = (np.log(p_meas) - np.log(np.maximum(pred.power_w, 1e-300))) / (sig_p + model_error)
             reading = np.where(
-                [o.source == "loadcell" for o in obs],
+                [o.load_cell for o in obs],
                 pred.thrust_n * c.thrust_gain,
                 pred.thrust_n / c.added_mass,
             )
             rt = (np.log(t_meas) - np.log(np.maximum(reading, 1e-300))) / (sig_t + model_error)
-        rt = np.where([o.source == "self" and o.has_admittance for o in obs], 0.0, rt)
+        rt = np.where([o.self_sensed for o in obs], 0.0, rt)
         y = np.array([o.admittance for o in obs])
         has_y = np.array([o.has_admittance for o in obs])
         rb = np.zeros(len(obs))
@@ -189,7 +186,7 @@ class FitProblem:
     def prior_sigma(self) -> FloatArray:
         """The priors' widths; on a fish the stiffness is the fin file's (``stiffness_sigma``)."""
         sigma = PRIOR_SIGMA.copy()
-        if self.source == "self":
+        if source_of(self.source).self_sensed:
             sigma[INDEX["resonance_scale"]] = self.stiffness_sigma
         else:
             # a leak is fitted on a fish, where its current would read as motion; with a vibrometer or

@@ -66,7 +66,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import ControlError
-from ..physics.amplifier import PAPER_BENCH, WATTS, Amplifier
+from ..estimation.estimator import SOURCE, source_of
+from ..physics.amplifier import PAPER_BENCH, WATT, Amplifier, watt_of
 from ..physics.fin import Fin
 from ..physics.model import Model
 from .correction import Correction, FloatArray
@@ -102,7 +103,7 @@ MISFIT_CHI2 = 4.0
 
 #: Which estimate feeds the optimiser: Lighthill on the vibrometer's tip velocity (with the fin's
 #: ``c_m``), the drive's own current (a fish), or a load cell.
-SOURCES = ("vibrometer", "self", "loadcell")
+SOURCES = tuple(SOURCE)
 
 
 @dataclass(frozen=True)
@@ -162,8 +163,8 @@ class Optimiser:
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
             raise ControlError(f"source must be one of {', '.join(SOURCES)}, got {self.source!r}")
-        if self.watt not in WATTS:
-            raise ControlError(f"watt must be one of {', '.join(WATTS)}, got {self.watt!r}")
+        if self.watt not in WATT:
+            raise ControlError(f"watt must be one of {', '.join(WATT)}, got {self.watt!r}")
         if not (self.z_demand >= 0 and math.isfinite(self.z_demand)) or not self.overshoot >= 0:
             raise ControlError(
                 f"z_demand must be finite and >= 0 and overshoot >= 0, got {self.z_demand}, {self.overshoot}"
@@ -228,9 +229,10 @@ class Optimiser:
         values = (t, frequency_hz, voltage_pp, thrust_n, power_w)
         if not all(math.isfinite(x) for x in values) or thrust_n <= 0 or power_w <= 0 or voltage_pp <= 0:
             return False
-        if self.watt != "fin" and not (math.isfinite(power_named_w) and power_named_w > 0):
+        fin_watt = watt_of(self.watt).is_fin
+        if not fin_watt and not (math.isfinite(power_named_w) and power_named_w > 0):
             return False  # (no measure of the watt it optimises: a trial it cannot rank)
-        named = power_named_w if self.watt != "fin" else math.nan
+        named = math.nan if fin_watt else power_named_w
         new = Observation(
             *values,
             source=self.source,
@@ -295,7 +297,7 @@ class Optimiser:
         if self.fit.covariance is None or not self.observations:
             return math.nan
         last = self.observations[-1]
-        if last.source == "loadcell":
+        if last.load_cell:
             return 0.0
         problem = self.problem
 
@@ -305,7 +307,7 @@ class Optimiser:
         # (on a fish only, whose whole calibration is the fit's; a vibrometer's is c_m alone, which a
         # misfit of the power, a leak's say, does not move: counted there it cost M8528-P1 with a leak
         # 0.60 -> 0.41 of the optimum after 8 trials under a demand, `bench_unseen.py --seeds 1`)
-        misfit = self.fit.chi2_noise - MISFIT_CHI2 if last.source == "self" else 0.0
+        misfit = self.fit.chi2_noise - MISFIT_CHI2 if source_of(last.source).self_sensed else 0.0
         form = MODEL_ERROR * math.sqrt(max(misfit, 0.0))  # (0 while the model fits)
         return float(2.0 * math.hypot(self.fit.sigma(log_estimate)[0], form))
 

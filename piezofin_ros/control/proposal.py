@@ -17,6 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..estimation.estimator import source_of
 from .correction import PRIOR_SIGMA, FloatArray, correction_of, jacobian, vector_of
 from .evidence import Counted, Observation, close
 from .thrustmap import Choice, MapInputs, best, frontier, gain
@@ -113,7 +114,7 @@ def calibration_point(opt: ProposalInputs, inc: Point | None) -> Point | None:
     variance of the choice's log thrust estimate is propagated through the sum."""
     tuning, fit, problem = opt.tuning, opt.fit, opt.problem
     if (
-        opt.source != "self"
+        not source_of(opt.source).self_sensed
         or opt.demand_n is None
         or inc is not None
         or opt.choice is None

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimation.estimator import tpw_field
+from ..estimation.estimator import source_of, tpw_field
 from ..files import figure_metadata
-from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in
+from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in, watt_of
 from ..physics.fin import Fin
 from ..physics.steady import harmonic_balance
 
@@ -37,12 +37,12 @@ def trial_table(
 ) -> str:
     """A fixed-width table of trial records (the controller's status ``results``): thrusts, then the
     power and thrust per watt of ``source`` in the fin's watt and, when it is another, in ``watt``."""
-    watts = ["fin"] if watt == "fin" else ["fin", watt]
+    watts = ["fin"] if watt_of(watt).is_fin else ["fin", watt]
     head = f"{'trial':>5} {'f [Hz]':>7} {'Vpp':>5} {'T [mN]':>8} {'T_self':>8} {'T_cell':>8}"
     for w in watts:
         head += f" {'P_' + w + ' [mW]':>{max(13, len(w) + 8)}} {'T/P_' + w:>{max(10, len(w) + 4)}}"
     lines = [
-        f"(T/P in mN/W of the {'vibrometer' if source == 'vibrometer' else 'self-sensed'} thrust; "
+        f"(T/P in mN/W of the {'self-sensed' if source_of(source).self_sensed else source} thrust; "
         + "; ".join(f"{w}: {WATTS_SHORT[w]}" for w in watts)
         + ")",
         head,

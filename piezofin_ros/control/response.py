@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..physics.amplifier import Amplifier, power_in
+from ..physics.amplifier import Amplifier, power_in, watt_of
 
 FloatArray = NDArray[Any]
 
@@ -32,7 +32,7 @@ class PlantResponse:
 
     def power(self, watt: str, amplifier: Amplifier) -> FloatArray:
         """The power in ``watt`` (the supply through ``amplifier``)."""
-        if watt == "fin" or self.current_rms is None or self.voltage_pp is None:
+        if watt_of(watt).is_fin or self.current_rms is None or self.voltage_pp is None:
             return np.asarray(self.power_w, float)
         return power_in(watt, self.voltage_pp, self.current_rms, self.power_w, amplifier)
 

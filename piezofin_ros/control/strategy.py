@@ -19,12 +19,29 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any, Protocol
 
 from ..estimation.estimator import Estimate
 from .driveloop import DriveLoop
 from .objective import THRUST_PER_WATT, Objective
 from .trials import SOURCES, Mode, TrialResult, TrialRunner, choose, watt_label
+
+
+class ControllerMode(StrEnum):
+    """What the controller does, declared once: a grid of trials, each in one of the trials' modes
+    (:class:`~.trials.Mode`), or the thrust-per-watt optimiser."""
+
+    PROTOCOL = "protocol"
+    CONTINUOUS = "continuous"
+    FRF = "frf"
+    OPTIMISE = "optimise"
+
+    @property
+    def trial_mode(self) -> Mode | None:
+        """The trials' mode it runs (``None``: the optimiser's live loop)."""
+        return None if self is ControllerMode.OPTIMISE else Mode(self.value)
+
 
 Command = tuple[float, float, float]  # (frequency_hz, voltage_pp, on)
 OFF: Command = (0.0, 0.0, 0.0)
@@ -242,7 +259,7 @@ class OptimiseStrategy:
         return False
 
     def status(self) -> dict[str, Any]:
-        return {"mode": "optimise", "finished": self.finished, **self.loop.status()}
+        return {"mode": str(ControllerMode.OPTIMISE), "finished": self.finished, **self.loop.status()}
 
     def planned_s(self) -> float | None:
         return self.duration_s or None

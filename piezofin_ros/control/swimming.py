@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..physics.amplifier import Amplifier
+from ..physics.amplifier import Amplifier, watt_of
 from ..physics.model import Model
 from ..physics.swim import Battery, Body, Swim
 
@@ -92,7 +92,7 @@ class Fish:
         or ``fin``); the range reported is always the battery's."""
         f, v = np.meshgrid(np.asarray(frequencies, float), np.asarray(voltages, float), indexing="ij")
         m = self.at(f, v, ranges=False)  # (the range ranks as speed per watt drawn: one range, at the best)
-        power = m["supply_w"] if watt == "supply" else m["fin_w"]
+        power = m["fin_w"] if watt_of(watt).is_fin else m["supply_w"]
         with np.errstate(divide="ignore", invalid="ignore"):
             objective = np.where(m["speed_m_s"] > 0, m["speed_m_s"] / (power + self.battery.hotel_w), -np.inf)
         k = np.unravel_index(int(np.argmax(objective)), objective.shape)

@@ -15,7 +15,8 @@ import numpy as np
 
 from ..config import HARD_VOLTAGE_PP_MAX
 from ..errors import ControlError
-from ..physics.amplifier import Amplifier, power_in
+from ..estimation.estimator import source_of
+from ..physics.amplifier import Amplifier, power_in, watt_of
 from ..physics.fin import Fin
 from .correction import Correction, FloatArray
 from .fit import Fit, FitProblem
@@ -133,7 +134,7 @@ def model_sigma(opt: MapInputs, f: Any, v: Any) -> FloatArray:
         return np.log(np.maximum(c.response(opt.fin, f, v).thrust_n, 1e-300))
 
     # (a load cell's gain: the truth only where the load cell is the reference)
-    return opt.fit.sigma(log_thrust, skip="" if opt.source == "loadcell" else "thrust_gain")
+    return opt.fit.sigma(log_thrust, skip="" if source_of(opt.source).load_cell else "thrust_gain")
 
 
 def surface(opt: MapInputs, f: Any, v: Any, model_sigma: Any = 0.0) -> Surface:
@@ -156,7 +157,7 @@ def surface(opt: MapInputs, f: Any, v: Any, model_sigma: Any = 0.0) -> Surface:
     count_margin = opt.z_demand * np.hypot(noise_t, bound) + noise_t
     low = thrust * np.exp(-np.maximum(truth, count_margin))
     power = r.power_w * np.exp(m_p)
-    if opt.watt != "fin" and r.current_rms is not None and r.voltage_pp is not None:
+    if not watt_of(opt.watt).is_fin and r.current_rms is not None and r.voltage_pp is not None:
         named = power_in(opt.watt, r.voltage_pp, r.current_rms, power, opt.amplifier)
         return Surface(f, v, thrust, named, low, s_t, s_p, power)
     return Surface(f, v, thrust, power, low, s_t, s_p)

@@ -68,7 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..config import setting
 from ..errors import EstimationError
-from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS, Amplifier, check_watt
+from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS, Amplifier, check_watt, watt_of
 from ..physics.fin import MEDIA, Fin
 from ..physics.swim import SPEED_MOST_M_S
 from .selfsense import NOMINAL, Calibration, self_sensed_tip
@@ -191,19 +191,68 @@ OPTIONAL_FIELDS = (
     "admittance_im",
     *(f for f in Estimate.field_names() if f.startswith(("power_", "thrust_per_watt_")) and f != "power_w"),
 )
-THRUST_FIELDS = {"vibrometer": "thrust_n", "self": "thrust_self_n"}
+
+
+@dataclass(frozen=True)
+class Source:
+    """Where a thrust estimate comes from, declared once (:data:`SOURCE`): its estimate field, how it
+    is read, and the base name of its thrust-per-watt fields (``""``: none in an estimate)."""
+
+    name: str
+    what: str
+    thrust_field: str
+    #: from the drive's voltage and current alone (a fish: no vibrometer, no load cell)
+    self_sensed: bool = False
+    #: a load cell's reading (its gain is what a fit corrects), not Lighthill's on a tip velocity
+    #: (whose ``c_m`` is)
+    load_cell: bool = False
+    per_watt: str = ""
+
+
+#: The thrust sources, by name.
+SOURCE: dict[str, Source] = {
+    s.name: s
+    for s in (
+        Source(
+            "vibrometer", "Lighthill on the vibrometer's tip velocity", "thrust_n", per_watt="thrust_per_watt"
+        ),
+        Source(
+            "self",
+            "Lighthill on the tip velocity sensed from the drive's own current",
+            "thrust_self_n",
+            self_sensed=True,
+            per_watt="thrust_per_watt_self",
+        ),
+        Source(
+            "loadcell", "the load cell's reading, its baselines removed", "thrust_loadcell_n", load_cell=True
+        ),
+    )
+}
+#: The sources an estimate has thrusts per watt of: name -> its thrust field.
+THRUST_FIELDS = {name: s.thrust_field for name, s in SOURCE.items() if s.per_watt}
+
+
+def source_of(name: str) -> Source:
+    """The registry's source of that name (:class:`EstimationError` naming the others if none)."""
+    try:
+        return SOURCE[name]
+    except KeyError:
+        raise EstimationError(f"unknown thrust source {name!r}: one of {', '.join(SOURCE)}") from None
 
 
 def tpw_field(watt: str, source: str = "vibrometer") -> str:
     """The estimate field of thrust per watt in ``watt`` for ``source`` (``thrust_per_watt`` is the
     vibrometer's in the fin's watt, for the bags recorded before the other watts)."""
-    check_watt(watt)
-    base = "thrust_per_watt" if source == "vibrometer" else "thrust_per_watt_self"
-    return base if watt == "fin" else f"{base}_{watt}"
+    base = source_of(source).per_watt
+    if not base:
+        raise EstimationError(
+            f"an estimate has no thrust per watt of the {source} (one of {', '.join(THRUST_FIELDS)})"
+        )
+    return base if watt_of(watt).is_fin else f"{base}_{watt}"
 
 
 def per_watt_field(record: dict[str, float], watt: str, source: str = "vibrometer") -> float:
-    thrust = record[THRUST_FIELDS[source]]
+    thrust = record[source_of(source).thrust_field]
     power = record.get(POWER_FIELDS[check_watt(watt)], math.nan)
     return thrust / power if power > 0 and math.isfinite(thrust) else math.nan
 

@@ -32,6 +32,7 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 from ..control.report import frf_table, plot_trials, trial_table
+from ..control.strategy import ControllerMode
 from ..control.trials import parse_frequencies
 from ..errors import ControlError, PiezofinError
 from ..physics.amplifier import Amplifier
@@ -68,9 +69,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="trial frequencies, Hz: values and/or start:stop:step (stop included) (override the config)",
     )
     p.add_argument("--voltages", type=float, nargs="+", help="trial voltages, Vpp (override the config)")
-    p.add_argument(
-        "--mode", choices=("protocol", "continuous", "frf", "optimise"), help="controller mode (override)"
-    )
+    p.add_argument("--mode", choices=[m.value for m in ControllerMode], help="controller mode (override)")
     p.add_argument(
         "--medium",
         choices=("water", "air"),
@@ -287,7 +286,7 @@ def _report_fin(
     ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace, several: bool, amplifier: Amplifier
 ) -> None:
     """One fin's outcome: the optimiser's choice, or the trial table (and its plot)."""
-    if st.get("mode") == "optimise":
+    if st.get("mode") == ControllerMode.OPTIMISE:
         demand = st["demand_n"]
         held = st["held"] or {  # nothing measured meets the task yet: the map's choice
             "frequency_hz": st["frequency_hz"],

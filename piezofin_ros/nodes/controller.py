@@ -32,7 +32,7 @@ from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.driveloop import DriveLoop
 from ..control.objective import OBJECTIVES
 from ..control.optimise import OperatingBox, Optimiser
-from ..control.strategy import OptimiseStrategy, Strategy, TrialStrategy
+from ..control.strategy import ControllerMode, OptimiseStrategy, Strategy, TrialStrategy
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
@@ -69,7 +69,7 @@ class ControllerConfig:
         "protocol",
         "protocol or continuous (trials of a grid), frf (a stepped sine that settles at each point, for "
         "`piezofin identify`), or optimise (thrust per watt)",
-        choices=(*(m.value for m in Mode), "optimise"),
+        choices=tuple(m.value for m in ControllerMode),
     )
     frequencies: tuple[float, ...] = setting((5.5,), "trial frequencies, Hz", items=float)
     voltages: tuple[float, ...] = setting((800.0,), "trial voltages, Vpp", items=float)
@@ -167,7 +167,7 @@ class Controller(Node):
         self._waiting_logged = False
         self._estimator_seen: float | None = None  # (the fin time it appeared)
         self.strategy: Strategy
-        if c.mode == "optimise":
+        if ControllerMode(c.mode).trial_mode is None:
             self.strategy, summary = self._optimiser(c)
         else:
             self.strategy, summary = self._trials(c)
@@ -302,7 +302,7 @@ class Controller(Node):
             plan = TrialPlan.grid(
                 c.frequencies,
                 c.voltages,
-                mode=Mode(c.mode),
+                mode=ControllerMode(c.mode).trial_mode or Mode.PROTOCOL,  # (never the optimiser's here)
                 off_s=c.off_s,
                 on_s=c.on_s,
                 settle_timeout_s=c.settle_timeout_s,

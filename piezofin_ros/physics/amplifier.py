@@ -37,27 +37,88 @@ from .fin import preset_path, presets, read_yaml_file
 
 FloatArray = NDArray[Any]
 
-#: The watts a thrust per watt can be in: name -> what it is.
-WATTS: dict[str, str] = {
-    "fin": "mean(v i): the power the fin takes (the paper's stated definition)",
-    "apparent": "Vrms x Irms: what a power meter reads on a reactive load",
-    "supply": "the amplifier's draw from its supply, through the amplifier's model",
-    "supply_measured": "the supply's power as the rig or the fish measures it (the supply topic)",
+
+@dataclass(frozen=True)
+class Watt:
+    """A watt a thrust per watt can be in, declared once (:data:`WATT`): its name, what it is (and in a
+    few words, for table headers), the estimate field that holds it, whether a meter measures it
+    (else a law of the steady state gives it) and the watt a model gives in its place."""
+
+    name: str
+    what: str
+    short: str
+    field: str
+    measured: bool = False
+    #: the watt a model (the map, a plant in truth) gives for this one: its own, or the modelled one
+    #: a meter measures (``supply_measured`` is the ``supply`` a model predicts)
+    modelled_as: str = ""
+
+    @property
+    def is_fin(self) -> bool:
+        """The fin's own watt, ``mean(v i)``: every other is counted beside it."""
+        return self is FIN
+
+    @property
+    def model(self) -> Watt:
+        """The watt a model gives in this one's place."""
+        return WATT[self.modelled_as or self.name]
+
+    def steady(
+        self, voltage_pp: ArrayLike, current_rms: ArrayLike, power_w: ArrayLike, amplifier: Amplifier
+    ) -> FloatArray:
+        """The steady state's power in this watt (a measured one: its model's)."""
+        name = self.model.name
+        if name == "fin":
+            return np.asarray(power_w, float)
+        if name == "apparent":
+            return np.asarray(voltage_pp, float) / (2 * math.sqrt(2)) * np.asarray(current_rms, float)
+        return amplifier.steady(voltage_pp, current_rms, power_w)
+
+
+FIN = Watt(
+    "fin", "mean(v i): the power the fin takes (the paper's stated definition)", "mean(v i)", "power_w"
+)
+#: The watts a thrust per watt can be in, by name.
+WATT: dict[str, Watt] = {
+    w.name: w
+    for w in (
+        FIN,
+        Watt(
+            "apparent",
+            "Vrms x Irms: what a power meter reads on a reactive load",
+            "Vrms x Irms",
+            "power_apparent_w",
+        ),
+        Watt(
+            "supply",
+            "the amplifier's draw from its supply, through the amplifier's model",
+            "the amplifier's draw, modelled",
+            "power_supply_w",
+        ),
+        Watt(
+            "supply_measured",
+            "the supply's power as the rig or the fish measures it (the supply topic)",
+            "the supply's meter",
+            "power_supply_measured_w",
+            measured=True,
+            modelled_as="supply",
+        ),
+    )
 }
+#: name -> what it is (the registry's, as a plain mapping)
+WATTS: dict[str, str] = {name: w.what for name, w in WATT.items()}
 #: The same, in a few words (table headers).
-WATTS_SHORT: dict[str, str] = {
-    "fin": "mean(v i)",
-    "apparent": "Vrms x Irms",
-    "supply": "the amplifier's draw, modelled",
-    "supply_measured": "the supply's meter",
-}
+WATTS_SHORT: dict[str, str] = {name: w.short for name, w in WATT.items()}
 #: The watt each estimate field of power holds.
-POWER_FIELDS = {
-    "fin": "power_w",
-    "apparent": "power_apparent_w",
-    "supply": "power_supply_w",
-    "supply_measured": "power_supply_measured_w",
-}
+POWER_FIELDS = {name: w.field for name, w in WATT.items()}
+
+
+def watt_of(name: str) -> Watt:
+    """The registry's watt of that name (:class:`AmplifierError` naming the others if none)."""
+    try:
+        return WATT[name]
+    except KeyError:
+        raise AmplifierError(f"unknown watt {name!r}: one of {', '.join(WATT)}") from None
 
 
 class AmplifierError(PhysicsError):
@@ -65,9 +126,7 @@ class AmplifierError(PhysicsError):
 
 
 def check_watt(watt: str) -> str:
-    if watt not in WATTS:
-        raise AmplifierError(f"unknown watt {watt!r}: one of {', '.join(WATTS)}")
-    return watt
+    return watt_of(watt).name
 
 
 @dataclass(frozen=True)
@@ -241,9 +300,4 @@ def power_in(
     watt: str, voltage_pp: ArrayLike, current_rms: ArrayLike, power_w: ArrayLike, amplifier: Amplifier
 ) -> FloatArray:
     """The steady state's power in ``watt`` (a model's ``supply_measured`` is its ``supply``)."""
-    check_watt(watt)
-    if watt == "fin":
-        return np.asarray(power_w, float)
-    if watt == "apparent":
-        return np.asarray(voltage_pp, float) / (2 * math.sqrt(2)) * np.asarray(current_rms, float)
-    return amplifier.steady(voltage_pp, current_rms, power_w)
+    return watt_of(watt).steady(voltage_pp, current_rms, power_w, amplifier)

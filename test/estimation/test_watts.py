@@ -164,3 +164,59 @@ def test_the_fixed_draw_is_learnt_from_readings_that_come_before_the_drive_data(
         est.add_drive(t, v, 1e-4 * v)
     assert est.battery_fixed_draw_w == pytest.approx(hotel_w, rel=1e-9)
     assert est.supply_meter == "battery"
+
+
+def test_each_watt_is_declared_once_in_its_registry() -> None:
+    """Issue 40: the watts were strings in about ten places (three same-keyed dicts, ``watt != "fin"``
+    in six modules, "supply_measured means supply" written three times).  Now one table: each watt's
+    estimate field is an Estimate field, a measured watt is modelled by one that is not, the plain
+    mappings are the table's, and ``power_in`` is each watt's own law (the measured one: its model's)."""
+    from dataclasses import fields
+
+    from piezofin_ros.errors import PiezofinError
+    from piezofin_ros.physics.amplifier import POWER_FIELDS, WATT, WATTS_SHORT, power_in, watt_of
+
+    names = {f.name for f in fields(Estimate)}
+    assert list(WATT) == list(WATTS) == list(WATTS_SHORT) == list(POWER_FIELDS)
+    assert [w for w in WATT.values() if w.is_fin] == [WATT["fin"]]
+    amp = SwitchingAmplifier(efficiency=0.8, recovered=0.5, quiescent_w=0.05)
+    v, i, p = np.array([400.0, 800.0]), np.array([1e-3, 3e-3]), np.array([0.05, 0.2])
+    for w in WATT.values():
+        assert w.field in names and POWER_FIELDS[w.name] == w.field
+        assert not w.model.measured and (w.model is w) == (not w.measured)
+        np.testing.assert_array_equal(power_in(w.name, v, i, p, amp), w.model.steady(v, i, p, amp))
+    np.testing.assert_allclose(power_in("apparent", v, i, p, amp), v / (2 * math.sqrt(2)) * i)
+    np.testing.assert_array_equal(power_in("supply_measured", v, i, p, amp), amp.steady(v, i, p))
+    with pytest.raises(PiezofinError, match="unknown watt 'volts'"):
+        watt_of("volts")
+
+
+def test_each_thrust_source_is_declared_once_in_its_registry() -> None:
+    """The sources were three tuples and ``source == "self"`` in eight places: now one table.  Each
+    source's thrust is an Estimate field, and so is each of its thrusts per watt; the load cell has
+    none, and asking for one is an error that names the sources that have them."""
+    from dataclasses import fields
+
+    from piezofin_ros.control.evidence import Observation
+    from piezofin_ros.errors import PiezofinError
+    from piezofin_ros.estimation.estimator import SOURCE, THRUST_FIELDS, source_of
+    from piezofin_ros.physics.amplifier import WATT
+
+    names = {f.name for f in fields(Estimate)}
+    for s in SOURCE.values():
+        assert s.thrust_field in names
+        if s.per_watt:
+            assert THRUST_FIELDS[s.name] == s.thrust_field
+            assert all(tpw_field(w, s.name) in names for w in WATT)
+        else:
+            with pytest.raises(
+                PiezofinError, match=r"no thrust per watt of the loadcell \(one of vibrometer, self\)"
+            ):
+                tpw_field("fin", s.name)
+    assert [s.name for s in SOURCE.values() if s.self_sensed] == ["self"]
+    y = complex(1e-4, 2e-3)
+    assert Observation(0, 6, 400, 1e-3, 0.1, "self", y).self_sensed
+    assert not Observation(0, 6, 400, 1e-3, 0.1, "self").self_sensed  # (no admittance: read as it came)
+    assert Observation(0, 6, 400, 1e-3, 0.1, "loadcell").load_cell
+    with pytest.raises(PiezofinError, match="unknown thrust source 'laser'"):
+        source_of("laser")
