@@ -186,6 +186,40 @@ def test_no_watt_source_or_mode_is_compared_as_a_string_outside_its_registry() -
     assert found == []
 
 
+def test_each_topic_is_declared_once_and_documented() -> None:
+    """Issue 40: a topic's name, type and QoS were written at every publisher and subscriber, the
+    recorder's list and a re-export list.  Now one table (``bags.topics.TOPICS``): every topic name
+    the module declares is in it, its QoS profile exists, the recorder's lists are the table's, and
+    docs/reference.md's topic table has a row for each with its type."""
+    from piezofin_ros.bags import topics
+    from piezofin_ros.nodes._common import QOS, endpoint
+    from piezofin_ros.nodes.recorder import GLOBAL_TOPICS, SUITE_TOPICS
+
+    declared = {v for k, v in vars(topics).items() if k.startswith("TOPIC_")}
+    assert declared == set(topics.TOPICS)
+    rows, previous = {}, ""
+    text = (PACKAGE.parent / "docs" / "reference.md").read_text()
+    section = text[text.index("### Topics") : text.index("**Blocks**")]
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) > 2 and (name := re.match(r"`([^`]+)`", cells[0])):
+            rows[name.group(1)] = previous if cells[1] == "same" else cells[1]  # ("same": the row above's)
+            previous = rows[name.group(1)]
+    for name, t in topics.TOPICS.items():
+        assert t.qos in QOS, name
+        cls, topic, qos = endpoint(name)
+        assert (cls.__module__.split(".")[0], cls.__name__, topic, qos) == (
+            t.type.split("/")[0],
+            t.type.split("/")[-1],
+            name,
+            QOS[t.qos],
+        )
+        short = t.type.replace("/msg/", "/")
+        assert name in rows and short in rows[name], (name, short, rows.get(name))
+    recorded = {n: t.type for n, t in topics.TOPICS.items() if t.recorded}
+    assert recorded == {**SUITE_TOPICS, **GLOBAL_TOPICS}
+
+
 def test_only_the_nodes_import_ros_client_code() -> None:
     bad = []
     for path in _modules():

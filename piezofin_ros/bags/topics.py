@@ -1,10 +1,15 @@
 """The topics of one fin, relative to its namespace: the nodes' contract (docs/reference.md).
 
-Light on purpose (no MCAP, no type store): the nodes import the names from here, the bags' reader
-(:mod:`.fin`) reads by them.
+Light on purpose (no MCAP, no type store, no ROS): the nodes import the names from here, the bags'
+reader (:mod:`.fin`) reads by them.  :data:`TOPICS` declares each topic once (its type, the QoS
+profile's name, who publishes it, whether the recorder records it): the nodes create their
+publishers from it (``nodes._common.endpoint``), the recorder takes its list from it, and a test
+checks the docs' table against it.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 from .blocks import DRIVE_CHANNELS, LOADCELL_CHANNELS, SUPPLY_CHANNELS, TIP_CHANNELS
 
@@ -19,6 +24,61 @@ TOPIC_STATUS = "controller/status"
 TOPIC_DEMAND = "thrust_demand"
 TOPIC_BATTERY = "battery"  # sensor_msgs/BatteryState: a fish's battery
 TOPIC_LOOP_STATUS = "speed_loop/status"  # std_msgs/String: what the speed loop is doing
+TOPIC_CMD_VEL = "cmd_vel"  # geometry_msgs/Twist (or TwistStamped): a fish stack's velocity command
+TOPIC_ODOM = "odom"  # nav_msgs/Odometry: the speed loop's dead reckoning
+TOPIC_CLOCK = "/clock"
+TOPIC_DIAGNOSTICS = "/diagnostics"
+
+F64A = "std_msgs/msg/Float64MultiArray"
+F64 = "std_msgs/msg/Float64"
+STRING = "std_msgs/msg/String"
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic of the suite: its name (relative to a fin's namespace, or absolute), its ROS type, the
+    name of its QoS profile (``nodes._common.QOS``), who publishes it, and whether the recorder
+    records it with the suite."""
+
+    name: str
+    type: str
+    qos: str
+    publisher: str
+    recorded: bool = True
+
+
+#: Every topic of the suite, declared once.
+TOPICS: dict[str, Topic] = {
+    t.name: t
+    for t in (
+        Topic(TOPIC_DRIVE, F64A, "data", "fin_sim, or a rig or fish driver"),
+        Topic(TOPIC_TIP, F64A, "data", "fin_sim, or a rig driver with a vibrometer"),
+        Topic(TOPIC_LOADCELL, F64A, "data", "fin_sim, or a rig driver with a load cell"),
+        Topic(TOPIC_SUPPLY, F64A, "data", "fin_sim, or a driver with a supply meter"),
+        Topic(TOPIC_CMD, F64A, "command", "controller"),
+        Topic(TOPIC_ESTIMATE, F64A, "estimate", "thrust_estimator"),
+        Topic(TOPIC_SPEED, F64, "command", "fin_sim with a body, or a fish driver"),
+        Topic(TOPIC_STATUS, STRING, "status", "controller"),
+        Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),
+        Topic(
+            TOPIC_BATTERY,
+            "sensor_msgs/msg/BatteryState",
+            "command",
+            "fin_sim with a battery, or a fish driver",
+        ),
+        Topic(TOPIC_LOOP_STATUS, STRING, "status", "speed_loop"),
+        Topic(TOPIC_CMD_VEL, "geometry_msgs/msg/Twist", "command", "a fish stack", recorded=False),
+        Topic(TOPIC_ODOM, "nav_msgs/msg/Odometry", "command", "speed_loop", recorded=False),
+        Topic(TOPIC_CLOCK, "rosgraph_msgs/msg/Clock", "clock", "fin_sim with publish_clock, player"),
+        Topic(
+            TOPIC_DIAGNOSTICS,
+            "diagnostic_msgs/msg/DiagnosticArray",
+            "diagnostics",
+            "every node",
+            recorded=False,
+        ),
+    )
+}
 
 #: The sample channels of each sampled topic, in wire order.
 SAMPLED = {

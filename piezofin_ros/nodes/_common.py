@@ -7,6 +7,7 @@ import contextlib
 import copy
 import faulthandler
 import gc
+import importlib
 import math
 import os
 import signal
@@ -56,21 +57,53 @@ QOS_STATUS = QoSProfile(
 )
 #: /clock as rosbag2 and the ROS time source expect it.
 QOS_CLOCK = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+#: /diagnostics as diagnostic_updater publishes them (reliable; a monitor that joins reads the next second's)
+QOS_DIAGNOSTICS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
+)
+#: The profiles by the name the topic table (``bags.topics.TOPICS``) gives them.
+QOS = {
+    "data": QOS_DATA,
+    "estimate": QOS_ESTIMATE,
+    "command": QOS_COMMAND,
+    "status": QOS_STATUS,
+    "clock": QOS_CLOCK,
+    "diagnostics": QOS_DIAGNOSTICS,
+}
 
 # Topic names (relative: a node's namespace puts them under one fin), defined with the bags' reader.
 from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contract)
     TOPIC_BATTERY,
+    TOPIC_CLOCK,
     TOPIC_CMD,
+    TOPIC_CMD_VEL,
     TOPIC_DEMAND,
+    TOPIC_DIAGNOSTICS,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
     TOPIC_LOADCELL,
     TOPIC_LOOP_STATUS,
+    TOPIC_ODOM,
     TOPIC_SPEED,
     TOPIC_STATUS,
     TOPIC_SUPPLY,
     TOPIC_TIP,
+    TOPICS,
 )
+
+
+def message_class(type_name: str) -> Any:
+    """The rclpy message class of ``pkg/msg/Type`` or ``pkg/Type`` (ImportError/AttributeError if not
+    installed)."""
+    parts = type_name.strip().split("/")
+    return getattr(importlib.import_module(f"{parts[0]}.msg"), parts[-1])
+
+
+def endpoint(topic: str, type_name: str = "") -> tuple[Any, str, QoSProfile]:
+    """``(message class, topic, QoS)`` of a topic of the table, for ``create_publisher`` (``type_name``:
+    another type the topic may carry, such as ``TwistStamped`` on ``cmd_vel``)."""
+    t = TOPICS[topic]
+    return message_class(type_name or t.type), topic, QOS[t.qos]
 
 
 def block_msg(block: Block) -> Float64MultiArray:

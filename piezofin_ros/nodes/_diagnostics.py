@@ -21,19 +21,14 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
+
+from ._common import QOS_DIAGNOSTICS, TOPIC_DIAGNOSTICS, endpoint  # noqa: F401 (re-exported)
 
 OK, WARN, ERROR, STALE = (int.from_bytes(x, "little") if isinstance(x, bytes) else int(x) for x in (
     DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, DiagnosticStatus.STALE
 ))  # fmt: skip
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
-
-TOPIC_DIAGNOSTICS = "/diagnostics"
-#: as diagnostic_updater publishes them (reliable; a monitor that joins reads the next second's)
-QOS_DIAGNOSTICS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
-)
 
 
 @dataclass(frozen=True)
@@ -66,7 +61,7 @@ class Diagnostics:
         self._tasks: list[tuple[str, Callable[[], Report]]] = []
         self._levels: dict[str, int] = {}
         self._looked = -math.inf  # (time.monotonic) the last look of update()
-        self._pub = node.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, QOS_DIAGNOSTICS)
+        self._pub = node.create_publisher(*endpoint(TOPIC_DIAGNOSTICS))
         self._timer = node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def add(self, task: str, check: Callable[[], Report]) -> None:

@@ -42,8 +42,6 @@ from ..physics.fin import load_fin
 from ..physics.model import load_model
 from ..physics.waveforms import ProtocolTiming
 from ._common import (
-    QOS_COMMAND,
-    QOS_STATUS,
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
@@ -53,6 +51,7 @@ from ._common import (
     StartupError,
     block_msg,
     declare,
+    endpoint,
     estimates,
     freeze_parameters,
     run_node,
@@ -171,8 +170,8 @@ class Controller(Node):
             self.strategy, summary = self._optimiser(c)
         else:
             self.strategy, summary = self._trials(c)
-        self._cmd_pub = self.create_publisher(Float64MultiArray, TOPIC_CMD, QOS_COMMAND)
-        self._status_pub = self.create_publisher(String, TOPIC_STATUS, QOS_STATUS)
+        self._cmd_pub = self.create_publisher(*endpoint(TOPIC_CMD))
+        self._status_pub = self.create_publisher(*endpoint(TOPIC_STATUS))
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         # polled (a flood of estimates held the executor, and the heartbeat with it: the watchdog tripped)
         self.inbox.polled(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20)

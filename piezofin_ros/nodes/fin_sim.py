@@ -69,10 +69,9 @@ from ..rig.simulated import (
     loosened,
 )
 from ._common import (
-    QOS_CLOCK,
     QOS_COMMAND,
-    QOS_DATA,
     TOPIC_BATTERY,
+    TOPIC_CLOCK,
     TOPIC_CMD,
     TOPIC_DRIVE,
     TOPIC_LOADCELL,
@@ -83,6 +82,7 @@ from ._common import (
     StartupError,
     block_msg,
     declare,
+    endpoint,
     freeze_parameters,
     msg_block,
     run_node,
@@ -264,16 +264,16 @@ class FinSim(LifecycleNode):
             self.get_logger().info(f"augmented model {self._model_path}: {effects}")
         self._n_block = max(1, round(self._block_s * self._rig_config.sample_rate_hz))
         self._pubs = {
-            name: self.create_lifecycle_publisher(Float64MultiArray, name, QOS_DATA)
+            name: self.create_lifecycle_publisher(*endpoint(name))
             for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL, TOPIC_SUPPLY)
         }
-        self._clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self._publish_clock else None
+        self._clock_pub = self.create_publisher(*endpoint(TOPIC_CLOCK)) if self._publish_clock else None
         self._speed_pub = self._battery_pub = None
         if self._body is not None:
             self._swimmer = FreeSwimmer(self._body, self._fin.L, self._battery, self._speed_noise, self._seed)
-            self._speed_pub = self.create_lifecycle_publisher(Float64, TOPIC_SPEED, QOS_COMMAND)
+            self._speed_pub = self.create_lifecycle_publisher(*endpoint(TOPIC_SPEED))
             if self._battery is not None:
-                self._battery_pub = self.create_lifecycle_publisher(BatteryState, TOPIC_BATTERY, QOS_COMMAND)
+                self._battery_pub = self.create_lifecycle_publisher(*endpoint(TOPIC_BATTERY))
             self.get_logger().info(
                 f"swimming: body {self._body.name} ({self._body.mass_kg:g} kg, {self._body.fins} fin(s))"
                 + (

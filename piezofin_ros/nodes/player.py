@@ -24,9 +24,10 @@ from rosgraph_msgs.msg import Clock
 from ..bags import BagError, BagMessage, bag_topics, read_messages, resolve_bag
 from ..config import setting
 from ._common import (
-    QOS_CLOCK,
+    TOPIC_CLOCK,
     StartupError,
     declare,
+    endpoint,
     freeze_parameters,
     run_node,
 )
@@ -66,7 +67,7 @@ class Player(Node):
         self._next: BagMessage | None = None
         self._pubs: dict[str, Any] = {}
         self._skipped: set[str] = set()
-        self._clock_pub = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self.publish_clock else None
+        self._clock_pub = self.create_publisher(*endpoint(TOPIC_CLOCK)) if self.publish_clock else None
         self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self._t_bag0 = first.log_time_ns
         self._t_wall0: int | None = None

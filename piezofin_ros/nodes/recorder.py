@@ -16,7 +16,6 @@ array.  These ``plot_fields`` are written to the bag only, never published.
 from __future__ import annotations
 
 import collections
-import importlib
 import json
 import struct
 import sys
@@ -33,55 +32,29 @@ from std_msgs.msg import String
 
 from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
 from ..bags.gaps import Gap, GapWatch
-from ..bags.topics import SAMPLED
+from ..bags.topics import F64, F64A, SAMPLED, STRING, TOPICS
 from ..config import setting
 from ._common import (
     QOS_CLOCK,
     QOS_COMMAND,
     QOS_DATA,
     QOS_STATUS,
-    TOPIC_BATTERY,
     TOPIC_CMD,
-    TOPIC_DEMAND,
-    TOPIC_DRIVE,
     TOPIC_ESTIMATE,
-    TOPIC_LOADCELL,
-    TOPIC_LOOP_STATUS,
-    TOPIC_SPEED,
-    TOPIC_STATUS,
-    TOPIC_SUPPLY,
-    TOPIC_TIP,
     StartupError,
     declare,
     freeze_parameters,
     helper_node,
+    message_class,
     never,
     run_node,
 )
 from ._diagnostics import ERROR, OK, Diagnostics, Report
 
-F64A = "std_msgs/msg/Float64MultiArray"
-#: The suite's topics per fin (relative names) with their types.
-SUITE_TOPICS = {
-    TOPIC_DRIVE: F64A,
-    TOPIC_TIP: F64A,
-    TOPIC_LOADCELL: F64A,
-    TOPIC_SUPPLY: F64A,
-    TOPIC_CMD: F64A,
-    TOPIC_ESTIMATE: F64A,
-    TOPIC_SPEED: "std_msgs/msg/Float64",
-    TOPIC_STATUS: "std_msgs/msg/String",
-    TOPIC_DEMAND: "std_msgs/msg/Float64",
-    TOPIC_BATTERY: "sensor_msgs/msg/BatteryState",
-    TOPIC_LOOP_STATUS: "std_msgs/msg/String",
-}
-GLOBAL_TOPICS = {"/clock": "rosgraph_msgs/msg/Clock"}
-
-
-def message_class(type_name: str) -> Any:
-    """The rclpy message class of ``pkg/msg/Type`` (ImportError/AttributeError if not installed)."""
-    pkg, _, name = normalise_type(type_name).split("/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+#: The suite's topics per fin (relative names) with their types, and the global ones: as the topic
+#: table records them.
+SUITE_TOPICS = {n: t.type for n, t in TOPICS.items() if t.recorded and not n.startswith("/")}
+GLOBAL_TOPICS = {n: t.type for n, t in TOPICS.items() if t.recorded and n.startswith("/")}
 
 
 def qos_for(topic: str, type_name: str) -> Any:
@@ -104,8 +77,7 @@ THIN_LOOKS = 20
 
 #: Topics (relative) whose one-sample blocks are also written field by field, for plotting.
 PLOT_TOPICS = (TOPIC_ESTIMATE, TOPIC_CMD)
-FLOAT64 = "std_msgs/msg/Float64"
-STRING = "std_msgs/msg/String"
+FLOAT64 = F64
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
 
 

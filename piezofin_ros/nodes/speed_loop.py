@@ -31,16 +31,17 @@ from ..errors import PiezofinError
 from ..estimation.estimator import THRUST_MOST_N
 from ..physics.swim import SPEED_MOST_M_S, load_body
 from ._common import (
-    QOS_COMMAND,
-    QOS_STATUS,
+    TOPIC_CMD_VEL,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
     TOPIC_LOOP_STATUS,
+    TOPIC_ODOM,
     TOPIC_SPEED,
     Inbox,
     MessageRefused,
     StartupError,
     declare,
+    endpoint,
     freeze_parameters,
     msg_block,
     run_node,
@@ -48,10 +49,8 @@ from ._common import (
 )
 from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 
-#: A fish stack's velocity command, relative: ``/fish/cmd_vel`` in the fish's namespace.
-TOPIC_CMD_VEL = "cmd_vel"
-#: Where the fish is, dead-reckoned (nav_msgs/Odometry), relative: ``/fish/odom``.
-TOPIC_ODOM = "odom"
+# (cmd_vel, a fish stack's velocity command, and odom, where the fish is: in the topic table,
+# bags/topics.py, relative to the fish's namespace: /fish/cmd_vel, /fish/odom)
 #: The fastest yaw rate any fish's command may ask, rad/s (either way): beyond, it is no command.
 YAW_RATE_MOST_RAD_S = 100.0
 
@@ -138,8 +137,8 @@ class SpeedLoopNode(Node):
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         freeze_parameters(self, "speed_m_s", self._on_setpoint)
-        self._pub = self.create_publisher(Float64, TOPIC_DEMAND, QOS_COMMAND)
-        self._status = self.create_publisher(String, TOPIC_LOOP_STATUS, QOS_STATUS)
+        self._pub = self.create_publisher(*endpoint(TOPIC_DEMAND))
+        self._status = self.create_publisher(*endpoint(TOPIC_LOOP_STATUS))
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         # the newest reading only, polled: a flood costs one reading per look
         self.inbox.latest(
@@ -157,7 +156,7 @@ class SpeedLoopNode(Node):
         )
         # where the fish is, dead-reckoned from its speed (control/odometry.py), as ROS tools read it
         self.odometry = DeadReckoning(own.speed_sigma_m_s, own.speed_bias_m_s)
-        self._odom = self.create_publisher(Odometry, TOPIC_ODOM, QOS_COMMAND)
+        self._odom = self.create_publisher(*endpoint(TOPIC_ODOM))
         self.create_timer(1.0 / own.rate_hz, self._tick)
         self.refused = 0
         self._said = self._published = ""

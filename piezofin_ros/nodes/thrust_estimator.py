@@ -34,7 +34,6 @@ from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.fin import MEDIA, Fin, load_fin
 from ..physics.swim import SPEED_MOST_M_S
 from ._common import (
-    QOS_ESTIMATE,
     TOPIC_BATTERY,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
@@ -48,6 +47,7 @@ from ._common import (
     battery_reading,
     block_msg,
     declare,
+    endpoint,
     freeze_parameters,
     run_node,
     samples,
@@ -115,7 +115,7 @@ class ThrustEstimator(Node):
         self.core = StreamEstimator(self.fin, config, calibrate, amplifier, own.medium, fixed)
         self._meter = ""  # where the supply watt is measured, as last said
         self.estimates: list[Estimate] = []
-        self._pub = self.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_ESTIMATE)
+        self._pub = self.create_publisher(*endpoint(TOPIC_ESTIMATE))
         # every message from another process through one door: checked there, refused with the reason
         self.inbox = inbox = Inbox(self)
         # every sampled topic polled, each at most BLOCKS_A_LOOK blocks a look: a flood on one (a spoofed

@@ -23,6 +23,8 @@ from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.physics.effects import Leakage
 from piezofin_ros.physics.fin import Fin, load_fin
 
+from .. import builders
+
 LIMITS = OperatingBox(1.0, 20.0, 50.0, 800.0)
 
 
@@ -86,10 +88,10 @@ def test_unreachable_demand_gives_the_most_thrust_and_says_so(m8528: Fin) -> Non
 
 
 def estimate(t: float, f: float, v: float, thrust: float, power: float, final: float = 0.0) -> Estimate:
-    nan = math.nan
-    return Estimate(
-        t - 2.0, t, final, 2 * f, f, v, 1e-4, power, 0.1, thrust, nan, nan, 0.1, thrust, nan, nan, 0.0, 0.0
-    )  # fmt: skip
+    """A running window (2 s) ending at ``t``."""
+    return builders.estimate(
+        t_start=t - 2.0, t_end=t, frequency_hz=f, voltage_pp=v, thrust_n=thrust, power_w=power, final=final
+    )
 
 
 numbers = st.one_of(
@@ -205,6 +207,9 @@ def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypa
     overlaps: list[str] = []
     running = threading.Lock()
     update = Optimiser._update
+    # the fit's thread holds its first fit until the test has sent its windows and its demand: with a
+    # 50 ms sleep instead, a loaded machine (-n 2) once let the fit end between two windows
+    sent = threading.Event()
 
     def slow_update(self: Optimiser) -> None:
         threads.append(threading.current_thread().name)
@@ -212,7 +217,8 @@ def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypa
             overlaps.append(threads[-1])
             return update(self)
         try:
-            time.sleep(0.05)  # (widens the window a second thread would need)
+            if threads[-1].startswith("optimiser"):
+                sent.wait(30.0)  # (the window a second thread would need: held open)
             update(self)
         finally:
             running.release()
@@ -229,6 +235,8 @@ def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypa
     for k in range(6):  # windows that agree: a trial, then two more while its fit runs (the last waits)
         loop.add_estimate(t, estimate(t + 2.0 * k + 2.0, f, v, 1e-3, 1e-2))
     loop.set_demand(4e-3)  # from this (the executor's) thread, while the fit runs
+    assert not overlaps  # (no fit here: the demand waits for the fit's thread)
+    sent.set()
     deadline = time.monotonic() + 60.0
     while loop.status()["demand_n"] is None and time.monotonic() < deadline:  # the heartbeat goes on
         time.sleep(0.02)

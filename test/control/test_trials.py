@@ -11,13 +11,23 @@ from piezofin_ros.control.objective import range_per_charge
 from piezofin_ros.control.trials import Mode, TrialPlan, TrialRunner, choose
 from piezofin_ros.estimation.estimator import Estimate
 
+from .. import builders
+
 
 def estimate(t_start: float, f: float, thrust: float, power: float, final: float = 1.0) -> Estimate:
-    nan = math.nan
-    return Estimate(
-        t_start, t_start + 5, final, 5 * f, f, 800.0, 1e-4, power, 0.1, thrust, thrust / power, 0.13,
-        0.1, thrust, thrust / power, nan, 0.0, 0.0,
-    )  # fmt: skip
+    """A trial (5 s at 800 Vpp) from ``t_start``, its thrusts per watt filled."""
+    return builders.estimate(
+        t_start=t_start,
+        t_end=t_start + 5,
+        frequency_hz=f,
+        voltage_pp=800.0,
+        thrust_n=thrust,
+        power_w=power,
+        final=final,
+        thrust_per_watt=thrust / power,
+        thrust_per_watt_self=thrust / power,
+        c_tau=0.13,
+    )
 
 
 def test_protocol_schedule_is_off_on_off() -> None:
