@@ -34,7 +34,7 @@ t0=$SECONDS
 echo "== ruff"
 ruff check .
 ruff format --check .
-echo "== mypy (core)"
+echo "== mypy (the package, nodes included)"
 mypy
 t1=$SECONDS
 export PYTHONPYCACHEPREFIX="${PYTHONPYCACHEPREFIX:-$ROOT/.ros/pycache}"  # hundreds of test processes: compile once

@@ -47,6 +47,7 @@ from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.time import Time
+from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Float64MultiArray
@@ -203,7 +204,7 @@ class FinSim(LifecycleNode):
         self._guard_change_state()
         self._rig: SimulatedRig | None = None
         self._fin: Fin | None = None
-        self._timer = None
+        self._timer: Timer | None = None
         self._running = False  # active: the rig advances (on its own timer, or paced by bringup)
         self.paced = False  # bringup steps every fin from one timer (see step()); no timer of its own
         self._pubs: dict[str, object] = {}
@@ -335,17 +336,17 @@ class FinSim(LifecycleNode):
         service = self._service_change_state
         handle = service.callback
 
-        def guarded(request: object, response: object) -> object:
+        def guarded(request: Any, response: Any) -> Any:
             try:
                 return handle(request, response)
             except _rclpy.RCLError as exc:
                 label = self._state_machine.current_state[1]
-                req = request.transition  # type: ignore[attr-defined]
+                req = request.transition
                 self.get_logger().warning(
                     f"refused lifecycle transition {req.label or req.id} from state {label}: "
                     f"{str(exc).splitlines()[0]}"
                 )
-                response.success = False  # type: ignore[attr-defined]
+                response.success = False
                 return response
 
         service.callback = guarded

@@ -20,7 +20,9 @@ import json
 import struct
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -200,7 +202,7 @@ class Recorder(Node):
             return Report(ERROR, f"cannot write to {self.path}: recording stopped", values)
         return Report(OK, f"recording {total} messages on {len(self.bag.counts)} topics", values)
 
-    def _wanted(self, topics: list[str], namespaces: list[str]) -> dict[str, str]:
+    def _wanted(self, topics: Sequence[str], namespaces: Sequence[str]) -> dict[str, str]:
         if topics:
             out = {}
             for entry in topics:
@@ -211,7 +213,7 @@ class Recorder(Node):
         out.update(GLOBAL_TOPICS)
         return out
 
-    def _prefixes(self, namespaces: list[str]) -> list[str]:
+    def _prefixes(self, namespaces: Sequence[str]) -> list[str]:
         prefixes = [ns.rstrip("/") if ns.startswith("/") else "/" + ns.strip("/") for ns in namespaces]
         return prefixes or [self.get_namespace().rstrip("/")]
 
@@ -242,7 +244,7 @@ class Recorder(Node):
         self._subs[topic] = self.create_subscription(
             cls,
             topic,
-            lambda data, _t=topic: self._write(_t, data),
+            partial(self._write, topic),
             qos_for(topic, kind),
             raw=True,
         )
