@@ -80,8 +80,8 @@ class DriveLoop:
     Demands are taken (:class:`DemandGate`) at most once per ``hold_s``, the latest one, and at most one
     waits for the fit's thread: a flood of them is a fit a second, not a fit per message. And a demand
     waits for the trial it would cut short: once one is taken, the next is taken after a trial has been
-    learnt (and none is half-measured), unless it moves the demand by more than ``jump`` (a new set-
-    point) or has waited ``wait_s``. A speed loop's demand moves all the time (its feedback on a noisy
+    learnt (and none is half-measured), unless it moves the demand by more than ``jump`` (a new
+    set-point) or has waited ``wait_s``. A speed loop's demand moves all the time (its feedback on a noisy
     speed); taken at once, each new demand moved the drive to a new point before its trial ended, no
     trial was ever learnt, and the optimiser held its first guess (the fish of issue 27 swam at 3.4 cm/s
     for 700 s when asked for 5).
@@ -114,7 +114,7 @@ class DriveLoop:
     halted: bool = False  # the run is over: stopped stays stopped
     _stopped_since: float | None = None
     _retries: int = 0
-    gate: DemandGate = field(default_factory=lambda: DemandGate())  # which demand is taken when
+    gate: DemandGate = field(default_factory=DemandGate)  # which demand is taken when
     _waiting: tuple[Any, ...] | None = None  # a trial that agreed while a fit ran: learnt next
     _supply_modelled: bool = False  # ranking by the model's supply watt (none measured)
 
