@@ -93,7 +93,7 @@ def scenarios(trials: int) -> dict[str, str]:
         load_body("mfc-fish"),
         drive_for("ours (supply watt)", twin, plant, amp),
         [(0.0, 0.048), (100.0, 0.062)],
-        20.0 * trials * 5 / 6,
+        200.0 * trials / 12,  # (200 s of fish time at the default 12 trials)
         load_battery("li-ion-2s-500mah"),
         loop_config=SpeedLoopConfig(max_demand_n=0.008),
     )

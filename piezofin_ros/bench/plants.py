@@ -147,19 +147,14 @@ def read(
         thrust = float(p.thrust_loadcell_n if how.load_cell else lighthill_thrust(fin, p.tip_velocity_rms))
         thrust = thrust * (1 + n.thrust_rel * rng.standard_normal()) + n.thrust_abs_n * rng.standard_normal()
     named = math.nan
-    if not watt_of(watt).is_fin:
+    named_watt = watt_of(watt)
+    if not named_watt.is_fin:
         # the estimator's watts from the monitors (its own amplifier model for ``supply``); the supply's
         # meter reads the plant's true amplifier (``supply_measured``)
         i_rms = abs(y) * v_amp / math.sqrt(2)
-        if watt_of(watt).measured:
+        if named_watt.measured:
             truth = float(
-                power_in(
-                    watt_of(watt).model.name,
-                    2 * v_amp,
-                    float(p.current_rms),
-                    float(p.power_w),
-                    plant.amplifier,
-                )
+                named_watt.model.steady(2 * v_amp, float(p.current_rms), float(p.power_w), plant.amplifier)
             )
             named = truth * (1 + n.power_rel * rng.standard_normal())
         else:

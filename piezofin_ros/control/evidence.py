@@ -102,18 +102,13 @@ class Counted(NamedTuple):
 
 
 def count(
-    obs: Sequence[Observation],
-    thrust: Any,
-    noise: Any,
-    bound: float,
-    task: Task,
-    confirmed: bool = True,
-) -> list[Counted]:
+    obs: Sequence[Observation], thrust: Any, noise: Any, bound: float, task: Task
+) -> tuple[list[Counted], list[Counted]]:
     """Measured points that meet ``task`` with the margin: each trial's thrust as re-estimated
     (``thrust``), its log noise (``noise``) and the calibration's 2-sigma bound (``bound``, NaN: none).
 
-    ``confirmed``: on the trials after the first at each point; else the points measured once whose
-    first trial alone meets the task (candidates for a confirming trial)."""
+    Two lists: the points measured again, counted on the trials after the first; and the points
+    measured once whose first trial alone meets the task (candidates for a confirming trial)."""
     half = float(np.nan_to_num(bound)) / 2.0
     groups: list[list[int]] = []  # the trials at each point (held points are measured again and again)
     for k, o in enumerate(obs):
@@ -123,10 +118,11 @@ def count(
                 break
         else:
             groups.append([k])
-    out = []
+    counted: list[Counted] = []
+    candidates: list[Counted] = []
     for same in groups:
-        if (len(same) > 1) != confirmed:
-            continue
+        confirmed = len(same) > 1
+        out = counted if confirmed else candidates
         o = obs[same[0]]
         use = same[1:] if confirmed else same
         t = float(np.exp(np.mean(np.log(thrust[use]))))
@@ -137,4 +133,4 @@ def count(
                 out.append(Counted(float(task.objective(task.demand_n, o.named_w, task.demand_n)), o, t))
         elif low >= task.min_thrust_n and abs(o.voltage_pp - task.voltage_pp) <= 0.01 * task.voltage_pp:
             out.append(Counted(float(task.objective(t, o.named_w)), o, t))
-    return out
+    return counted, candidates

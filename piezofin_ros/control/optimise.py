@@ -336,9 +336,7 @@ class Optimiser:
         problem = self.problem
         thrust = problem.thrust_estimates(self.correction, obs)
         noise = problem.thrust_noise(self.correction, obs, thrust)
-        task = self.task
-        self.counted = count(obs, thrust, noise, self.self_sensing_bound, task, confirmed=True)
-        self.candidates = count(obs, thrust, noise, self.self_sensing_bound, task, confirmed=False)
+        self.counted, self.candidates = count(obs, thrust, noise, self.self_sensing_bound, self.task)
 
     def _surprise(self, o: Observation) -> float:
         """How far (in sigma) a new measurement lies from the map's prediction."""

@@ -99,11 +99,10 @@ def message_class(type_name: str) -> Any:
     return getattr(importlib.import_module(f"{parts[0]}.msg"), parts[-1])
 
 
-def endpoint(topic: str, type_name: str = "") -> tuple[Any, str, QoSProfile]:
-    """``(message class, topic, QoS)`` of a topic of the table, for ``create_publisher`` (``type_name``:
-    another type the topic may carry, such as ``TwistStamped`` on ``cmd_vel``)."""
+def endpoint(topic: str) -> tuple[Any, str, QoSProfile]:
+    """``(message class, topic, QoS)`` of a topic of the table, for ``create_publisher``."""
     t = TOPICS[topic]
-    return message_class(type_name or t.type), topic, QOS[t.qos]
+    return message_class(t.type), topic, QOS[t.qos]
 
 
 def block_msg(block: Block) -> Float64MultiArray:

@@ -29,9 +29,10 @@ from ._common import (
     declare,
     endpoint,
     freeze_parameters,
+    message_class,
     run_node,
 )
-from .recorder import message_class, qos_for
+from .recorder import qos_for
 
 
 @dataclass(frozen=True)
