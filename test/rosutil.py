@@ -7,7 +7,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -141,6 +141,45 @@ class Launch:
             os.killpg(self.proc.pid, signal.SIGKILL)
             raise
         return self.output()
+
+
+def ros2(
+    env: dict[str, str], *args: str, timeout: float = 60.0, cwd: Path | None = None
+) -> subprocess.CompletedProcess[str]:
+    """The real ``ros2`` command line, as a user types it (no standard input, output captured)."""
+    return subprocess.run(
+        ["ros2", *args],
+        env=env,
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+def node_list(env: dict[str, str], expected: set[str], timeout: float = 30.0) -> set[str]:
+    """`ros2 node list`, asked again until every expected node shows (discovery takes its time)."""
+    return listed(env, nodes=expected, timeout=timeout)[0]
+
+
+def listed(
+    env: dict[str, str], nodes: Iterable[str] = (), topics: Iterable[str] = (), timeout: float = 60.0
+) -> tuple[set[str], set[str]]:
+    """``ros2 node list`` and ``ros2 topic list``, asked again until they show ``nodes`` and ``topics``
+    (or ``timeout``): as a user waits before naming a node to ``ros2 lifecycle`` or ``ros2 param``.
+    On a loaded machine the CLI's discovery lags the graph by seconds (stop 46's whole run:
+    ``lifecycle set /fin/fin_sim`` said "Node not found" of a node that was driving)."""
+    want_nodes, want_topics = set(nodes), set(topics)
+    t0 = time.monotonic()
+    while True:
+        seen_nodes, seen_topics = (
+            set(ros2(env, kind, "list", "--spin-time", "3").stdout.split()) if want else set()
+            for kind, want in (("node", want_nodes), ("topic", want_topics))
+        )
+        if (want_nodes <= seen_nodes and want_topics <= seen_topics) or time.monotonic() - t0 > timeout:
+            return seen_nodes, seen_topics
+        time.sleep(0.5)
 
 
 BIN = Path(sys.executable).parent

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import pytest
 
-from .rosutil import BIN, Launch, clean_env
+from .rosutil import BIN, Launch, clean_env, listed, ros2
 
 pytestmark = [pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,26 +142,16 @@ class Background:
             # a fresh CLI daemon: the one of this domain may still list the nodes of a suite an earlier
             # test ran and killed, till their lease ends (the CI run of stop 45: `topic list` showed a
             # dead /fin/estimate, then `echo` found none and `param describe` no /fin/fin_sim)
-            subprocess.run(["ros2", "daemon", "stop"], env=env, capture_output=True, timeout=60)
+            ros2(env, "daemon", "stop")
             self.launch = Launch(env, cwd, "realtime_factor:=10", log="background-launch.log")
             self.launch.wait_for("trial 1.000 Hz", 60.0)  # estimates flow
             # ... and the command line sees them: as a user would wait for `ros2 node list` and
             # `ros2 topic list` to show them (on a loaded machine the CLI's discovery lags the graph)
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 60.0:
-                listed = [
-                    subprocess.run(
-                        ["ros2", kind, "list"], env=env, capture_output=True, text=True, timeout=60
-                    ).stdout.split()
-                    for kind in ("node", "topic")
-                ]
-                nodes, topics = listed
-                if {"/fin/fin_sim", "/fin/thrust_estimator", "/fin/controller"} <= set(nodes) and {
-                    "/fin/estimate",
-                    "/fin/cmd",
-                } <= set(topics):
-                    break
-                time.sleep(0.5)
+            listed(
+                env,
+                nodes={"/fin/fin_sim", "/fin/thrust_estimator", "/fin/controller"},
+                topics={"/fin/estimate", "/fin/cmd"},
+            )
 
     def stop(self) -> None:
         if self.launch is not None:

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import optimize
 
 from ..estimation.estimator import source_of
 from ..estimation.selfsense import lighthill_thrust, self_sensed_tip
@@ -33,7 +32,12 @@ from .correction import (
     vector_of,
 )
 from .evidence import Observation, same_point
+from .lsq import Solution, least_squares
 from .response import EstimateNoise
+
+#: ``solve(fun, x0, lower, upper, scale, max_nfev)``: a bounded least-squares solver
+Residuals = Callable[[FloatArray], FloatArray]
+Solver = Callable[[Residuals, FloatArray, FloatArray, FloatArray, FloatArray, int], Solution]
 
 #: Relative model error weighed into the fit beside the measurement noise (the map is a model).
 MODEL_ERROR = 0.02
@@ -196,9 +200,10 @@ class FitProblem:
             sigma[INDEX["leakage_us"]] = 1e-6
         return sigma
 
-    def fit(self, obs: Sequence[Observation], start: Correction) -> Fit:
+    def fit(self, obs: Sequence[Observation], start: Correction, solve: Solver = least_squares) -> Fit:
         """The correction that fits ``obs`` best under the priors, from ``start`` (and early, with
-        four trials or fewer, from the nominal fin too: its basin may be the right one)."""
+        four trials or fewer, from the nominal fin too: its basin may be the right one); ``solve``
+        is the bounded least-squares solver (:func:`.lsq.least_squares`; the tests pass scipy's)."""
         if not obs:
             return Fit(Correction(base=self.base))
         prior = self.prior_sigma
@@ -210,7 +215,7 @@ class FitProblem:
         starts = [x0] if len(obs) > 4 else [x0, np.clip(np.zeros(len(PARAMS)), LOWER, UPPER)]
         best = None
         for x in starts:
-            res = optimize.least_squares(residuals, x, bounds=(LOWER, UPPER), x_scale=prior, max_nfev=200)
+            res = solve(residuals, x, LOWER, UPPER, prior, 200)
             if best is None or res.cost < best.cost:
                 best = res
         assert best is not None

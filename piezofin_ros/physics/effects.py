@@ -43,7 +43,6 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize
 
 from ..errors import PhysicsError
 from .fin import Fin
@@ -563,6 +562,8 @@ def clip_ratio(fundamental: float) -> float:
         return 1.0
     if fundamental <= 0.0:
         return 0.0
+    from scipy import optimize  # (here: a fish's controller imports this module, and not scipy's 45 MB)
+
     return float(optimize.brentq(lambda r: float(clipped_fundamental(r)) - fundamental, 0.0, 1.0, xtol=1e-12))
 
 

@@ -50,7 +50,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import optimize
 
 from ..errors import PhysicsError
 from ._compile import NUMBA, njit
@@ -375,6 +374,8 @@ def harmonic_balance_fsolve(fin: Fin, frequency_hz: ArrayLike, voltage_pp: Array
     This is how the paper solved them (MATLAB's ``solve``, trust-region dogleg); it is
     kept as the baseline of the speed benchmark and as an independent check in the tests.
     """
+    from scipy import optimize  # (here: the nodes import this module, and not scipy's 45 MB)
+
     f, vpp = np.broadcast_arrays(np.asarray(frequency_hz, float), np.asarray(voltage_pp, float))
     out = np.zeros((2, *f.shape))
     wn2 = fin.omega_n**2

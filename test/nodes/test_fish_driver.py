@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ..rosutil import Launch, stop
-from .test_ros2_cli import node_list
+from ..rosutil import Launch, node_list, stop
 
 # exclusive: a driver at real time beside the parallel CPU-bound tests; and the suite's launch tests
 # beside it saw nodes outlive launch's 5 s stop (two full runs of stop 44)

@@ -9,7 +9,6 @@ is measured by a subscriber in this process, in the launch's DDS domain.
 
 from __future__ import annotations
 
-import subprocess
 import time
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.bags.blocks import DRIVE_CHANNELS
 from piezofin_ros.nodes._common import QOS_DATA, msg_block
 
-from ..rosutil import Launch
+from ..rosutil import Launch, listed, ros2
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -36,12 +35,6 @@ CASES = {
 }
 #: a drive at rest: the ramp's end plus the voltage monitor's noise, V
 AT_REST_V = 5.0
-
-
-def ros2(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        ["ros2", *args], env=env, capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL
-    )
 
 
 class DriveProbe:
@@ -94,6 +87,9 @@ def test_an_operators_deactivate_holds_under_every_launch_file(
     try:
         for ns in namespaces:
             probe.spin_until_driven(ns, 100.0, 120.0)  # the controller drives: a trial is on
+        # the operator names the node once the command line lists it, as a user does
+        fins = {f"/{ns}/fin_sim" for ns in namespaces}
+        assert fins <= listed(ros_env, nodes=fins)[0], "the command line never listed the fins"
         for ns in namespaces:
             stop = ros2(ros_env, "lifecycle", "set", f"/{ns}/fin_sim", "deactivate", "--spin-time", "3")
             assert "Transitioning successful" in stop.stdout, stop.stdout + stop.stderr

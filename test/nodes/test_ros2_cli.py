@@ -18,34 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ..rosutil import Launch, assert_quiet_domain
+from ..rosutil import Launch, assert_quiet_domain, node_list, ros2
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def ros2(
-    env: dict[str, str], *args: str, timeout: float = 60.0, cwd: Path | None = None
-) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        ["ros2", *args],
-        env=env,
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        stdin=subprocess.DEVNULL,
-    )
-
-
-def node_list(env: dict[str, str], expected: set[str], timeout: float = 30.0) -> set[str]:
-    """`ros2 node list`, asked again until every expected node shows (discovery takes its time)."""
-    t0 = time.monotonic()
-    while True:
-        nodes = set(ros2(env, "node", "list", "--spin-time", "3").stdout.split())
-        if expected <= nodes or time.monotonic() - t0 > timeout:
-            return nodes
-        time.sleep(0.5)
 
 
 def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
