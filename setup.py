@@ -1,10 +1,23 @@
 """ament_python build of piezofin_ros (colcon build / pip install)."""
 
+import ast
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "piezofin_ros"
+
+
+def node_executables() -> list[str]:
+    """The names of ``piezofin_ros.nodes.entry.EXECUTABLES``, read without importing the package
+    (its dependencies need not be there when it is built)."""
+    tree = ast.parse((Path(__file__).resolve().parent / PACKAGE / "nodes" / "entry.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", "") == "EXECUTABLES":
+            return list(ast.literal_eval(node.value))
+    raise SystemExit("setup.py: piezofin_ros/nodes/entry.py declares no EXECUTABLES")
+
 
 setup(
     name=PACKAGE,
@@ -38,14 +51,7 @@ setup(
             "sweep = piezofin_ros.cli.main:sweep_main",
             "diagnose = piezofin_ros.cli.main:diagnose_main",
             "identify = piezofin_ros.cli.main:identify_main",
-            "fin_sim = piezofin_ros.nodes.entry:fin_sim",
-            "fin_sims = piezofin_ros.nodes.entry:fin_sims",
-            "thrust_estimator = piezofin_ros.nodes.entry:thrust_estimator",
-            "controller = piezofin_ros.nodes.entry:controller",
-            "recorder = piezofin_ros.nodes.entry:recorder",
-            "player = piezofin_ros.nodes.entry:player",
-            "speed_loop = piezofin_ros.nodes.entry:speed_loop",
-            "bringup = piezofin_ros.nodes.entry:bringup",
+            *(f"{name} = piezofin_ros.nodes.entry:{name}" for name in node_executables()),
         ],
     },
 )

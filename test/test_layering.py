@@ -292,6 +292,7 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
     from piezofin_ros.control.speedloop import SpeedLoopConfig
     from piezofin_ros.estimation.estimator import EstimatorConfig
     from piezofin_ros.nodes.controller import ControllerConfig
+    from piezofin_ros.nodes.entry import EXECUTABLES
     from piezofin_ros.nodes.fin_sim import FinSimConfig
     from piezofin_ros.nodes.player import PlayerConfig
     from piezofin_ros.nodes.recorder import RecorderConfig
@@ -309,6 +310,9 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
         "player": [PlayerConfig],
         "speed_loop": [SpeedLoopNodeConfig, SpeedLoopConfig],
     }
+    # every node's settings, the node list being the package's (the hosts ``fin_sims``, ``bringup``
+    # run those nodes, with their settings)
+    assert set(nodes) == {name for name, (module, _) in EXECUTABLES.items() if module == name} - {"bringup"}
     for node, configs in nodes.items():
         for cls in configs:
             for f, _default, s in settings_of(cls):  # every field is a setting with a description

@@ -31,6 +31,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from markdown_it import MarkdownIt
 
 from .rosutil import BIN, Launch, clean_env, listed, ros2
 
@@ -49,7 +50,7 @@ TALKS_TO_THE_SUITE = re.compile(r"^ros2 (node|topic|param|lifecycle|service) ")
 NEEDS_ROS = re.compile(r"^(ros2|colcon|rosdep) ")
 #: Sections whose lines a user types in the colcon workspace the install block left them in, not in
 #: the repository: the sample bag is reached through the installed package (issue 29).
-FROM_THE_WORKSPACE = {"README.md: On a ROS 2 machine (Jazzy)"}
+FROM_THE_WORKSPACE = {"ros.md: On a ROS 2 machine (Jazzy)"}
 #: Seconds a node or launch must survive before it is stopped; the limit for everything else.
 ALIVE_S = 12.0
 UP_S = 120.0  # a loaded machine: the processes may take this long to import and start
@@ -92,6 +93,27 @@ def test_the_documents_have_commands_to_run() -> None:
     assert all(re.search(r"\(not run by the tests: \S.+\)", line) for line in marked)  # a reason each
 
 
+#: The commands a sentence may name in ``code``: each must begin a block line.
+COMMAND = re.compile(r"^(piezofin |bringup |ros2 |bash tools/|python (-m |benchmarks/|tools/))")
+
+
+def test_every_command_a_sentence_names_begins_a_line_the_tests_run() -> None:
+    """A command the README writes inline (`piezofin watts --plot out/watts.png`) is one of the
+    block lines, or the start of one, which the tests run (or which say why not: the test command
+    itself): a reader may type it as it stands.  (The pages of docs/ name benchmarks inline as the
+    source of their figures; those take minutes.)"""
+    lines = [c for _, _, c, _ in LINES]
+    named = []
+    for doc in DOCUMENTS[:1]:
+        for block in MarkdownIt().parse(doc.read_text()):
+            for span in (c.content for c in block.children or () if c.type == "code_inline"):
+                if COMMAND.match(span) and not re.search(r"[A-Z]{3,}|\.\.\.|<", span):
+                    named.append((doc.name, span))
+    assert len(named) >= 3, named
+    unrun = [(doc, span) for doc, span in named if not any(c.startswith(span) for c in lines)]
+    assert not unrun, unrun
+
+
 @pytest.fixture(scope="session")  # a test worker may run other modules between a section's lines
 def placeholders(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The files the text names, made once: each section's scratch directory starts as a copy."""
@@ -123,7 +145,7 @@ def scratch_for(
         shutil.copytree(placeholders, here, dirs_exist_ok=True)
         if key in FROM_THE_WORKSPACE:  # the user stands in ~/ws: the repository's files are not there
             shutil.rmtree(here / "bags")
-        for name in ("tools", "requirements.txt", "requirements-dev.txt", "setup.py"):
+        for name in ("tools", "requirements.txt", "requirements-dev.txt", "setup.py", "docs", "CHANGELOG.md"):
             (here / name).symlink_to(ROOT / name)  # tools/main.sh runs here, on the project's venv
         if key not in FROM_THE_WORKSPACE:
             (here / "benchmarks").symlink_to(ROOT / "benchmarks")  # (the clone's, as its lines say)

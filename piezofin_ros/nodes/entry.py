@@ -39,12 +39,23 @@ def _run(module: str, function: str = "main") -> int:
     return int(main())
 
 
-# (each a callable that setup.py's console_scripts name)
-fin_sim = partial(_run, "fin_sim")
-fin_sims = partial(_run, "fin_sim", "fins_main")
-thrust_estimator = partial(_run, "thrust_estimator")
-controller = partial(_run, "controller")
-recorder = partial(_run, "recorder")
-player = partial(_run, "player")
-speed_loop = partial(_run, "speed_loop")
-bringup = partial(_run, "bringup")
+#: Every executable of the package, ``ros2 run piezofin_ros <name>``: the module of this package that
+#: holds it and its function.  Declared once: setup.py's console_scripts are read from this table
+#: (with ``ast``, not importing the package), and so are the tests' lists of executables.
+EXECUTABLES: dict[str, tuple[str, str]] = {
+    "fin_sim": ("fin_sim", "main"),
+    "fin_sims": ("fin_sim", "fins_main"),
+    "thrust_estimator": ("thrust_estimator", "main"),
+    "controller": ("controller", "main"),
+    "recorder": ("recorder", "main"),
+    "player": ("player", "main"),
+    "speed_loop": ("speed_loop", "main"),
+    "bringup": ("bringup", "main"),
+}
+
+
+def __getattr__(name: str) -> partial[int]:
+    """``piezofin_ros.nodes.entry:<name>``, the callable a console script names (PEP 562)."""
+    if name in EXECUTABLES:
+        return partial(_run, *EXECUTABLES[name])
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -52,7 +52,8 @@ FloatArray = NDArray[Any]
 V_REF = 800.0  # Vpp: voltage-dependent effects are quoted at this drive
 AMPLIFIER = "amplifier"  # the family of the effects between the command and the fin (applied first)
 VOLTAGE_MONITOR = "voltage monitor"  # the family of the instrument that reads the drive
-#: Describing functions: |x| x (quadratic drag) -> 8/(3 pi) X, |x| x' -> 4/(3 pi) X, x^3 -> 3/4 X^2.
+#: Describing functions: ``|x| x`` (quadratic drag) -> ``8/(3 pi) X``, ``|x| x'`` -> ``4/(3 pi) X``,
+#: ``x^3`` -> ``3/4 X^2``.
 DF_ABS_DAMPING = 4.0 / (3.0 * math.pi)
 DF_CUBIC = 0.75
 

@@ -59,7 +59,7 @@ from .modeshape import phi_hat
 
 FloatArray = NDArray[Any]  # float64 arrays (numpy's stubs are too strict for dtype=float)
 
-#: First-harmonic factor of the quadratic drag: |sin| sin -> 8/(3 pi) sin.
+#: First-harmonic factor of the quadratic drag: ``|sin| sin -> 8/(3 pi) sin``.
 DRAG_HARMONIC = 8.0 / (3.0 * np.pi)
 
 
