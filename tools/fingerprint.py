@@ -50,7 +50,7 @@ def scenarios(trials: int) -> dict[str, str]:
     fin = load_fin("M8528-P1")
     box = OperatingBox(1.0, 20.0, 50.0, 800.0)
     twin = load_model("paper-twin-M8528-P1")
-    fish = {"demand_n": 3e-3, "source": "self", "overshoot": 0.1, "z_demand": 0.0}
+    fish = {"demand_n": 3e-3, "source": "self", "trial_overshoot": 0.1, "demand_margin_z": 0.0}
     changing = Plant(
         fin, softening=0.5, resonance_scale=lambda t: 1.0 if t < 40 else 0.8, effects=(DragOffset(3.0),)
     )

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..control.driveloop import DriveLoop
-from ..control.optimise import OperatingBox, Optimiser
+from ..control.optimise import Observation, OperatingBox, Optimiser
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 from ..errors import ControlError
 from ..estimation.estimator import Estimate, EstimatorConfig
@@ -156,7 +156,8 @@ class Trace:
     speed_m_s: FloatArray
     demand_n: FloatArray
     thrust_n: FloatArray
-    thrust_estimate_n: FloatArray
+    thrust_estimate_n: FloatArray  # the estimator's self-sensed thrust (the fin file's calibration)
+    thrust_fitted_n: FloatArray  # the same window as the optimiser's fit reads it (NaN: no optimiser)
     frequency_hz: FloatArray
     voltage_pp: FloatArray
     supply_w: FloatArray  # the fins' amplifier draw (the hotel load on top)
@@ -229,6 +230,25 @@ def _window(
     )
 
 
+def _as_fitted(drive: Drive, e: Estimate, voltage_pp: float) -> float:
+    """An estimate's self-sensed thrust as an optimising drive's fit reads it, at the point commanded
+    (``voltage_pp``); NaN for other drives."""
+    if not isinstance(drive, OptimisingDrive):
+        return math.nan
+    opt = drive.optimiser
+    o = Observation(
+        e.t_end,
+        e.frequency_hz,
+        voltage_pp,
+        e.thrust_self_n,
+        e.power_w,
+        source=opt.source,
+        admittance=complex(e.admittance_re, e.admittance_im),
+        voltage_pp_drive=e.voltage_pp,
+    )
+    return opt.thrust_as_fitted(o)
+
+
 def swim_run(
     plant: Plant,
     body: Body,
@@ -264,7 +284,7 @@ def swim_run(
     steps = sorted(schedule)
     n = round(duration_s / LOOP_DT_S)
     out = {k: np.full(n, np.nan) for k in Trace.__annotations__ if k != "events"}
-    window_start, point = 0.0, (math.nan, math.nan)
+    window_start, point, fitted = 0.0, (math.nan, math.nan), math.nan
     estimator = EstimatorConfig()
     steady_at, thrust0, supply = (math.nan, math.nan), 0.0, 0.0
     model = plant.model()
@@ -286,6 +306,7 @@ def swim_run(
             )
             loop.estimate(t, e.thrust_self_n)
             drive.add_estimate(t, e)
+            fitted = _as_fitted(drive, e, v)
             window_start = t
         if v > 0:
             if (f, v) != steady_at:  # (a drive at rest is one model evaluation, not one a tick)
@@ -306,6 +327,7 @@ def swim_run(
         out["t"][k], out["setpoint_m_s"][k], out["speed_m_s"][k] = t, loop.setpoint_m_s, swimmer.speed_m_s
         out["demand_n"][k], out["thrust_n"][k] = demand, thrust
         out["thrust_estimate_n"][k] = loop.thrust_estimate_n
+        out["thrust_fitted_n"][k] = fitted
         out["frequency_hz"][k], out["voltage_pp"][k], out["supply_w"][k] = f, v, supply * body.fins
         out["soc"][k], out["distance_m"][k], out["energy_j"][k] = (
             swimmer.soc,
@@ -357,8 +379,8 @@ def drive_for(
             watt=watt,
             amplifier=amplifier,
             model=known,
-            z_demand=FISH_DEMAND_MARGIN_Z,
-            overshoot=FISH_TRIAL_OVERSHOOT,
+            demand_margin_z=FISH_DEMAND_MARGIN_Z,
+            trial_overshoot=FISH_TRIAL_OVERSHOOT,
         )
         return OptimisingDrive(opt)
     if name == "resonance, voltage from the loop":

@@ -140,20 +140,28 @@ def plot(r: dict[str, Any], path: str) -> None:
     import matplotlib.pyplot as plt
 
     labels = list(next(iter(r["curves"].values())))
-    fig, axes = plt.subplots(1, len(labels), figsize=(3.6 * len(labels), 3.6), constrained_layout=True)
+    # one log scale for every panel: the watts differ 5 to 5,000 times, and the panels show by how much
+    fig, axes = plt.subplots(
+        1, len(labels), figsize=(3.6 * len(labels), 3.6), constrained_layout=True, sharey=True, squeeze=False
+    )
+    axes = axes[0]
     f = np.asarray(r["frequencies_hz"])
-    for ax, label in zip(np.atleast_1d(axes), labels, strict=True):
+    for ax, label in zip(axes, labels, strict=True):
         for name, curves in r["curves"].items():
             ax.plot(f, np.asarray(curves[label]) * 1e3, label=name)
         ax.axhline(PAPER_MAX_TPW * 1e3, color="k", ls="--", lw=1, label="paper: 60.7 mN/W")
         ax.set_yscale("log")
         ax.set_title(f"per {label} watt", fontsize=10)
         ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel(f"thrust per {label} watt [mN/W]", fontsize=8)
+        ax.yaxis.set_tick_params(labelleft=True)  # (sharey hides the others' tick labels)
         ax.grid(alpha=0.3, which="both")
-    np.atleast_1d(axes)[0].set_ylabel(f"thrust per watt at {r['v_curve']:.0f} Vpp [mN/W]")
-    np.atleast_1d(axes)[0].legend(fontsize=7)
+    axes[0].legend(fontsize=7)
     which = "the paper's twin" if r.get("twin") else "the nominal fins"
-    fig.suptitle(f"Thrust per watt in each watt, {which} (the paper's Fig. 10: about 60.7 mN/W)")
+    fig.suptitle(
+        f"Thrust per watt at {r['v_curve']:.0f} Vpp in each watt, {which}"
+        " (the paper's Fig. 10: about 60.7 mN/W)"
+    )
     try:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110, metadata=figure_metadata(path))

@@ -82,13 +82,13 @@ def same_point(a: Observation, b: Observation) -> bool:
 @dataclass(frozen=True)
 class Task:
     """What a point must give to count: the demand (``None``: the configured voltage's most thrust
-    per watt, at least ``min_thrust_n``), with ``z_demand`` standard deviations of margin, ranked by
+    per watt, at least ``min_thrust_n``), with ``demand_margin_z`` standard deviations of margin, ranked by
     ``objective``."""
 
     demand_n: float | None
     min_thrust_n: float
     voltage_pp: float
-    z_demand: float
+    demand_margin_z: float
     objective: Objective
 
 
@@ -127,7 +127,7 @@ def count(
         use = same[1:] if confirmed else same
         t = float(np.exp(np.mean(np.log(thrust[use]))))
         noise_t = float(np.sqrt(np.mean(noise[use] ** 2) / len(use)))
-        low = t * math.exp(-task.z_demand * math.hypot(noise_t, half))
+        low = t * math.exp(-task.demand_margin_z * math.hypot(noise_t, half))
         if task.demand_n is not None:
             if low >= task.demand_n:
                 out.append(Counted(float(task.objective(task.demand_n, o.named_w, task.demand_n)), o, t))

@@ -133,10 +133,10 @@ class Optimiser:
     objective: Objective = THRUST_PER_WATT
     amplifier: Amplifier = PAPER_BENCH
     noise: EstimateNoise = field(default_factory=EstimateNoise)
-    z_demand: float = 2.0  # the demand is met with this many standard deviations of margin
+    demand_margin_z: float = 2.0  # the demand is met with this many standard deviations of margin
     #: with a demand, no trial goes to a measured point whose thrust exceeded it by more than this
-    #: (relative): a fish's speed follows each trial's thrust (inf: any point)
-    overshoot: float = math.inf
+    #: (relative): a fish's speed follows each trial's thrust (0: any point; the node's setting as it is)
+    trial_overshoot: float = 0.0
     identify: bool = True  # begin with a quiet trial below resonance (proposal.identification_point)
     model: Model | None = None  # a diagnosed model: its fin and effects replace ``fin``
     tuning: Tuning = field(default_factory=Tuning)
@@ -165,9 +165,10 @@ class Optimiser:
             raise ControlError(f"source must be one of {', '.join(SOURCES)}, got {self.source!r}")
         if self.watt not in WATT:
             raise ControlError(f"watt must be one of {', '.join(WATT)}, got {self.watt!r}")
-        if not (self.z_demand >= 0 and math.isfinite(self.z_demand)) or not self.overshoot >= 0:
+        margin, over = self.demand_margin_z, self.trial_overshoot
+        if not (margin >= 0 and math.isfinite(margin)) or not (over >= 0 and math.isfinite(over)):
             raise ControlError(
-                f"z_demand must be finite and >= 0 and overshoot >= 0, got {self.z_demand}, {self.overshoot}"
+                f"demand_margin_z and trial_overshoot must be finite and >= 0, got {margin}, {over}"
             )
         if self.model is not None:
             self.fin = self.model.fin
@@ -175,6 +176,11 @@ class Optimiser:
         self._update()
 
     # --- views ------------------------------------------------------------------------------------
+    @property
+    def overshoot_limit(self) -> float:
+        """How far above the demand (relative) a trial's point may have measured (inf: no limit)."""
+        return self.trial_overshoot if self.trial_overshoot > 0 else math.inf
+
     @property
     def problem(self) -> FitProblem:
         """What the fit knows now (the source and the prior may change: a new one each time)."""
@@ -187,7 +193,7 @@ class Optimiser:
 
     @property
     def task(self) -> Task:
-        return Task(self.demand_n, self.min_thrust_n, self.voltage_pp, self.z_demand, self.objective)
+        return Task(self.demand_n, self.min_thrust_n, self.voltage_pp, self.demand_margin_z, self.objective)
 
     @property
     def mode(self) -> Mode:
@@ -338,6 +344,20 @@ class Optimiser:
         noise = problem.thrust_noise(self.correction, obs, thrust)
         self.counted, self.candidates = count(obs, thrust, noise, self.self_sensing_bound, self.task)
 
+    def surprise(
+        self, t: float, frequency_hz: float, voltage_pp: float, thrust_n: float, power_w: float, *rest: Any
+    ) -> float:
+        """How far (in sigma) a window, given as :meth:`observe` takes it, lies from the map (0 where
+        the map has no fit yet or the window is unusable)."""
+        if not self.observations or not (thrust_n > 0 and power_w > 0 and voltage_pp > 0):
+            return 0.0
+        admittance = complex(rest[0]) if rest else complex(math.nan, math.nan)
+        drive = float(rest[2]) if len(rest) > 2 else math.nan
+        o = Observation(
+            t, frequency_hz, voltage_pp, thrust_n, power_w, self.source, admittance, voltage_pp_drive=drive
+        )
+        return self._surprise(o)
+
     def _surprise(self, o: Observation) -> float:
         """How far (in sigma) a new measurement lies from the map's prediction."""
         problem = self.problem
@@ -430,6 +450,12 @@ class Optimiser:
                     s, ok = frontier(self, np.array([f]))
                     v = float(s.voltage_pp[0]) if ok[0] else v
         return self.limits.clamp(f, v)
+
+    def thrust_as_fitted(self, o: Observation) -> float:
+        """``o``'s thrust as the fit reads it: self-sensed, through the fitted calibration (the
+        estimator's own uses the fin file's); Lighthill's, with the fitted ``c_m``; a load cell's, as
+        read.  What the optimiser believes the fin gave."""
+        return float(self.problem.thrust_estimates(self.correction, [o])[0])
 
     def status(self) -> dict[str, Any]:
         c = self.choice

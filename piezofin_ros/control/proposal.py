@@ -38,12 +38,15 @@ class ProposalInputs(MapInputs, Protocol):
     """What the rules read of the optimiser: the map's inputs, and its evidence and state."""
 
     tuning: Tuning
-    overshoot: float
     identify: bool
     identify_requested: bool
     observations: list[Observation]
     candidates: list[Counted]
     calibrating: list[Point]
+
+    @property
+    def overshoot_limit(self) -> float: ...
+
     choice: Choice | None
 
     @property
@@ -74,7 +77,7 @@ def identification_point(opt: ProposalInputs, inc: Point | None = None) -> Point
     f_quiet = max(0.5 * f_res(opt), opt.limits.frequency_min_hz)
     if f_quiet >= 0.7 * f_res(opt) or any(is_quiet(opt, o) for o in opt.observations):
         return None
-    swimming = opt.demand_n is not None and math.isfinite(opt.overshoot)  # (see overshoot)
+    swimming = opt.demand_n is not None and math.isfinite(opt.overshoot_limit)  # (see trial_overshoot)
     if swimming and opt.observations and not opt.identify_requested:
         return None
     lim = opt.limits
@@ -85,7 +88,7 @@ def candidate(opt: ProposalInputs, inc: Point | None = None) -> Point | None:
     """The best point whose one trial meets the task and would beat the incumbent, if any, and
     that the map does not expect to beat by more than 5 % (the map's choice is tried first)."""
     best = opt.best_counted()
-    cap = math.inf if opt.demand_n is None else opt.demand_n * (1.0 + opt.overshoot)
+    cap = math.inf if opt.demand_n is None else opt.demand_n * (1.0 + opt.overshoot_limit)
     better = [c for c in opt.candidates if (best is None or c.score > best.score) and c.thrust_n <= cap]
     if not better or opt.choice is None:
         return None
@@ -119,7 +122,7 @@ def calibration_point(opt: ProposalInputs, inc: Point | None) -> Point | None:
         or inc is not None
         or opt.choice is None
         or fit.covariance is None
-        or not opt.z_demand > 0
+        or not opt.demand_margin_z > 0
     ):
         return None
     # (a model that cannot fit the fin extrapolates its calibration into each far trial: past
@@ -139,8 +142,8 @@ def calibration_point(opt: ProposalInputs, inc: Point | None) -> Point | None:
     thrust = np.asarray(pred.thrust_n, float)
     power = np.asarray(pred.power_w, float)
     admittance = np.asarray(pred.admittance, complex)
-    if math.isfinite(opt.overshoot):  # (a fish's speed follows the trial's thrust)
-        keep = (thrust <= opt.demand_n * (1.0 + opt.overshoot)) & (
+    if math.isfinite(opt.overshoot_limit):  # (a fish's speed follows the trial's thrust)
+        keep = (thrust <= opt.demand_n * (1.0 + opt.overshoot_limit)) & (
             thrust >= opt.demand_n * (1.0 - tuning.hold_margin)
         )
         keep[0] = True

@@ -14,8 +14,7 @@ import numpy as np
 from ..estimation.estimator import source_of, tpw_field
 from ..files import figure_metadata
 from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in, watt_of
-from ..physics.fin import Fin
-from ..physics.steady import harmonic_balance
+from ..physics.model import Model
 
 
 def _fmt(x: float | None, scale: float, digits: int) -> str:
@@ -82,15 +81,18 @@ def frf_table(records: Sequence[dict[str, float]]) -> str:
 
 def plot_trials(
     path: str | os.PathLike[str],
-    fin: Fin,
+    model: Model,
     records: Sequence[dict[str, float]],
     chosen: dict[str, float] | None,
     title: str = "",
     watt: str = "fin",
     amplifier: Amplifier = PAPER_BENCH,
+    model_name: str = "",
 ) -> Path:
-    """Measured thrust, power and thrust per watt (in ``watt``) against frequency, with the model's
-    curves (its power in ``watt`` through ``amplifier``)."""
+    """Measured thrust, power and thrust per watt (in ``watt``) against frequency, beside the curves
+    of the model that ran (``model``, named in the legends as ``model_name``: a twin's trials under the
+    nominal fin's curves read as a gap that is not there), its power in ``watt`` through
+    ``amplifier``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -103,22 +105,24 @@ def plot_trials(
     freqs = [r["frequency_hz"] for r in records]
     f_dense = np.linspace(max(0.2, min(freqs) * 0.8), max(freqs) * 1.1, 300)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    name = model_name or ("the paper's model" if not model.effects else "the model")
     for j, v in enumerate(volts):
         c = colors[j % len(colors)]
-        model = harmonic_balance(fin, f_dense, v, harmonics=3)
-        power = power_in(watt, model.voltage_pp, model.current_rms, model.power_w, amplifier)
+        pred = model.predict(f_dense, np.full_like(f_dense, v))
+        power = power_in(watt, pred.voltage_pp_drive, pred.current_rms, pred.power_w, amplifier)
         rs = [r for r in records if r["voltage_pp"] == v and "thrust_n" in r]
         f = [r["frequency_hz"] for r in rs]
         for ax, key, mkey, scale in (
-            (axes[0], "thrust_n", model.thrust_n, 1e3),
+            (axes[0], "thrust_n", pred.thrust_n, 1e3),
             (axes[1], POWER_FIELDS[watt], power, 1e3),
-            (axes[2], tpw_field(watt), np.asarray(model.thrust_n) / power, 1e3),
+            (axes[2], tpw_field(watt), np.asarray(pred.thrust_n) / power, 1e3),
         ):
-            ax.plot(f_dense, np.asarray(mkey) * scale, color=c, lw=1, alpha=0.6, label=f"model {v:.0f} Vpp")
+            ax.plot(f_dense, np.asarray(mkey) * scale, color=c, lw=1, alpha=0.6, label=f"{name}, {v:.0f} Vpp")
             ys = [r.get(key, math.nan) * scale for r in rs]
             ax.plot(f, ys, "o", color=c, label=f"measured {v:.0f} Vpp")
             if key == "thrust_n":
-                ax.plot(f, [r["thrust_loadcell_n"] * scale for r in rs], "x", color=c, label="load cell")
+                cell = [r["thrust_loadcell_n"] * scale for r in rs]
+                ax.plot(f, cell, "x", color=c, label=f"load cell {v:.0f} Vpp")
     if chosen is not None and "thrust_n" in chosen:
         axes[2].plot(
             chosen["frequency_hz"],
@@ -134,9 +138,9 @@ def plot_trials(
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     axes[1].set_yscale("log")
-    axes[0].legend(fontsize=7)
-    axes[2].legend(fontsize=7)
-    fig.suptitle(title or f"{fin.name}: protocol trials")
+    for ax in axes:
+        ax.legend(fontsize=7)
+    fig.suptitle(title or f"{model.fin.name}: protocol trials")
     fig.savefig(path, dpi=110, metadata=figure_metadata(path))
     plt.close(fig)
     return path

@@ -113,7 +113,7 @@ class MapInputs(Protocol):
     watt: str
     objective: Objective
     amplifier: Amplifier
-    z_demand: float
+    demand_margin_z: float
     fit: Fit
     gp: ResidualGP
     self_sensing_bound: float
@@ -153,8 +153,8 @@ def surface(opt: MapInputs, f: Any, v: Any, model_sigma: Any = 0.0) -> Surface:
     # sigma of the noise makes likely (84 %) for the trial that confirms the point
     noise_t, _ = opt.problem.measurement_noise(thrust, 1.0)
     bound = np.nan_to_num(opt.self_sensing_bound) / 2.0
-    truth = opt.z_demand * np.sqrt(s_t**2 + np.asarray(model_sigma) ** 2)
-    count_margin = opt.z_demand * np.hypot(noise_t, bound) + noise_t
+    truth = opt.demand_margin_z * np.sqrt(s_t**2 + np.asarray(model_sigma) ** 2)
+    count_margin = opt.demand_margin_z * np.hypot(noise_t, bound) + noise_t
     low = thrust * np.exp(-np.maximum(truth, count_margin))
     power = r.power_w * np.exp(m_p)
     if not watt_of(opt.watt).is_fin and r.current_rms is not None and r.voltage_pp is not None:

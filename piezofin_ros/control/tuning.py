@@ -22,7 +22,7 @@ class Tuning:
     #: On a fish (drive only) the stiffness cannot be told from the coupling (the motional admittance
     #: is theta^2 times the mechanical response): it is held to the fin file's, within this (log) sigma.
     stiffness_sigma: float = 0.05
-    #: on a fish under a demand (a finite ``overshoot``), no calibrating trial where the map expects
+    #: on a fish under a demand (a ``trial_overshoot``), no calibrating trial where the map expects
     #: less thrust than the demand by more than this (relative), and the quiet identification trial
     #: only from rest or when asked: its speed follows each trial's thrust (a re-identifying trial
     #: dropped it 60-80 % for 20-30 s every 320-470 s)

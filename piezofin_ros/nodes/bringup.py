@@ -37,6 +37,7 @@ from ..control.trials import parse_frequencies
 from ..errors import ControlError, PiezofinError
 from ..physics.amplifier import Amplifier
 from ..physics.fin import config_dir
+from ..physics.model import Model, load_model
 from ._common import StartupError, StopFlag
 from .controller import Controller
 from .fin_sim import FinSim, Pacer
@@ -283,9 +284,16 @@ def _spin(suite: Suite, executor: Any, args: argparse.Namespace, stop: StopFlag,
 
 
 def _report_fin(
-    ns: str, st: dict[str, Any], fin: Any, args: argparse.Namespace, several: bool, amplifier: Amplifier
+    ns: str,
+    st: dict[str, Any],
+    fin: Any,
+    args: argparse.Namespace,
+    several: bool,
+    amplifier: Amplifier,
+    model_name: str = "",
 ) -> None:
-    """One fin's outcome: the optimiser's choice, or the trial table (and its plot)."""
+    """One fin's outcome: the optimiser's choice, or the trial table (and its plot, under the curves of
+    ``model_name``, the model preset or YAML that ran; ``""``: the fin's own)."""
     if st.get("mode") == ControllerMode.OPTIMISE:
         demand = st["demand_n"]
         held = st["held"] or {  # nothing measured meets the task yet: the map's choice
@@ -324,16 +332,21 @@ def _report_fin(
         out = Path(args.plot)
         if several:
             out = out.with_name(f"{out.stem}_{ns.strip('/').replace('/', '_')}{out.suffix}")
-        title = f"{fin.name} ({ns}): trials, thrust per {watt} watt"
-        plot_trials(out, fin, st["results"], st["chosen"], title, watt, amplifier)
+        lines = model_name or "the paper's model"
+        title = f"{fin.name} ({ns}): trials, thrust per {watt} watt; lines: {lines}"
+        model = load_model(model_name) if model_name else Model(fin)
+        plot_trials(out, model, st["results"], st["chosen"], title, watt, amplifier, model_name)
         print(f"plot: {out}")
 
 
 def _report(suite: Suite, statuses: dict[str, dict[str, Any]], args: argparse.Namespace, wall: float) -> int:
     """Every fin's outcome, the bag, the speed; 1 if a fin's run was aborted."""
     sim_s = max((s.rig.elapsed for s in suite.fin_sims if s.rig is not None), default=0.0)
-    for (ns, st), fin, est in zip(statuses.items(), suite.fins, suite.estimators, strict=True):
-        _report_fin(ns, st, fin, args, len(statuses) > 1, est.core.amplifier)
+    for k, ((ns, st), fin, est) in enumerate(
+        zip(statuses.items(), suite.fins, suite.estimators, strict=True)
+    ):
+        model = args.models[k] if args.models and args.models[k] != "nominal" else ""
+        _report_fin(ns, st, fin, args, len(statuses) > 1, est.core.amplifier, model)
     counts = suite.recorder.counts
     size_mb = suite.bag_path.stat().st_size / 1e6
     print(f"\nbag: {suite.bag_path} ({sum(counts.values())} messages, {size_mb:.1f} MB)")

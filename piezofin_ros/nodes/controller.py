@@ -267,8 +267,8 @@ class Controller(Node):
                 objective=OBJECTIVES[c.objective](c.fixed_draw_w),
                 amplifier=self.amplifier,
                 model=model,
-                z_demand=c.demand_margin_z,
-                overshoot=c.trial_overshoot or math.inf,
+                demand_margin_z=c.demand_margin_z,
+                trial_overshoot=c.trial_overshoot,
             )
         except PiezofinError as exc:
             raise StartupError(f"optimiser: {exc}") from None

@@ -146,6 +146,39 @@ def test_the_fish_holds_its_set_point_on_the_optimising_controller_at_the_least_
     assert trace.settling_s(*steps[1][:1], 300.0) <= 30.0, trace.settling_s(steps[1][0], 300.0)
 
 
+@pytest.mark.parametrize(("given", "learnt"), [(1.0, False), (1.03, False), (0.25, True), (4.0, True)])
+def test_a_trial_the_demand_cuts_short_is_learnt_only_where_it_misses_the_map(
+    m8528: Fin, given: float, learnt: bool
+) -> None:
+    """The last window of a trial a demand jump cuts short: a gross miss (a quarter or four times the
+    thrust the fitted map expects there) is learnt, or the fit proposes that point again (a stranger
+    fish: 0.5 mN where 2 were asked, twice in 40 s); one the map expects is not (one window of an
+    unfinished trial is noisier than a trial: learnt always, it put a twin's second step 6.5 % fast,
+    M8507-P1 in ``bench_fish.py``, +3.2 % without)."""
+    loop = DriveLoop(Optimiser(m8528, LIMITS, tuning=COARSE, identify=False), slew_vpp_per_s=4000.0)
+    loop.set_demand(3e-3)
+    t = 0.0
+    for _ in range(3):  # three trials that agree with the fin: a fitted map
+        t = _settle_on_a_point(loop, t)
+        pred = Correction().predict(m8528, *loop.target)
+        for _ in range(2):
+            t += 5.0
+            loop.add_estimate(t, estimate(t, *loop.target, float(pred.thrust_n), float(pred.power_w)))
+        loop.tick(t := t + 0.1)
+    before, trials = len(loop.optimiser.observations), loop.trials
+    t = _settle_on_a_point(loop, t)
+    assert loop.target is not None
+    pred = Correction().predict(m8528, *loop.target)
+    t += 5.0
+    loop.add_estimate(t, estimate(t, *loop.target, given * float(pred.thrust_n), float(pred.power_w)))
+    loop.set_demand(6e-3)  # a jump: the trial is cut
+    loop.tick(t := t + 1.1)
+    assert loop.optimiser.demand_n == 6e-3
+    assert (loop.trials, len(loop.optimiser.observations)) == (
+        (trials + 1, before + 1) if learnt else (trials, before)
+    )
+
+
 def _ticks(loop: DriveLoop, t: float, seconds: float) -> float:
     for _ in range(round(seconds / 0.1)):
         t += 0.1
@@ -197,17 +230,17 @@ def test_moves_without_any_estimate_still_end_in_a_hold_then_a_ramp_down(m8528: 
     assert stopped and stopped[0] <= held[0][0] + 2 * 5.0 + 0.5 + 2.0, loop.events
 
 
-@pytest.mark.parametrize("overshoot", [math.inf, 0.1])
+@pytest.mark.parametrize("overshoot", [0.0, 0.1])
 def test_no_trial_goes_to_a_point_measured_far_above_the_demand(m8528: Fin, overshoot: float) -> None:
     """A point whose one trial gave twice the demand at a low power is worth a confirming trial to a
     fin on a rig (the demand met at the least power); to a fish its thrust is speed: with
     ``overshoot`` 0.1 (``config/fish.yaml``'s ``trial_overshoot``) it is not driven again."""
-    opt = Optimiser(m8528, LIMITS, demand_n=3e-3, identify=False, tuning=COARSE, overshoot=overshoot)
+    opt = Optimiser(m8528, LIMITS, demand_n=3e-3, identify=False, tuning=COARSE, trial_overshoot=overshoot)
     f, v = opt.propose()
     p = float(opt.correction.response(m8528, f, v).power_w)
     assert opt.observe(10.0, f, v, 6e-3, 0.5 * p)  # twice the demand, for half the map's power
     again = _close_point(opt.propose(), (f, v))
-    assert (opt.rule == "confirm" and again) == (overshoot == math.inf), (opt.rule, opt.status())
+    assert (opt.rule == "confirm" and again) == (overshoot == 0.0), (opt.rule, opt.status())
 
 
 def _close_point(a: tuple[float, float], b: tuple[float, float]) -> bool:
@@ -227,10 +260,16 @@ def test_the_benchmarks_fish_controller_is_config_fish_yamls() -> None:
 
 
 @pytest.mark.parametrize(
-    "bad", [{"z_demand": -1.0}, {"z_demand": math.nan}, {"overshoot": -0.1}, {"overshoot": math.nan}]
+    "bad",
+    [
+        {"demand_margin_z": -1.0},
+        {"demand_margin_z": math.nan},
+        {"trial_overshoot": -0.1},
+        {"trial_overshoot": math.nan},
+    ],
 )
 def test_an_impossible_margin_or_overshoot_is_one_clear_error(m8528: Fin, bad: dict[str, float]) -> None:
-    with pytest.raises(ControlError, match="z_demand must be finite"):
+    with pytest.raises(ControlError, match="demand_margin_z and trial_overshoot must be finite"):
         Optimiser(m8528, LIMITS, demand_n=3e-3, tuning=COARSE, **bad)
 
 
@@ -252,7 +291,7 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
     for (t0, t1), u in zip([(0.0, 400.0), (400.0, 800.0)], STRANGERS[name]["setpoints_m_s"], strict=True):
         assert abs(trace.mean("speed_m_s", t1 - 60.0, t1) / u - 1.0) < 0.05, (name, u)
         # over the step's second half at least 90 % of the time within 5 % (issue 39 asks 95 %: a trial
-        # the optimiser takes at a point it allows 10 % above the demand (``overshoot``) moves the speed
+        # the optimiser takes at a point it allows 10 % above the demand (``trial_overshoot``) moves the speed
         # up to 5 %, and the sensor's bias adds its 1-2 %: measured 0.94-1.0)
         half = (trace.t >= 0.5 * (t0 + t1)) & (trace.t < t1)
         share = float(np.mean(np.abs(trace.speed_m_s[half] / u - 1.0) <= 0.05))

@@ -510,7 +510,7 @@ def test_a_fish_without_a_margin_takes_no_calibrating_trial(m8528: Fin) -> None:
         t = evaluation.run_trial(opt, plant, t, rng)
     assert opt.rule == "calibrate" and opt.self_sensing_bound > 1.0
     assert calibration_point(opt, opt.incumbent()) is not None
-    opt.z_demand = 0.0
+    opt.demand_margin_z = 0.0
     assert calibration_point(opt, opt.incumbent()) is None
 
 
@@ -616,7 +616,7 @@ def test_a_swimming_fish_takes_no_trial_far_below_its_demand(m8528: Fin, plant_k
     the demand by more than ``hold_margin``; the quiet trial stays in the fit."""
     plant = Plant(m8528, **plant_kw)
     demand = 4e-3
-    opt = Optimiser(m8528, LIMITS, demand_n=demand, source="self", z_demand=0.0, overshoot=0.1)
+    opt = Optimiser(m8528, LIMITS, demand_n=demand, source="self", demand_margin_z=0.0, trial_overshoot=0.1)
     rng = np.random.default_rng(3)
     t, truths = 0.0, []
     for _ in range(70):  # 420 s of trials: beyond the 300 s memory
