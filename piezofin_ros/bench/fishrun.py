@@ -353,6 +353,9 @@ STRATEGIES = (
 #: The fish stack as ``config/fish.yaml`` runs it: ranking by the supply watt its battery measures.
 MEASURED = "ours (measured supply watt)"
 
+#: The optimising drives and the watt each ranks by (a name is a label, never parsed).
+OURS = {"ours (supply watt)": "supply", "ours (fin watt)": "fin", MEASURED: "supply_measured"}
+
 
 def drive_for(
     name: str,
@@ -368,15 +371,14 @@ def drive_for(
     top = box.voltage_pp_max
     freqs = np.geomspace(box.frequency_min_hz, box.frequency_max_hz, 400)
     res = float(freqs[int(np.argmax(known.predict(freqs, np.full_like(freqs, top)).tip_velocity_rms))])
-    if name.startswith("ours"):
-        watt = "supply_measured" if "measured" in name else "supply" if "supply" in name else "fin"
+    if name in OURS:
         opt = Optimiser(
             known.fin,
             box,
             top,
             None,
             source="self",
-            watt=watt,
+            watt=OURS[name],
             amplifier=amplifier,
             model=known,
             demand_margin_z=FISH_DEMAND_MARGIN_Z,

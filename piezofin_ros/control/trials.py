@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from ..errors import ControlError
 from ..estimation.estimator import THRUST_FIELDS, Estimate
-from ..physics.amplifier import check_watt
+from ..physics.amplifier import watt_of
 from ..physics.waveforms import ProtocolTiming
 from .objective import THRUST_PER_WATT, Objective
 
@@ -198,7 +198,7 @@ def choose(
     If none reaches ``min_thrust_n``, the one with the most thrust.  ``None`` without results.
     """
     thrust_key = SOURCES[source]
-    check_watt(watt)
+    watt_of(watt)  # (an unknown watt: AmplifierError naming the others)
     done = [r for r in results if r.estimate is not None and math.isfinite(getattr(r.estimate, thrust_key))]
     if not done:
         return None
@@ -219,7 +219,7 @@ def _score(r: TrialResult, thrust_key: str, watt: str, objective: Objective) -> 
 
 def watt_label(watt: str) -> str:
     """How a thrust per watt in ``watt`` is printed: ``mN/W (supply)``."""
-    return f"mN/W ({check_watt(watt)})"
+    return f"mN/W ({watt_of(watt).name})"
 
 
 def _finite(x: float) -> float:

@@ -68,7 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..config import setting
 from ..errors import EstimationError
-from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS, Amplifier, check_watt, watt_of
+from ..physics.amplifier import PAPER_BENCH, WATTS, Amplifier, watt_of
 from ..physics.fin import MEDIA, Fin
 from ..physics.swim import SPEED_MOST_M_S
 from .selfsense import NOMINAL, Calibration, self_sensed_tip
@@ -122,7 +122,7 @@ class Estimate:
 
     def power(self, watt: str) -> float:
         """The power in ``watt`` (``fin``, ``apparent``, ``supply``, ``supply_measured``), W."""
-        return float(getattr(self, POWER_FIELDS[check_watt(watt)]))
+        return float(getattr(self, watt_of(watt).field))
 
     def thrust_per(self, watt: str, source: str = "vibrometer") -> float:
         """Thrust per watt in ``watt``, of the ``vibrometer`` or the ``self``-sensed thrust (NaN where the
@@ -253,7 +253,7 @@ def tpw_field(watt: str, source: str = "vibrometer") -> str:
 
 def per_watt_field(record: dict[str, float], watt: str, source: str = "vibrometer") -> float:
     thrust = record[source_of(source).thrust_field]
-    power = record.get(POWER_FIELDS[check_watt(watt)], math.nan)
+    power = record.get(watt_of(watt).field, math.nan)
     return thrust / power if power > 0 and math.isfinite(thrust) else math.nan
 
 

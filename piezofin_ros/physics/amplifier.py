@@ -125,10 +125,6 @@ class AmplifierError(PhysicsError):
     """An amplifier with impossible parameters, or a file that does not describe one."""
 
 
-def check_watt(watt: str) -> str:
-    return watt_of(watt).name
-
-
 @dataclass(frozen=True)
 class Amplifier:
     """The common part: a quiescent draw and the supply bus voltage the rig would measure."""

@@ -13,6 +13,7 @@ import signal
 import subprocess
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -410,7 +411,7 @@ def test_fast_simulation_does_not_trip_on_scheduling_jitter() -> None:
 # ------------------------------------------------------------------------------- silence
 @pytest.mark.exclusive
 @pytest.mark.slow
-def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
+def test_estimator_and_controller_speak_when_fin_sim_is_killed(tmp_path: Path) -> None:
     """fin_sim (the /clock source at x10) is SIGKILLed: within 5 s both the estimator and the
     controller say that their input stopped (their ROS-time timers stopped with the clock).
 
@@ -418,7 +419,9 @@ def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
     driven when it is killed; a ``continuous`` point ends at its first running estimate (8 s of fin
     time, under a second of wall time), which the witness could miss on a slow graph."""
     sim = start("fin_sim", "-r", "__ns:=/quiet", "-p", "realtime_factor:=10.0", "-p", "publish_clock:=true")
-    est = start("thrust_estimator", "-r", "__ns:=/quiet", "-p", "use_sim_time:=true")
+    logs = tmp_path / "estimator.log", tmp_path / "controller.log"
+    said = ("/quiet/drive: nothing for", "time (the heartbeat): nothing for")
+    est = start("thrust_estimator", "-r", "__ns:=/quiet", "-p", "use_sim_time:=true", log=logs[0])
     ctl = start(
         "controller",
         "-r",
@@ -429,6 +432,7 @@ def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
         "mode:=protocol",
         "-p",
         "on_s:=600.0",
+        log=logs[1],
     )
     try:
         with graph() as g:
@@ -437,11 +441,16 @@ def test_estimator_and_controller_speak_when_fin_sim_is_killed() -> None:
             g.spin_for(2.0)
             sim.send_signal(signal.SIGKILL)
             sim.wait(timeout=10)
-            time.sleep(5.0)
+            killed = time.monotonic()
+            while time.monotonic() - killed < 5.0 and not all(
+                line in log.read_text() for line, log in zip(said, logs, strict=True)
+            ):
+                time.sleep(0.1)
     finally:
-        out_est, out_ctl, _ = stop(est, ctl, sim)  # sim too: a failed run must not leave it driving
-    assert "/quiet/drive: nothing for" in out_est, out_est
-    assert "time (the heartbeat): nothing for" in out_ctl, out_ctl
+        stop(est, ctl, sim)  # sim too: a failed run must not leave it driving
+    out_est, out_ctl = (log.read_text() for log in logs)
+    assert said[0] in out_est, out_est
+    assert said[1] in out_ctl, out_ctl
 
 
 # ---------------------------------------------------------------------------- in one process
