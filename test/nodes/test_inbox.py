@@ -162,6 +162,12 @@ def test_no_message_kills_a_node_or_passes_its_door(exe: str, tmp_path: Path) ->
                     pubs["drive"].publish(block_msg(Block.from_columns(t_s=t, voltage_V=v, current_A=i)))
                     pubs["swim_speed"].publish(Float64(data=0.05))
                     g.spin_for(0.02)
+                # its estimates, as soon as they come: behind the attack's 1.6 MB blocks, on CI's loaded
+                # machine (three test workers beside it), the estimator once published none within a
+                # fixed 2 s
+                deadline = time.monotonic() + 20.0
+                while not heard and time.monotonic() < deadline:
+                    g.spin_for(0.2)
             g.spin_for(2.0)
             wall = time.monotonic() - t0
             alive = proc.poll() is None
@@ -176,7 +182,7 @@ def test_no_message_kills_a_node_or_passes_its_door(exe: str, tmp_path: Path) ->
         assert len(said) <= wall + 2, (topic, said)  # at most once a second
     if exe != "thrust_estimator":
         return  # (the attacker's own estimates were heard: only the estimator publishes them)
-    assert heard, "the estimator published nothing on a real drive after the attack"
+    assert heard, f"the estimator published nothing on a real drive after the attack:\n{out[-3000:]}"
     for b in heard:  # what the node published never carries a number from the attack
         values = b.values[np.isfinite(b.values)]
         assert np.all(np.abs(values) < 1e12), dict(zip(b.names, b.values[:, 0], strict=True))
