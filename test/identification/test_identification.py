@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -139,6 +140,21 @@ def test_steps_are_found_in_the_drive_alone() -> None:
         n = (p.t_end - p.t_start) * fs
         assert p.sigma_voltage == pytest.approx(0.2 * math.sqrt(2 / n), rel=0.15)
         assert abs(p.voltage) == pytest.approx(25.0, rel=1e-3)
+
+
+def test_a_step_of_under_a_period_per_block_is_one_step() -> None:
+    """A 4 Hz step reads its frequency from 0.2 s blocks of under a period, 0.5-1 % apart from block to
+    block, ten times the scatter of the sweep's faster steps: against that scatter it was cut into
+    pieces too short to keep, and a campaign on a twin with a heavier added mass lost its first
+    point ("10 of the 11 points planned", CI, 2026-11-27).  That run's drive voltage (the rig's own
+    samples, ``data/water_sweep_4hz_start.npz``, 11 steps from 4.09 to 14.5 Hz); each step is now
+    judged by the scatter near its own frequency."""
+    data = np.load(Path(__file__).parent / "data" / "water_sweep_4hz_start.npz")
+    t, v = data["t"].astype(float), data["v"].astype(float)
+    steps = find_steps(t, v)
+    assert len(steps) == 11 and steps[0].frequency_hz == pytest.approx(4.088, abs=2e-3), steps
+    points = frf_points(t, v, v * 1e-7)
+    assert len(points) == 11 and points[0].frequency_hz == pytest.approx(4.088, abs=2e-3)
 
 
 def test_an_unsettled_step_weighs_less() -> None:
