@@ -173,10 +173,11 @@ def find_steps(
 
 
 def _local_jitter(freq: FloatArray, on: NDArray[np.bool_]) -> FloatArray:
-    """Each block's scatter of frequency among the blocks within 10 % of its frequency (0 where
-    fewer than 8 are): a block of under a period (0.2 s at 4 Hz) reads its frequency 0.5-1 % off,
-    about ten times the scatter of the sweep's faster steps, and against theirs a 4 Hz step was cut
-    into pieces too short to keep (a campaign on a twin with a heavier added mass lost it)."""
+    """Each block's scatter of frequency among the blocks of its band (bands 10 % wide in frequency;
+    0 where a band holds fewer than 8 pairs of blocks): a block of under a period (0.2 s at 4 Hz)
+    reads its frequency 0.5-1 % off, about ten times the scatter of the sweep's faster steps, and
+    against theirs a 4 Hz step was cut into pieces too short to keep (a campaign on a twin with a
+    heavier added mass lost it)."""
     out = np.zeros(freq.size)
     pair = on[1:] & on[:-1]
     if not np.any(pair):
