@@ -32,6 +32,7 @@ from ..physics.effects import (
 )
 from ..physics.fin import Fin
 from ..physics.model import Model, Prediction
+from .lsq import forward_differences
 from .response import PlantResponse
 
 FloatArray = NDArray[Any]
@@ -159,12 +160,4 @@ def jacobian(
     """Forward differences of ``fn`` at the correction's vector ``x`` in each parameter (backwards
     where the step would cross the parameter's upper bound), shaped ``(*fn(x).shape, len(x))``;
     ``at_x`` is ``fn(x)`` when the caller has it, and a parameter flagged in ``skip`` gets zeros."""
-    base = np.asarray(fn(x) if at_x is None else at_x, float)
-    jac = np.zeros((*base.shape, len(x)))
-    for k in range(len(x)):
-        if k < len(skip) and skip[k]:
-            continue
-        xk = x.copy()
-        xk[k] += steps[k] if xk[k] + steps[k] <= UPPER[k] else -steps[k]
-        jac[..., k] = (np.asarray(fn(xk), float) - base) / (xk[k] - x[k])
-    return jac
+    return forward_differences(fn, x, steps, UPPER, at_x, skip)

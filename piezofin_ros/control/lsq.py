@@ -66,7 +66,8 @@ def least_squares(
     nfev, cost = 1, 0.5 * float(r @ r)
     damping, grow = -1.0, 2.0
     while True:
-        jac = _forward_jacobian(fun, x, r, upper) * scale  # d r / d z
+        steps = _REL_STEP * np.maximum(1.0, np.abs(x))  # (scipy's '2-point')
+        jac = forward_differences(fun, x, steps, upper, r) * scale  # d r / d z
         grad = jac.T @ r
         held = ((x <= lower) & (grad > 0)) | ((x >= upper) & (grad < 0))
         free = ~held
@@ -85,6 +86,7 @@ def least_squares(
             trial[free] += scale[free] * dz
             trial = np.clip(trial, lower, upper)
             step = (trial - x) / scale
+            small_step = float(np.linalg.norm(step)) < xtol * (xtol + float(np.linalg.norm(x / scale)))
             jstep = jac @ step
             predicted = -(float(grad @ step) + 0.5 * float(jstep @ jstep))
             r_new = np.asarray(fun(trial), float)
@@ -95,7 +97,6 @@ def least_squares(
                 rho = drop / predicted if predicted > 0 else 0.0
                 damping *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 grow = 2.0
-                small_step = float(np.linalg.norm(step)) < xtol * (xtol + float(np.linalg.norm(x / scale)))
                 x, r, cost = trial, r_new, cost_new
                 if drop < ftol * (cost + drop):
                     return Solution(x, r, cost, nfev, "cost")
@@ -108,18 +109,27 @@ def least_squares(
             grow *= 2.0
             if nfev >= max_nfev or not np.isfinite(damping) or damping > 1e300:
                 return Solution(x, r, cost, nfev, "max_nfev" if nfev >= max_nfev else "damping")
-            if float(np.linalg.norm(step)) < xtol * (xtol + float(np.linalg.norm(x / scale))):
+            if small_step:
                 return Solution(x, r, cost, nfev, "step")
 
 
-def _forward_jacobian(
-    fun: Callable[[FloatArray], FloatArray], x: FloatArray, at_x: FloatArray, upper: FloatArray
+def forward_differences(
+    fn: Callable[[FloatArray], FloatArray],
+    x: FloatArray,
+    steps: FloatArray,
+    upper: FloatArray,
+    at_x: FloatArray | None = None,
+    skip: tuple[bool, ...] = (),
 ) -> FloatArray:
-    """``d fun / d x`` by forward differences (backwards where the step would cross ``upper``)."""
-    jac = np.empty((len(at_x), len(x)))
+    """Forward differences of ``fn`` at ``x`` in each parameter (backwards where the step would cross
+    ``upper``), shaped ``(*fn(x).shape, len(x))``; ``at_x`` is ``fn(x)`` when the caller has it, and
+    a parameter flagged in ``skip`` gets zeros."""
+    base = np.asarray(fn(x) if at_x is None else at_x, float)
+    jac = np.zeros((*base.shape, len(x)))
     for k in range(len(x)):
-        h = _REL_STEP * max(1.0, abs(float(x[k])))
+        if k < len(skip) and skip[k]:
+            continue
         xk = x.copy()
-        xk[k] = x[k] + h if x[k] + h <= upper[k] else x[k] - h
-        jac[:, k] = (np.asarray(fun(xk), float) - at_x) / (xk[k] - x[k])
+        xk[k] += steps[k] if xk[k] + steps[k] <= upper[k] else -steps[k]
+        jac[..., k] = (np.asarray(fn(xk), float) - base) / (xk[k] - x[k])
     return jac

@@ -345,24 +345,29 @@ class Optimiser:
         self.counted, self.candidates = count(obs, thrust, noise, self.self_sensing_bound, self.task)
 
     def surprise(
-        self, t: float, frequency_hz: float, voltage_pp: float, thrust_n: float, power_w: float, *rest: Any
+        self,
+        t: float,
+        frequency_hz: float,
+        voltage_pp: float,
+        thrust_n: float,
+        power_w: float,
+        admittance: complex = complex(math.nan, math.nan),
+        power_named_w: float = math.nan,
+        voltage_pp_drive: float = math.nan,
     ) -> float:
         """How far (in sigma) a window, given as :meth:`observe` takes it, lies from the map (0 where
         the map has no fit yet or the window is unusable)."""
         if not self.observations or not (thrust_n > 0 and power_w > 0 and voltage_pp > 0):
             return 0.0
-        admittance = complex(rest[0]) if rest else complex(math.nan, math.nan)
-        drive = float(rest[2]) if len(rest) > 2 else math.nan
-        o = Observation(
-            t, frequency_hz, voltage_pp, thrust_n, power_w, self.source, admittance, voltage_pp_drive=drive
-        )
+        values = (t, frequency_hz, voltage_pp, thrust_n, power_w, self.source, complex(admittance))
+        o = Observation(*values, voltage_pp_drive=float(voltage_pp_drive))
         return self._surprise(o)
 
     def _surprise(self, o: Observation) -> float:
         """How far (in sigma) a new measurement lies from the map's prediction."""
         problem = self.problem
         s = surface(self, o.frequency_hz, o.voltage_pp)
-        t = float(problem.thrust_estimates(self.correction, [o])[0])
+        t = self.thrust_as_fitted(o)
         noise_t = float(problem.thrust_noise(self.correction, [o], np.array([t]))[0])
         _, noise_p = problem.measurement_noise(t, o.power_w)
         dt = abs(math.log(t / max(float(s.thrust_n), 1e-300))) / math.hypot(
