@@ -75,7 +75,7 @@ from .evidence import Counted, Observation, Task, close, count
 from .fit import MODEL_ERROR, Fit, FitProblem
 from .gp import ResidualGP
 from .objective import THRUST_PER_WATT, Objective
-from .proposal import RULES, Mode, is_quiet, propose
+from .proposal import RULES, Mode, is_quiet, propose, trimmed
 from .response import EstimateNoise
 from .thrustmap import Choice, OperatingBox, Surface, best, frontier, surface
 from .tuning import Tuning
@@ -444,7 +444,7 @@ class Optimiser:
         f, v = self.proposal.point
         tuning = self.tuning
         if self.converged:
-            f, v = self.held()
+            f, v = trimmed(self, self.held())
             self._held += 1
             if tuning.probe_every and self._held % tuning.probe_every == 0:
                 # a probe on either side in turn (extremum seeking's dither, one trial at a time), at

@@ -248,6 +248,49 @@ def test_no_trial_goes_to_a_point_measured_far_above_the_demand(m8528: Fin, over
     assert (opt.rule == "confirm" and again) == (overshoot == 0.0), (opt.rule, opt.status())
 
 
+@pytest.mark.parametrize(
+    ("overshoot", "demand", "trimmed"),
+    [
+        (0.1, 2.5e-3, True),  # the demand fell 24 % below the incumbent's thrust: trimmed to it
+        (0.1, 3.2e-3, False),  # 3 % below: within half the limit, held as measured
+        (0.0, 2.5e-3, False),  # no overshoot limit (a rig): the incumbent is held as measured
+    ],
+)
+def test_the_held_point_meets_a_demand_that_fell(
+    m8528: Fin, overshoot: float, demand: float, trimmed: bool
+) -> None:
+    """A fish holds its incumbent between probes; when the speed loop asks less than the incumbent was
+    measured to give (by more than half the overshoot limit), the held trial is driven at the voltage
+    the fitted model says gives the demand and a quarter of the limit: a point measured under an earlier
+    demand kept a stranger 5 % fast every other trial (``bench_fish.py --strangers``)."""
+    opt = Optimiser(
+        m8528,
+        LIMITS,
+        demand_n=3e-3,
+        identify=False,
+        tuning=COARSE,
+        demand_margin_z=0.0,
+        trial_overshoot=overshoot,
+    )
+    f, v = opt.propose()
+    p = float(opt.correction.response(m8528, f, v).power_w)
+    for t in (10.0, 20.0, 30.0):  # the same point three times: it counts, it is the incumbent
+        assert opt.observe(t, f, v, 3.3e-3, p)
+    best = opt.best_counted()
+    assert best is not None and _close_point(best.observation.point, (f, v)), opt.status()
+    opt.set_demand(demand)
+    opt.converged = True  # (held, as between probes)
+    held = opt.propose()
+    if not trimmed:
+        assert _close_point(held, (f, v)), (held, (f, v))
+        return
+    assert held[0] == pytest.approx(f) and held[1] < v
+    model = opt.correction.predict(m8528, np.array([f, f]), np.array([v, held[1]])).thrust_n
+    want = demand * (1 + overshoot / 4) / best.thrust_n  # of the thrust measured at the incumbent
+    assert model[1] / model[0] == pytest.approx(want, rel=1e-3)
+    assert LIMITS.voltage_pp_min <= held[1] <= LIMITS.voltage_pp_max
+
+
 def _close_point(a: tuple[float, float], b: tuple[float, float]) -> bool:
     return abs(a[0] / b[0] - 1) < 1e-3 and abs(a[1] / b[1] - 1) < 1e-3
 
@@ -285,7 +328,7 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
     amplifier and speed sensor, the paper's twin given as the prior.  With it the fish sat at its 8 mN
     cap 21 % slow (stranger 1) or wandered 4.2-8.2 cm/s for 6 (stranger 2).  The optimiser drops the
     twin once the trials contradict it (said), and the fish holds each set-point within 5 % in truth
-    over the step's last minute and 90 % of its second half, at a supply within 3 % of the least that
+    over the step's last minute and 95 % of its second half, at a supply within 3 % of the least that
     holds it; the optimiser's own thrust (its demand met) is the truth's within 10 %."""
     from benchmarks.bench_fish import STRANGERS, least_supply_w, run, stranger
 
@@ -295,12 +338,11 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
     _, truth, _, _ = stranger(name)
     for (t0, t1), u in zip([(0.0, 400.0), (400.0, 800.0)], STRANGERS[name]["setpoints_m_s"], strict=True):
         assert abs(trace.mean("speed_m_s", t1 - 60.0, t1) / u - 1.0) < 0.05, (name, u)
-        # over the step's second half at least 90 % of the time within 5 % (issue 39 asks 95 %: a trial
-        # the optimiser takes at a point it allows 10 % above the demand (``trial_overshoot``) moves the speed
-        # up to 5 %, and the sensor's bias adds its 1-2 %: measured 0.94-1.0)
+        # over the step's second half at least 95 % of the time within 5 % (issue 39's goal; measured 1.0:
+        # 0.94 while the held point, measured under an earlier demand, stayed 12 % above a later one)
         half = (trace.t >= 0.5 * (t0 + t1)) & (trace.t < t1)
         share = float(np.mean(np.abs(trace.speed_m_s[half] / u - 1.0) <= 0.05))
-        assert share >= 0.9, (name, u, share)
+        assert share >= 0.95, (name, u, share)
         assert trace.mean("supply_w", t1 - 60.0, t1) <= 1.03 * least_supply_w(truth, u)
         late = (trace.t >= t1 - 60.0) & (trace.t < t1)
         ratio = np.mean(trace.demand_n[late]) / np.mean(trace.thrust_n[late])
