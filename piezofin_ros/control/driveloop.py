@@ -9,7 +9,9 @@ from typing import Any
 
 from ..estimation.estimator import source_of
 from ..physics.amplifier import watt_of
+from .evidence import Observation
 from .optimise import Optimiser
+from .proposal import is_quiet
 
 #: A trial the demand cuts short is learnt from its last window only where that window lies this many
 #: sigma off the map (a gross miss, which the fit must hear of, or it proposes the point again); one
@@ -220,7 +222,7 @@ class DriveLoop:
         agree = len(w) >= 2 and all(
             abs(a / b - 1) <= self.settle_tolerance for a, b in zip(w[-1], w[-2], strict=True)
         )
-        if not (agree or len(w) >= self.max_windows):
+        if not (agree or self._falls_short(args) or len(w) >= self.max_windows):
             return True
         self._windows, self._partial = [], None
         if self.background:
@@ -238,6 +240,20 @@ class DriveLoop:
             self._learn(*args)
             self._take_next()
         return True
+
+    def _falls_short(self, args: tuple[Any, ...]) -> bool:
+        """Whether a fish's trial ends at this window (``observe``'s arguments): under a demand with a
+        ``trial_overshoot``, a window the fit reads more than ``hold_margin`` below the demand, at a
+        point that is not a quiet identification trial (taken low on purpose).  Its speed follows the
+        trial's thrust: a wrong prior's trial giving a fifth of the demand had run two more windows."""
+        opt = self.optimiser
+        if opt.demand_n is None or not math.isfinite(opt.overshoot_limit):
+            return False
+        t, f, v, thrust, power, admittance, _, drive = args
+        o = Observation(t, f, v, thrust, power, opt.source, admittance, voltage_pp_drive=drive)
+        return (
+            not is_quiet(opt, o) and opt.thrust_as_fitted(o) < (1.0 - opt.tuning.hold_margin) * opt.demand_n
+        )
 
     def _named_watt(self, e: Any) -> float:
         """The estimate's watt in the optimiser's ``watt`` (NaN: the fin's); on ``supply_measured``

@@ -191,6 +191,36 @@ def _ticks(loop: DriveLoop, t: float, seconds: float) -> float:
     return t
 
 
+@pytest.mark.parametrize(
+    ("identify", "given", "overshoot", "ends"),
+    [
+        (False, 0.2, 0.1, True),  # a fifth of the demand on a fish: ended at its first window
+        (False, 1.0, 0.1, False),  # the demand met: two windows that agree, as every trial
+        (True, 1.0, 0.1, False),  # the quiet identification trial, low on purpose: not ended
+        (False, 0.2, 0.0, False),  # no overshoot limit (a rig, not a fish): its windows as always
+    ],
+)
+def test_a_fish_trial_far_short_of_the_demand_ends_at_its_first_window(
+    m8528: Fin, identify: bool, given: float, overshoot: float, ends: bool
+) -> None:
+    """A fish's speed follows each trial's thrust: a trial whose first window the fit reads more than
+    ``hold_margin`` below the demand is learnt from that window and left (a stranger given a wrong
+    prior spent 24 s below 90 % of the demand in one such trial, 15 s with this, ``--strangers``)."""
+    opt = Optimiser(
+        m8528, LIMITS, tuning=COARSE, identify=identify, demand_margin_z=0.0, trial_overshoot=overshoot
+    )
+    loop = DriveLoop(opt, slew_vpp_per_s=4000.0)
+    loop.set_demand(3e-3)
+    t = _settle_on_a_point(loop, 0.0)
+    assert loop.target is not None
+    pred = Correction().predict(m8528, *loop.target)
+    trials = loop.trials
+    t += 8.0  # (the estimator's settling and its first window)
+    loop.add_estimate(t, estimate(t, *loop.target, given * float(pred.thrust_n), float(pred.power_w)))
+    loop.tick(t + 0.1)
+    assert (loop.trials == trials + 1) == ends, (loop.trials, loop.target, opt.status()["optimiser_rule"])
+
+
 def test_the_loops_own_moves_are_not_taken_for_a_dead_estimator(m8528: Fin) -> None:
     """A set-point step makes the speed loop's demand jump again and again while the fish speeds up:
     each jump moved the drive before the estimator's first window at the last point (3 s settling,
