@@ -93,7 +93,9 @@ class PlanarBody:
         a = self.surge.rho_w * self.lateral_drag_area_m2 * self.surge.length_m**3 / 64.0
         n = abs(moment_nm)
         k = linear_n_m_s
-        r = 2.0 * n / (k + math.sqrt(k * k + 4.0 * a * n)) if n > 0 else 0.0  # (stable for a -> 0 too)
+        # (the root as 2n / (k + sqrt(k^2 + 4an)): no cancellation as a -> 0, and the square root's
+        # terms scaled apart, so that neither underflows for the least moments)
+        r = 2.0 * n / (k + math.hypot(k, 2.0 * math.sqrt(a) * math.sqrt(n))) if n > 0 else 0.0
         return math.copysign(r, moment_nm)
 
     def yaw_time_constant_s(self, r: float, linear_n_m_s: float = 0.0) -> float:
