@@ -1,9 +1,10 @@
 """How fast the paper's twin can turn a fish, and at what supply power: a bias against two fins.
 
-    python benchmarks/bench_turning.py [--fin M8528-P1] [--frequency 5.5] [--height 0.10] [--width 0.06]
+    python benchmarks/bench_turning.py [--fin M8528-P1] [--frequency 5.5] [--body mfc-fish]
 
-The fish is ``mfc-fish`` (25 cm, 450 g) as a slender ellipsoid ``--height`` deep and ``--width``
-wide (:func:`~piezofin_ros.physics.planar.slender_planar`), swimming on the paper's twin of
+The fish is ``--body`` (``mfc-fish``: 25 cm, 450 g, 10 cm deep and 6 cm wide) as a slender ellipsoid
+(:func:`~piezofin_ros.physics.planar.slender_planar`; two fins as far apart as it is wide), swimming
+on the paper's twin of
 ``--fin`` at ``--frequency`` through the ``fish-switching`` amplifier.  Each row is a steady turn,
 from the yaw balance's closed form (:meth:`~piezofin_ros.physics.planar.PlanarBody.steady_yaw_rate`):
 
@@ -29,6 +30,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from piezofin_ros.control.swimming import Fish
+from piezofin_ros.errors import PiezofinError
 from piezofin_ros.physics.amplifier import load_amplifier
 from piezofin_ros.physics.model import load_model
 from piezofin_ros.physics.planar import (
@@ -57,9 +59,10 @@ def integrated_yaw_rate(
     return float(sol.y[5, -1])
 
 
-def turns(fin: str, frequency_hz: float, height_m: float, width_m: float) -> list[dict[str, Any]]:
+def turns(fin: str, frequency_hz: float, body: str) -> list[dict[str, Any]]:
     model = load_model(f"paper-twin-{fin}")
-    surge = load_body("mfc-fish")
+    surge = load_body(body)
+    width_m = surge.width_m
     fish = Fish(model, surge, load_battery("li-ion-2s-500mah"), load_amplifier("fish-switching"))
     rows: list[dict[str, Any]] = []
 
@@ -67,7 +70,7 @@ def turns(fin: str, frequency_hz: float, height_m: float, width_m: float) -> lis
         r = fish.at(np.array([frequency_hz]), np.array([v]), ranges=False)
         return float(r["thrust0_n"][0]), float(r["supply_w"][0])
 
-    one = slender_planar(surge, height_m, width_m, model.fin)
+    one = slender_planar(surge, model.fin)
     for vpp in (800.0, 400.0):
         thrust, supply = at(vpp)
         speed = float(surge.steady_speed(thrust, frequency_hz, model.fin.L))
@@ -88,7 +91,7 @@ def turns(fin: str, frequency_hz: float, height_m: float, width_m: float) -> lis
                     "integrated_deg_s": math.degrees(integrated_yaw_rate(one, thrust, side, moment, k)),
                 }
             )
-    two = slender_planar(surge, height_m, width_m, model.fin, fin_spacing_m=width_m)
+    two = slender_planar(surge, model.fin, fin_spacing_m=width_m)
     full, supply_full = at(800.0)
     for other in (800.0, 400.0, 0.0):
         eased, supply_eased = at(other) if other > 0 else (0.0, 0.0)
@@ -131,15 +134,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--fin", default="M8528-P1", choices=["M8528-P1", "M8514-P1", "M8507-P1"])
     ap.add_argument("--frequency", type=float, default=5.5, help="drive frequency, Hz")
-    ap.add_argument("--height", type=float, default=0.10, help="the body's depth, m")
-    ap.add_argument("--width", type=float, default=0.06, help="the body's width (and two fins' spacing), m")
+    ap.add_argument("--body", default="mfc-fish", help="a body preset (config/bodies) or a YAML file")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    print(
-        f"paper's twin of {a.fin} at {a.frequency:g} Hz on mfc-fish "
-        f"({a.height * 100:g} x {a.width * 100:g} cm):"
-    )
-    print(table(turns(a.fin, a.frequency, a.height, a.width)))
+    try:
+        rows = turns(a.fin, a.frequency, a.body)
+    except PiezofinError as exc:
+        ap.error(str(exc))
+    print(f"paper's twin of {a.fin} at {a.frequency:g} Hz on {a.body}:")
+    print(table(rows))
     print(f"\n{time.perf_counter() - t0:.2f} s of wall time")
     return 0
 

@@ -226,9 +226,13 @@ def propose(opt: ProposalInputs, inc: Point | None) -> tuple[str, Point]:
 
 def trimmed(opt: ProposalInputs, point: Point) -> Point:
     """The held point, its voltage lowered to meet the demand where the incumbent's measured thrust
-    exceeds it by more than half the overshoot limit (a fish under a demand only).  Thrust goes as
-    the square of the drive's amplitude at one frequency (Lighthill's, of a tip velocity linear in
-    it), so the trimmed trial aims a quarter of the limit above the demand.  Without it the point
+    exceeds it by more than half the overshoot limit (a fish under a demand only), aiming a quarter
+    of the limit above the demand: the voltage at which the fitted model's thrust falls by the ratio
+    of that aim to the thrust measured there (within 20 % of the voltage; the square root of the
+    ratio, thrust as the amplitude squared, where the model does not rise with the voltage there).
+    The model's ratio, not the square law: M8507-P1 with a KC-dependent added mass lost 27 % of its
+    thrust for 4 % of voltage at 2.4 Hz, and trimmed by the square law took 167 s to settle (44 s
+    with the model's, ``bench_fish.py --unseen added_mass_kc``).  Without it the point
     measured under an earlier, larger demand stayed the incumbent as the speed loop asked less: a
     stranger's fish held 12 % more thrust than asked every other trial, its speed 5 % fast, and
     "settled" 544 s after its set-point step (5 s with it, ``bench_fish.py --strangers``)."""

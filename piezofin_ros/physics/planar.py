@@ -19,7 +19,8 @@ Drag* ch. 3): a strip at ``x`` moves sideways at ``v + x r``, so for a body of l
     D_y(v) = \tfrac12\rho\,C_y S_y\,v|v|, \qquad
     N_r(r) = \frac{\rho\,C_y S_y L^3}{64}\,r|r| + \tfrac12\rho\,U S_f C_{L\alpha}\,x_f^2\,r,
 
-the first term the strip integral ``int_{-L/2}^{L/2} x (x r)|x r| dx`` times ``rho C_y S_y / 2L``,
+the first term the strip integral ``int_{-L/2}^{L/2} x (x r)|x r| dx`` times ``rho C_y S_y / 2L``
+(the side's area taken as spread evenly along it),
 the second the fin's own lift against the sideways flow ``x_f r`` it meets at the lever arm ``x_f``
 aft of the centre of mass (a low aspect-ratio plate: ``C_La = pi AR / 2``, Jones's slender-wing
 lift, ``AR = b / L_fin``).  The steady yaw rate under a moment ``N`` is the positive root of that
@@ -111,7 +112,8 @@ class PlanarBody:
         linear_n_m_s: float = 0.0,
     ) -> tuple[float, ...]:
         """``d/dt (x, y, psi, u, v, r)`` in the earth frame's position and heading, the body's
-        velocities: the equations of the module docstring."""
+        velocities: the equations of the module docstring (``linear_n_m_s``, the fin's yaw damping,
+        as :func:`fin_yaw_damping` gives it at the speed of the turn: held, not rescaled with ``u``)."""
         _, _, psi, u, v, r = state
         b, m = self.surge, self.surge.mass_kg
         mx, my = m + b.added_mass_kg, m + self.sway_added_mass_kg
@@ -154,10 +156,8 @@ def bias_side_force_n(fin: Fin, thrust0_n: float, bias_v: float, speed_m_s: floa
     return (thrust0_n + q * fin.L * fin.b * fin_lift_slope(fin)) * math.sin(bias_tilt_rad(fin, bias_v))
 
 
-def slender_planar(
-    body: Body, height_m: float, width_m: float, fin: Fin, fin_spacing_m: float = 0.0, c_y: float = 1.0
-) -> PlanarBody:
-    """A planar body for ``body`` as a slender ellipsoid ``length_m`` long, ``height_m`` deep and
+def slender_planar(body: Body, fin: Fin, fin_spacing_m: float = 0.0, c_y: float = 1.0) -> PlanarBody:
+    """A planar body for ``body`` as a slender ellipsoid its ``length_m`` long, ``height_m`` deep and
     ``width_m`` wide, its fin(s) at its tail:
 
     * lateral drag area ``C_y pi L h / 4`` (the side's ellipse);
@@ -166,10 +166,9 @@ def slender_planar(
       the yaw added inertia the same strips' ``x^2`` moment, ``rho pi (h/2)^2 L^3 / 30``;
     * the yaw inertia of a uniform ellipsoid, ``m (L^2 + w^2) / 20``;
     * the lever arm from the middle to the fin's middle, ``(L + L_fin) / 2``."""
-    for name, x in (("height_m", height_m), ("width_m", width_m), ("c_y", c_y)):
-        if not (math.isfinite(x) and x > 0):
-            raise SwimError(f"{body.name}: {name} = {x!r} must be finite and > 0")
-    L, rho = body.length_m, body.rho_w
+    if not (math.isfinite(c_y) and c_y > 0):
+        raise SwimError(f"{body.name}: c_y = {c_y!r} must be finite and > 0")
+    L, rho, height_m, width_m = body.length_m, body.rho_w, body.height_m, body.width_m
     strip = rho * math.pi * (height_m / 2.0) ** 2
     return PlanarBody(
         surge=body,

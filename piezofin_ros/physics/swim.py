@@ -83,6 +83,8 @@ MOST = {
     "mass_kg": 1e3,
     "added_mass_kg": 1e3,
     "length_m": 20.0,
+    "height_m": 10.0,
+    "width_m": 10.0,
     "drag_area_m2": 10.0,
     "drag_linear_n_s_m": 1e3,
     "rho_w": 2e3,
@@ -97,6 +99,8 @@ LEAST = {
     "rho_w": 500.0,
     "mass_kg": 1e-3,
     "length_m": 1e-3,
+    "height_m": 1e-3,
+    "width_m": 1e-3,
     "drag_area_m2": 1e-8,
     "capacity_ah": 1e-4,
     "internal_resistance_ohm": 1e-4,
@@ -128,6 +132,8 @@ class Body:
     mass_kg: float = 0.45
     added_mass_kg: float = 0.045  # surge added mass of a slender body, about 10 % of its mass
     length_m: float = 0.25  # body length (speeds are quoted in body lengths per second)
+    height_m: float = 0.10  # depth, top to bottom (the side's area, the sway added mass: planar.py)
+    width_m: float = 0.06  # side to side (the yaw inertia; two fins' spacing)
     drag_area_m2: float = 1.8e-3  # C_D S
     drag_linear_n_s_m: float = 0.0  # b
     fins: int = 1
@@ -136,7 +142,7 @@ class Body:
 
     def __post_init__(self) -> None:
         where = self.name or "body"
-        for name in ("mass_kg", "length_m", "drag_area_m2", "rho_w"):
+        for name in ("mass_kg", "length_m", "height_m", "width_m", "drag_area_m2", "rho_w"):
             _positive(where, name, getattr(self, name))
         for name in ("added_mass_kg", "drag_linear_n_s_m"):
             _positive(where, name, getattr(self, name), allow_zero=True)

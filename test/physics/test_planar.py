@@ -28,7 +28,7 @@ from piezofin_ros.physics.planar import (
 from piezofin_ros.physics.swim import SwimError, load_body
 
 FIN = load_fin("M8528-P1")
-BODY = slender_planar(load_body("mfc-fish"), 0.10, 0.06, FIN)
+BODY = slender_planar(load_body("mfc-fish"), FIN)
 
 
 def test_the_yaw_damping_is_the_strips_cross_flow_drag() -> None:
@@ -143,13 +143,18 @@ def test_an_impossible_planar_body_is_refused_naming_the_field(field: str, value
     with pytest.raises(SwimError, match=field):
         dataclasses.replace(BODY, **{field: value})
     with pytest.raises(SwimError, match="height_m"):
-        slender_planar(BODY.surge, -0.1, 0.06, FIN)
+        dataclasses.replace(BODY.surge, height_m=-0.1)
+    with pytest.raises(SwimError, match=r"width_m = 1e\+300 must be finite and within \[0.001, 10\]"):
+        dataclasses.replace(BODY.surge, width_m=1e300)
+    with pytest.raises(SwimError, match="c_y"):
+        slender_planar(BODY.surge, FIN, c_y=math.inf)
 
 
 def test_the_slender_body_is_an_ellipsoid_of_water_strips() -> None:
     """Sway added mass and yaw added inertia: the strips' ``rho pi (h/2)^2`` along an ellipsoid's
     taper, integrated numerically."""
-    L, h = BODY.surge.length_m, 0.10
+    L, h = BODY.surge.length_m, BODY.surge.height_m
+    assert h == 0.10 and BODY.surge.width_m == 0.06  # (mfc-fish: its 6 x 10 cm frontal area)
     x = np.linspace(-L / 2, L / 2, 20001)
     strip = 1000.0 * math.pi * (h / 2) ** 2 * (1 - (2 * x / L) ** 2)
     assert BODY.sway_added_mass_kg == pytest.approx(float(np.trapezoid(strip, x)), rel=1e-6)
