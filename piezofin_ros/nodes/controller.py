@@ -7,7 +7,8 @@ does not come (the estimator or the rig is gone), the trial is marked missing an
 point (most thrust per watt among trials with at least ``min_thrust_n``) is either held or the
 drive is switched off (``after``).
 
-The first trial waits (drive off) until a ``thrust_estimator`` publishes on ``estimate``, at most
+The first trial waits (drive off) until a ``thrust_estimator`` publishes on ``estimate`` and a rig
+on ``drive``, at most
 ``wait_estimator_s`` of wall time: under ``ros2 launch`` the nodes start in any order, and on a
 loaded machine the estimator may be the last, which used to cost the first trial its estimate.
 Once it is there the drive stays off :data:`ESTIMATOR_SETTLE_S` more, so that the estimator hears
@@ -44,6 +45,7 @@ from ..physics.waveforms import ProtocolTiming
 from ._common import (
     TOPIC_CMD,
     TOPIC_DEMAND,
+    TOPIC_DRIVE,
     TOPIC_ESTIMATE,
     TOPIC_STATUS,
     Inbox,
@@ -110,7 +112,10 @@ class ControllerConfig:
     )
     max_missing: int = setting(2, "missing estimates in a row that stop the run", 1, 1000)
     wait_estimator_s: float = setting(
-        20.0, "wall time to wait for a thrust_estimator before the first trial, s (0: none)", 0.0, 3600.0
+        20.0,
+        "wall time to wait for a thrust_estimator and a rig's drive before the first trial, s (0: none)",
+        0.0,
+        3600.0,
     )
     amplifier: str = setting(
         "paper-bench",
@@ -347,9 +352,16 @@ class Controller(Node):
         self._cmd_pub.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on})))
 
     def _estimator_ready(self) -> bool:
-        """True :data:`ESTIMATOR_SETTLE_S` after an estimator publishes ``estimate`` (or once
-        ``wait_estimator_s`` passed without one); else drive off."""
-        if self._estimator_seen is None and self.count_publishers(TOPIC_ESTIMATE) > 0:
+        """True :data:`ESTIMATOR_SETTLE_S` after an estimator publishes ``estimate`` and a rig
+        ``drive`` (or once ``wait_estimator_s`` passed without them); else drive off.  The rig too: a
+        fish's own driver, started apart from the launch, was discovered 1.7 s after the estimator on
+        a loaded machine, the drive was on by then, and the estimator never heard the battery at rest
+        (so never measured the supply watt: ``test_fish_driver.py`` in one CI run)."""
+        if (
+            self._estimator_seen is None
+            and self.count_publishers(TOPIC_ESTIMATE) > 0
+            and self.count_publishers(TOPIC_DRIVE) > 0
+        ):
             self._estimator_seen = self._now()
         if self._estimator_seen is not None:
             if self._now() - self._estimator_seen >= ESTIMATOR_SETTLE_S:
@@ -359,16 +371,23 @@ class Controller(Node):
         waited = time.monotonic() - self._created
         if waited >= self.config.wait_estimator_s:
             if self._waiting_logged:
+                missing = "thrust_estimator" if self.count_publishers(TOPIC_ESTIMATE) == 0 else "rig driver"
                 self.get_logger().warning(
-                    f"no thrust_estimator after {self.config.wait_estimator_s:g} s: starting without one"
+                    f"no {missing} after {self.config.wait_estimator_s:g} s: starting without one"
+                    + (
+                        f" (nothing publishes {self.resolve_topic_name(TOPIC_DRIVE)})"
+                        if missing == "rig driver"
+                        else ""
+                    )
                 )
                 self._waiting_logged = False
             return True
         if not self._waiting_logged:
             self._waiting_logged = True
             self.get_logger().info(
-                f"waiting for a thrust_estimator on {self.resolve_topic_name(TOPIC_ESTIMATE)} "
-                f"(at most {self.config.wait_estimator_s:g} s), drive off"
+                f"waiting for a thrust_estimator on {self.resolve_topic_name(TOPIC_ESTIMATE)} and a rig "
+                f"on {self.resolve_topic_name(TOPIC_DRIVE)} (at most {self.config.wait_estimator_s:g} s), "
+                "drive off"
             )
         self._send(0.0, 0.0, 0.0)
         return False
