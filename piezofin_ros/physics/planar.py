@@ -78,6 +78,11 @@ class PlanarBody:
                 raise SwimError(f"{self.surge.name}: {name} = {x!r} must be finite and >= 0")
 
     # The laws and their closed forms, side by side (tested against each other).
+    @property
+    def yaw_drag_n_m_s2(self) -> float:
+        """The cross-flow drag's yaw coefficient ``rho C_y S_y L^3 / 64``, N m s^2."""
+        return self.surge.rho_w * self.lateral_drag_area_m2 * self.surge.length_m**3 / 64.0
+
     def sway_drag_n(self, v: float) -> float:
         """``D_y(v) = (1/2) rho C_y S_y v|v|``, N."""
         return 0.5 * self.surge.rho_w * self.lateral_drag_area_m2 * v * abs(v)
@@ -85,13 +90,12 @@ class PlanarBody:
     def yaw_damping_nm(self, r: float, linear_n_m_s: float = 0.0) -> float:
         """``N_r(r) = rho C_y S_y L^3 r|r| / 64 + k r``, N m: the body's cross-flow drag in yaw and a
         linear term ``k`` (the fin's lift at a swimming speed, :func:`fin_yaw_damping`)."""
-        quadratic = self.surge.rho_w * self.lateral_drag_area_m2 * self.surge.length_m**3 / 64.0
-        return quadratic * r * abs(r) + linear_n_m_s * r
+        return self.yaw_drag_n_m_s2 * r * abs(r) + linear_n_m_s * r
 
     def steady_yaw_rate(self, moment_nm: float, linear_n_m_s: float = 0.0) -> float:
         """The yaw rate at which ``N_r`` balances ``moment_nm``, rad/s (its sign): the positive root of
         ``a r^2 + k r = |N|``."""
-        a = self.surge.rho_w * self.lateral_drag_area_m2 * self.surge.length_m**3 / 64.0
+        a = self.yaw_drag_n_m_s2
         n = abs(moment_nm)
         k = linear_n_m_s
         # (the root as 2n / (k + sqrt(k^2 + 4an)): no cancellation as a -> 0, and the square root's
@@ -101,8 +105,8 @@ class PlanarBody:
 
     def yaw_time_constant_s(self, r: float, linear_n_m_s: float = 0.0) -> float:
         """How fast a yaw-rate step settles about ``r``: ``(I + I_a) / N_r'(r)``, s."""
-        a = self.surge.rho_w * self.lateral_drag_area_m2 * self.surge.length_m**3 / 64.0
-        return (self.yaw_inertia_kg_m2 + self.yaw_added_inertia_kg_m2) / (2.0 * a * abs(r) + linear_n_m_s)
+        inertia = self.yaw_inertia_kg_m2 + self.yaw_added_inertia_kg_m2
+        return inertia / (2.0 * self.yaw_drag_n_m_s2 * abs(r) + linear_n_m_s)
 
     def derivatives(
         self,
