@@ -32,6 +32,8 @@ TOPIC_DIAGNOSTICS = "/diagnostics"
 F64A = "std_msgs/msg/Float64MultiArray"
 F64 = "std_msgs/msg/Float64"
 STRING = "std_msgs/msg/String"
+#: The estimate, named and stamped (piezofin_ros/msg/Estimate.msg); bags before it hold F64A blocks
+ESTIMATE = "piezofin_msgs/msg/Estimate"
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,7 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_LOADCELL, F64A, "data", "fin_sim, or a rig driver with a load cell"),
         Topic(TOPIC_SUPPLY, F64A, "data", "fin_sim, or a driver with a supply meter"),
         Topic(TOPIC_CMD, F64A, "command", "controller"),
-        Topic(TOPIC_ESTIMATE, F64A, "estimate", "thrust_estimator"),
+        Topic(TOPIC_ESTIMATE, ESTIMATE, "estimate", "thrust_estimator"),
         Topic(TOPIC_SPEED, F64, "command", "fin_sim with a body, or a fish driver"),
         Topic(TOPIC_STATUS, STRING, "status", "controller"),
         Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),

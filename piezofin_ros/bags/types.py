@@ -1,25 +1,57 @@
-"""ROS 2 message types without ROS: the Jazzy type store (``rosbags``), message definitions as
-rosbag2 stores them, and CDR decoding (:func:`decode`, :func:`block_of`) independent of rclpy."""
+"""ROS 2 message types without ROS: the Jazzy type store (``rosbags``) with the project's own messages,
+message definitions as rosbag2 stores them, and CDR decoding (:func:`decode`, :func:`block_of`)
+independent of rclpy."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
+from pathlib import Path
 from typing import Any
 
 from rosbags.serde import SerdeError
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from ..errors import BagError
-from .blocks import Block, from_layout
+from .blocks import Block, BlockFormatError, from_layout
 
 _TYPESTORE: Any = None
 
+#: The project's own messages: ``piezofin_msgs/msg/<Name>`` is defined by ``piezofin_ros/msg/<Name>.msg``
+#: (rosidl builds the same files into ROS: ``interfaces/piezofin_msgs``), read here without ROS.
+OWN_PACKAGE = "piezofin_msgs"
+MSG_DIR = Path(__file__).resolve().parents[1] / "msg"
+
+
+def own_definitions() -> dict[str, str]:
+    """``{"piezofin_msgs/msg/<Name>": its .msg text}`` of every message of the project's own."""
+    return {f"{OWN_PACKAGE}/msg/{p.stem}": p.read_text() for p in sorted(MSG_DIR.glob("*.msg"))}
+
 
 def typestore() -> Any:
-    """The ``rosbags`` type store of ROS 2 Jazzy (built once; it takes ~50 ms)."""
+    """The ``rosbags`` type store of ROS 2 Jazzy with the project's own messages (built once; ~50 ms)."""
     global _TYPESTORE
     if _TYPESTORE is None:
-        _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+        store = get_typestore(Stores.ROS2_JAZZY)
+        for name, text in own_definitions().items():
+            store.register(get_types_from_msg(text, name))
+        _TYPESTORE = store
     return _TYPESTORE
+
+
+def is_record_type(type_name: str) -> bool:
+    """Whether ``type_name`` is one of the project's own named, stamped messages (a header and named
+    ``float64`` fields), which :func:`block_of` reads as a one-sample block."""
+    return normalise_type(type_name).startswith(f"{OWN_PACKAGE}/")
+
+
+def record_fields(msg: Any) -> dict[str, float]:
+    """The named values of a message of the project's own (every field but its header), as a record."""
+    if dataclasses.is_dataclass(msg):  # rosbags' (its __msgtype__ is no field of the message)
+        names = [f.name for f in dataclasses.fields(msg) if not f.name.startswith("_")]
+    else:  # rclpy's
+        names = list(msg.get_fields_and_field_types())
+    return {n: float(getattr(msg, n)) for n in names if n != "header"}
 
 
 def normalise_type(name: str) -> str:
@@ -55,7 +87,26 @@ def decode(type_name: str, data: bytes) -> Any:
 
 
 def block_of(type_name: str, data: bytes, expect: tuple[str, ...] | None = None) -> Block:
-    """Decode a ``Float64MultiArray`` message into a :class:`~piezofin_ros.bags.blocks.Block`."""
+    """Decode a ``Float64MultiArray`` message, or one of the project's own named messages (one sample
+    of each named field), into a :class:`~piezofin_ros.bags.blocks.Block`."""
     msg = decode(type_name, data)
+    if is_record_type(type_name):
+        return record_block(record_fields(msg), expect)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
     return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
+
+
+def record_block(record: dict[str, float], expect: tuple[str, ...] | None = None) -> Block:
+    """A named message's record as a one-sample block, with ``expect``'s names present."""
+    missing = [c for c in expect or () if c not in record]
+    if missing:
+        raise BlockFormatError(f"missing field(s) {', '.join(missing)} (has {', '.join(record)})")
+    return Block.from_record(record)
+
+
+def stamp_of(seconds: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of a ``builtin_interfaces/Time`` for a time in seconds (0 for NaN or < 0)."""
+    if not (math.isfinite(seconds) and seconds > 0.0):
+        return 0, 0
+    ns = round(seconds * 1e9)
+    return ns // 1_000_000_000, ns % 1_000_000_000

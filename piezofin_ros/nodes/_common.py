@@ -27,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..bags.blocks import Block, check_samples, from_layout, to_layout
+from ..bags.types import record_block, record_fields, stamp_of
 from ..config import settings_of
 from ..errors import NodeError, PiezofinError
 
@@ -116,10 +117,24 @@ def block_msg(block: Block) -> Float64MultiArray:
     return msg
 
 
-def msg_block(msg: Float64MultiArray, expect: Sequence[str] | None = None) -> Block:
-    """Decode a ``Float64MultiArray``; raises ``BlockFormatError`` with the reason."""
+def msg_block(msg: Any, expect: Sequence[str] | None = None) -> Block:
+    """Decode a ``Float64MultiArray``, or a named message of the project's own (one sample of each
+    field but its header); raises ``BlockFormatError`` with the reason."""
+    if not isinstance(msg, Float64MultiArray):
+        return record_block(record_fields(msg), tuple(expect) if expect is not None else None)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
     return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
+
+
+def record_msg(msg_type: Any, record: dict[str, float], stamp_s: float) -> Any:
+    """A named message of the project's own (``piezofin_msgs``) holding ``record`` field by field, its
+    ``header.stamp`` at ``stamp_s`` in the fin's time; every field of the message must be in the record."""
+    msg = msg_type()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_of(stamp_s)
+    for name in msg_type.get_fields_and_field_types():
+        if name != "header":
+            setattr(msg, name, float(record[name]))
+    return msg
 
 
 # --------------------------------------------------------------------------------- parameters
@@ -543,9 +558,10 @@ def battery_reading(msg: Any) -> tuple[float, float, float]:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, voltage, current
 
 
-def estimates(msg: Float64MultiArray) -> Any:
-    """A check for an ``estimate`` block: an :class:`~piezofin_ros.estimation.estimator.Estimate`
-    with every field within what a fin gives (:func:`~piezofin_ros.estimation.estimator.check_estimate`)."""
+def estimates(msg: Any) -> Any:
+    """A check for an ``estimate`` (``piezofin_msgs/Estimate``): an
+    :class:`~piezofin_ros.estimation.estimator.Estimate` with every field within what a fin gives
+    (:func:`~piezofin_ros.estimation.estimator.check_estimate`)."""
     from ..estimation.estimator import Estimate, check_estimate
 
     return check_estimate(msg_block(msg, expect=Estimate.field_names()).as_dict())

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 from rclpy.context import Context
 from rclpy.node import Node
-from std_msgs.msg import Float64, Float64MultiArray, String
+from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from ..bags.blocks import Block
@@ -179,7 +179,9 @@ class Controller(Node):
         self._status_pub = self.create_publisher(*endpoint(TOPIC_STATUS))
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         # polled (a flood of estimates held the executor, and the heartbeat with it: the watchdog tripped)
-        self.inbox.polled(Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20)
+        self.inbox.polled(
+            endpoint(TOPIC_ESTIMATE)[0], TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20
+        )
         if self.strategy.takes_demand:
             # the newest demand only, polled: a 3-4 kHz flood held the executor and the heartbeat with it
             self.inbox.latest(Float64, TOPIC_DEMAND, self._on_demand, scalar(0.0, 10.0, "N"))

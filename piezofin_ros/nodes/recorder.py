@@ -7,10 +7,11 @@ at its first message, with the QoS its publishers offer then (``ros2 bag play`` 
 Chunks are flushed every ``flush_s`` of log time; SIGINT or SIGTERM closes the file with its
 summary, indexes and rosbag2 metadata.
 
-For plotting (Foxglove, PlotJuggler), each one-sample block (``estimate``, ``cmd``) is also
-written field by field as ``std_msgs/msg/Float64`` channels named ``<topic>/<field>`` (e.g.
-``/fin/estimate/thrust_N``): a series with a name and a unit, where the block itself is an
-array.  These ``plot_fields`` are written to the bag only, never published.
+For plotting (Foxglove, PlotJuggler), the one-sample ``cmd`` block is also written field by field
+as ``std_msgs/msg/Float64`` channels named ``<topic>/<field>`` (e.g. ``/fin/cmd/voltage_pp_V``): a
+series with a name, where the block itself is an array.  These ``plot_fields`` are written to the
+bag only, never published.  The ``estimate`` needs none: it is named field by field itself
+(``piezofin_msgs/Estimate``).
 """
 
 from __future__ import annotations
@@ -42,7 +43,6 @@ from ._common import (
     QOS_DATA,
     QOS_STATUS,
     TOPIC_CMD,
-    TOPIC_ESTIMATE,
     StartupError,
     declare,
     freeze_parameters,
@@ -78,7 +78,7 @@ THIN_LOOKS = 20
 
 
 #: Topics (relative) whose one-sample blocks are also written field by field, for plotting.
-PLOT_TOPICS = (TOPIC_ESTIMATE, TOPIC_CMD)
+PLOT_TOPICS = (TOPIC_CMD,)
 FLOAT64 = F64
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
 
@@ -137,7 +137,7 @@ class RecorderConfig:
     chunk_kib: int = setting(1024, "chunk size, KiB", 16, 65536)
     flush_s: float = setting(1.0, "longest log time between chunk flushes, s", 0.05, 600.0)
     discover: bool = setting(False, "also record any other topic that appears")
-    plot_fields: bool = setting(True, "also write estimate and cmd field by field (Float64) for plotting")
+    plot_fields: bool = setting(True, "also write cmd field by field (Float64) for plotting")
 
 
 class Recorder(Node):

@@ -16,13 +16,14 @@ import math
 import sys
 import time
 from dataclasses import dataclass
+from typing import Any
 
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64, Float64MultiArray, String
+from std_msgs.msg import Float64, String
 
 from ..config import setting
 from ..control.odometry import UNKNOWN, DeadReckoning
@@ -74,7 +75,7 @@ def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
     return forward, yaw
 
 
-def fin_thrust(msg: Float64MultiArray) -> float:
+def fin_thrust(msg: Any) -> float:
     """The door's check of an ``estimate`` for the speed loop: its self-sensed thrust, else its
     Lighthill thrust (a block may hold only what the loop reads), within what a fin gives (NaN: not
     estimated)."""
@@ -145,7 +146,7 @@ class SpeedLoopNode(Node):
             Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
         )
         self.inbox.polled(
-            Float64MultiArray, TOPIC_ESTIMATE, self._on_estimate, fin_thrust, depth=200, most=20
+            endpoint(TOPIC_ESTIMATE)[0], TOPIC_ESTIMATE, self._on_estimate, fin_thrust, depth=200, most=20
         )
         # a fish stack's velocity command (teleop, nav2): its forward speed is the set-point
         self._cmd_vel_timeout_s = own.cmd_vel_timeout_s

@@ -2,9 +2,9 @@
 
 Subscribes ``drive`` (required), ``tip_velocity`` and ``loadcell`` (optional: a fish has
 neither), ``supply`` or ``battery`` (sensor_msgs/BatteryState: the supply watt measured) and
-``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` block per
-window.  All timing comes from the samples' own time stamps, so a replayed bag gives the
-estimates recorded live.
+``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` (piezofin_msgs/Estimate: each
+quantity by name, stamped at the window's end in the fin's time) per window.  All timing comes from
+the samples' own time stamps, so a replayed bag gives the estimates recorded live.
 """
 
 from __future__ import annotations
@@ -45,10 +45,10 @@ from ._common import (
     SilenceWatch,
     StartupError,
     battery_reading,
-    block_msg,
     declare,
     endpoint,
     freeze_parameters,
+    record_msg,
     run_node,
     samples,
     scalar,
@@ -116,6 +116,7 @@ class ThrustEstimator(Node):
         self._meter = ""  # where the supply watt is measured, as last said
         self.estimates: list[Estimate] = []
         self._pub = self.create_publisher(*endpoint(TOPIC_ESTIMATE))
+        self._estimate_type = self._pub.msg_type
         # every message from another process through one door: checked there, refused with the reason
         self.inbox = inbox = Inbox(self)
         # every sampled topic polled, each at most BLOCKS_A_LOOK blocks a look: a flood on one (a spoofed
@@ -219,7 +220,7 @@ class ThrustEstimator(Node):
             )
         for e in estimates:
             self.estimates.append(e)
-            self._pub.publish(block_msg(Block.from_record(e.as_dict())))
+            self._pub.publish(record_msg(self._estimate_type, e.as_dict(), e.t_end))
             if e.final and self.core.medium == "air":
                 self.get_logger().info(
                     f"trial {e.frequency_hz:.3f} Hz {e.voltage_pp:.0f} Vpp (in air: no thrust): tip velocity "

@@ -126,6 +126,7 @@ def run_floods(env: dict[str, str], tmp_path: Path, factor: str, topics: list[st
         assert lost == 0 or f"/fish/{topic} {lost}" in out or "lost" in out, topic
 
 
+@pytest.mark.within_long  # (its three floods are three of the seven below, asserted alike)
 @pytest.mark.parametrize("factor", ["1", "10"])
 def test_the_floods_issue_38_found_lose_nothing_unsaid_and_trip_nothing(
     ros_env: dict[str, str], tmp_path: Path, factor: str
