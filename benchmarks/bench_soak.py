@@ -103,7 +103,7 @@ def soak(seconds: float, warmup_s: float, directory: Path, progress: bool = True
     from std_msgs.msg import Float64MultiArray
 
     from piezofin_ros.bags import block_of, read_messages
-    from piezofin_ros.nodes._common import QOS_DATA, msg_block
+    from piezofin_ros.nodes._common import QOS_DATA, endpoint, msg_block
 
     bag = directory / "soak.mcap"
     on_s = max(10.0, seconds / 3)
@@ -157,7 +157,7 @@ def soak(seconds: float, warmup_s: float, directory: Path, progress: bool = True
 
     for topic in blocks:
         node.create_subscription(Float64MultiArray, topic, lambda m, t=topic: on_data(t, m), QOS_DATA)
-    node.create_subscription(Float64MultiArray, "estimate", on_estimate, QOS_DATA)
+    node.create_subscription(endpoint("estimate")[0], "estimate", on_estimate, QOS_DATA)
     rss_warm: dict[str, int] = {}
     try:
         t0 = time.monotonic()

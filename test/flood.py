@@ -19,7 +19,7 @@ from std_msgs.msg import Float64
 
 from piezofin_ros.bags.blocks import Block
 from piezofin_ros.estimation.estimator import Estimate
-from piezofin_ros.nodes._common import block_msg
+from piezofin_ros.nodes._common import block_msg, record_msg
 
 
 def messages(kind: str) -> list:
@@ -29,8 +29,10 @@ def messages(kind: str) -> list:
     if kind == "demand":
         return [Float64(data=float(x)) for x in rng.uniform(1e-4, 8e-3, 64)]
     if kind == "estimate":
+        from piezofin_msgs.msg import Estimate as EstimateMsg
+
         names = Estimate.field_names()
-        return [block_msg(Block.from_record(dict.fromkeys(names, float(x)))) for x in rng.uniform(0, 1e-3, 8)]
+        return [record_msg(EstimateMsg, dict.fromkeys(names, float(x)), 1.0) for x in rng.uniform(0, 1e-3, 8)]
     if kind == "cmd":
         return [block_msg(Block.from_record({"frequency_hz": 5.0, "voltage_pp_V": 0.0, "on": 0.0}))]
     t = 1e6 + np.arange(20) * 1e-3  # (times of its own, far from the fin's)

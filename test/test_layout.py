@@ -13,6 +13,8 @@ import pytest
 
 from piezofin_ros.nodes.entry import EXECUTABLES
 
+from .rosutil import clean_env
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -23,7 +25,16 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
         pytest.skip("colcon is not installed in this environment")
     src = tmp_path / "ws" / "src" / "piezofin_ros"
     src.mkdir(parents=True)
-    for item in ("setup.py", "setup.cfg", "package.xml", "resource", "config", "launch", "piezofin_ros"):
+    for item in (
+        "setup.py",
+        "setup.cfg",
+        "package.xml",
+        "resource",
+        "config",
+        "launch",
+        "piezofin_ros",
+        "interfaces",
+    ):
         source = ROOT / item
         if source.is_dir():
             shutil.copytree(source, src / item, ignore=shutil.ignore_patterns("__pycache__"))
@@ -32,15 +43,31 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
     (src / "bags").mkdir()
     shutil.copy2(ROOT / "bags" / "sample_M8528-P1.mcap", src / "bags")  # a clone has only this bag
     ws = tmp_path / "ws"
-    proc = subprocess.run(
-        [colcon, "build", "--base-paths", "src"],
+    proc = subprocess.run(  # as docs/ros.md says: the messages' package sits inside this one's folder
+        [
+            colcon,
+            "build",
+            "--base-paths",
+            "src",
+            "src/piezofin_ros/interfaces",
+            "--packages-up-to",
+            "piezofin_ros",
+        ],
         cwd=ws,
         capture_output=True,
         text=True,
         timeout=300,
         stdin=subprocess.DEVNULL,
+        # (the ROS install's prefix, as a sourced setup.bash sets it: here the venv of the Jazzy wheels)
+        env=clean_env(AMENT_PREFIX_PATH=os.environ.get("AMENT_PREFIX_PATH") or sys.prefix),
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Summary: 2 packages finished" in proc.stdout, proc.stdout  # piezofin_msgs, then piezofin_ros
+    msgs = ws / "install" / "piezofin_msgs"
+    assert (msgs / "share" / "piezofin_msgs" / "msg" / "Estimate.msg").exists()
+    assert (
+        msgs / "share" / "ament_index" / "resource_index" / "rosidl_interfaces" / "piezofin_msgs"
+    ).exists()
     prefix = ws / "install" / "piezofin_ros"
     # `ros2 run piezofin_ros <exe>` looks in <prefix>/lib/<package>/ ...
     for exe in ("piezofin", "sweep", "diagnose", "identify", *EXECUTABLES):
@@ -63,6 +90,7 @@ def test_colcon_build_installs_executables_and_ament_index(tmp_path: Path) -> No
     compile(launch.read_text(), str(launch), "exec")  # launch itself is not on PyPI: syntax only
     # The installed executable runs from the install tree and finds the installed presets.
     site = next(prefix.glob("lib/python3*/site-packages"))
+    assert (site / "piezofin_ros" / "msg" / "Estimate.msg").exists()  # the bag tools read it without ROS
     env = {**os.environ, "PYTHONPATH": str(site)}
     env.pop("PIEZOFIN_CONFIG", None)
     run = subprocess.run(
@@ -128,7 +156,12 @@ def test_every_import_is_declared_in_package_xml() -> None:
     missing = {key: where for key, where in needed.items() if key not in declared}
     assert not missing, f"imported but not declared in package.xml: {missing}"
     commands = {"ros2launch"}  # (the `ros2 launch` command: run, not imported)
-    unused = declared - set(needed) - {"python3-pytest", "python3-hypothesis"} - commands
+    # the message packages of the topic table, imported by name (nodes._common.message_class)
+    from piezofin_ros.bags.topics import TOPICS
+
+    messages = {t.type.split("/")[0] for t in TOPICS.values()}
+    assert not messages - declared, f"a topic's message package is not in package.xml: {messages - declared}"
+    unused = declared - set(needed) - {"python3-pytest", "python3-hypothesis"} - commands - messages
     assert not unused, f"declared in package.xml but never imported: {unused}"
     # an optional import is guarded, a pip extra, and said in package.xml (not a dependency)
     extras = (ROOT / "setup.py").read_text()

@@ -20,6 +20,7 @@ This module has no ROS dependency: nodes convert messages with :func:`from_layou
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import struct
 from collections.abc import Sequence
@@ -240,3 +241,28 @@ def sample_span(data: bytes) -> tuple[float, float, int] | None:
     if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
         return None
     return t0, t1, n
+
+
+def record_fields(msg: Any) -> dict[str, float]:
+    """The named values of a message of the project's own (every field but its header), as a record."""
+    if dataclasses.is_dataclass(msg):  # rosbags' (its __msgtype__ is no field of the message)
+        names = [f.name for f in dataclasses.fields(msg) if not f.name.startswith("_")]
+    else:  # rclpy's
+        names = list(msg.get_fields_and_field_types())
+    return {n: float(getattr(msg, n)) for n in names if n != "header"}
+
+
+def record_block(record: dict[str, float], expect: tuple[str, ...] | None = None) -> Block:
+    """A named message's record as a one-sample block, with ``expect``'s names present."""
+    missing = [c for c in expect or () if c not in record]
+    if missing:
+        raise BlockFormatError(f"missing field(s) {', '.join(missing)} (has {', '.join(record)})")
+    return Block.from_record(record)
+
+
+def stamp_of(seconds: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of a ``builtin_interfaces/Time`` for a time in seconds (0 for NaN or < 0)."""
+    if not (math.isfinite(seconds) and seconds > 0.0):
+        return 0, 0
+    ns = round(seconds * 1e9)
+    return ns // 1_000_000_000, ns % 1_000_000_000

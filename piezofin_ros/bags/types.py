@@ -4,8 +4,6 @@ independent of rclpy."""
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +11,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from ..errors import BagError
-from .blocks import Block, BlockFormatError, from_layout
+from .blocks import Block, from_layout, record_block, record_fields
 
 _TYPESTORE: Any = None
 
@@ -43,15 +41,6 @@ def is_record_type(type_name: str) -> bool:
     """Whether ``type_name`` is one of the project's own named, stamped messages (a header and named
     ``float64`` fields), which :func:`block_of` reads as a one-sample block."""
     return normalise_type(type_name).startswith(f"{OWN_PACKAGE}/")
-
-
-def record_fields(msg: Any) -> dict[str, float]:
-    """The named values of a message of the project's own (every field but its header), as a record."""
-    if dataclasses.is_dataclass(msg):  # rosbags' (its __msgtype__ is no field of the message)
-        names = [f.name for f in dataclasses.fields(msg) if not f.name.startswith("_")]
-    else:  # rclpy's
-        names = list(msg.get_fields_and_field_types())
-    return {n: float(getattr(msg, n)) for n in names if n != "header"}
 
 
 def normalise_type(name: str) -> str:
@@ -94,19 +83,3 @@ def block_of(type_name: str, data: bytes, expect: tuple[str, ...] | None = None)
         return record_block(record_fields(msg), expect)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
     return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
-
-
-def record_block(record: dict[str, float], expect: tuple[str, ...] | None = None) -> Block:
-    """A named message's record as a one-sample block, with ``expect``'s names present."""
-    missing = [c for c in expect or () if c not in record]
-    if missing:
-        raise BlockFormatError(f"missing field(s) {', '.join(missing)} (has {', '.join(record)})")
-    return Block.from_record(record)
-
-
-def stamp_of(seconds: float) -> tuple[int, int]:
-    """``(sec, nanosec)`` of a ``builtin_interfaces/Time`` for a time in seconds (0 for NaN or < 0)."""
-    if not (math.isfinite(seconds) and seconds > 0.0):
-        return 0, 0
-    ns = round(seconds * 1e9)
-    return ns // 1_000_000_000, ns % 1_000_000_000

@@ -26,8 +26,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ..bags.blocks import Block, check_samples, from_layout, to_layout
-from ..bags.types import record_block, record_fields, stamp_of
+from ..bags.blocks import Block, check_samples, from_layout, record_block, record_fields, stamp_of, to_layout
 from ..config import settings_of
 from ..errors import NodeError, PiezofinError
 
@@ -128,12 +127,13 @@ def msg_block(msg: Any, expect: Sequence[str] | None = None) -> Block:
 
 def record_msg(msg_type: Any, record: dict[str, float], stamp_s: float) -> Any:
     """A named message of the project's own (``piezofin_msgs``) holding ``record`` field by field, its
-    ``header.stamp`` at ``stamp_s`` in the fin's time; every field of the message must be in the record."""
+    ``header.stamp`` at ``stamp_s`` in the fin's time; a field the record lacks is NaN (the message's
+    "the data cannot give it")."""
     msg = msg_type()
     msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_of(stamp_s)
     for name in msg_type.get_fields_and_field_types():
         if name != "header":
-            setattr(msg, name, float(record[name]))
+            setattr(msg, name, float(record.get(name, math.nan)))
     return msg
 
 

@@ -1,6 +1,8 @@
 """``player``: replay an MCAP bag with its original timing, a rate factor, topic selection, ``/clock``.
 
-Messages are published as the serialised bytes stored in the bag (no decode).  Pacing uses a
+Messages are published as the serialised bytes stored in the bag (no decode), but for the blocks of
+an older bag where the suite's topic is a named message now (an ``estimate`` recorded as a
+``std_msgs/Float64MultiArray``): each is played as the named message, so today's nodes hear it.  Pacing uses a
 steady clock: bag time ``t_bag0 + rate * (steady - steady0)``.  With ``publish_clock`` the node
 publishes that bag time on ``/clock`` (the bag's own ``/clock`` is not replayed), so nodes
 with ``use_sim_time`` follow the recording.  An unreadable file gives one error line naming it;
@@ -21,7 +23,9 @@ from rclpy.node import Node
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from ..bags import BagError, BagMessage, bag_topics, read_messages, resolve_bag
+from ..bags import BagError, BagMessage, bag_topics, block_of, read_messages, resolve_bag
+from ..bags.topics import F64A
+from ..bags.types import is_record_type, normalise_type
 from ..config import setting
 from ._common import (
     TOPIC_CLOCK,
@@ -30,9 +34,10 @@ from ._common import (
     endpoint,
     freeze_parameters,
     message_class,
+    record_msg,
     run_node,
 )
-from .recorder import qos_for
+from .recorder import qos_for, table_topic
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,7 @@ class Player(Node):
         self._next: BagMessage | None = None
         self._pubs: dict[str, Any] = {}
         self._skipped: set[str] = set()
+        self._upgraded: dict[str, Any] = {}  # topic: the named message its older blocks are played as
         self._clock_pub = self.create_publisher(*endpoint(TOPIC_CLOCK)) if self.publish_clock else None
         self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self._t_bag0 = first.log_time_ns
@@ -86,11 +92,18 @@ class Player(Node):
     def _publisher(self, m: BagMessage) -> Any:
         pub = self._pubs.get(m.topic)
         if pub is None and m.topic not in self._skipped:
-            try:
-                pub = self.create_publisher(
-                    message_class(m.type_name), m.topic, qos_for(m.topic, m.type_name)
+            type_name = m.type_name
+            table = table_topic(m.topic)
+            if table is not None and is_record_type(table.type) and normalise_type(type_name) == F64A:
+                type_name = table.type
+                self.get_logger().info(
+                    f"playing {m.topic} of an older bag (std_msgs/Float64MultiArray blocks) as {type_name}"
                 )
+            try:
+                pub = self.create_publisher(message_class(type_name), m.topic, qos_for(m.topic, type_name))
                 self._pubs[m.topic] = pub
+                if type_name != m.type_name:
+                    self._upgraded[m.topic] = pub.msg_type
             except (ImportError, AttributeError, ValueError) as exc:
                 self._skipped.add(m.topic)
                 self.get_logger().warning(f"not playing {m.topic}: type {m.type_name} unavailable ({exc})")
@@ -117,7 +130,15 @@ class Player(Node):
                 if m.topic == "/clock" and self.publish_clock:
                     continue
                 pub = self._publisher(m)
-                if pub is not None:
+                if pub is not None and m.topic in self._upgraded:
+                    try:
+                        record = block_of(m.type_name, m.data).as_dict()
+                    except ValueError as exc:  # (MessageError, BlockFormatError: a block it cannot read)
+                        self.get_logger().warning(f"not playing a message of {m.topic}: {exc}", once=True)
+                        continue
+                    pub.publish(record_msg(self._upgraded[m.topic], record, record.get("t_end", 0.0)))
+                    self.published[m.topic] = self.published.get(m.topic, 0) + 1
+                elif pub is not None:
                     pub.publish(m.data)
                     self.published[m.topic] = self.published.get(m.topic, 0) + 1
         except BagError as exc:

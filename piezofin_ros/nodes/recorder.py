@@ -35,9 +35,10 @@ from std_msgs.msg import String
 
 from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
 from ..bags.gaps import Gap, GapWatch
-from ..bags.topics import F64, F64A, SAMPLED, STRING, TOPICS
+from ..bags.topics import F64, F64A, SAMPLED, STRING, TOPICS, Topic
 from ..config import setting
 from ._common import (
+    QOS,
     QOS_CLOCK,
     QOS_COMMAND,
     QOS_DATA,
@@ -60,9 +61,22 @@ GLOBAL_TOPICS = {n: t.type for n, t in TOPICS.items() if t.recorded and n.starts
 
 
 def qos_for(topic: str, type_name: str) -> Any:
+    """The QoS a topic is played with: its profile in the topic table when it is one of the suite's
+    (of that type), else the data profile for blocks and the command profile for the rest."""
     if topic == "/clock":
         return QOS_CLOCK
+    table = table_topic(topic)
+    if table is not None and table.type == normalise_type(type_name):
+        return QOS[table.qos]
     return QOS_DATA if type_name == F64A else QOS_COMMAND
+
+
+def table_topic(topic: str) -> Topic | None:
+    """The topic table's entry of an absolute topic name (``/left/estimate``: ``estimate``)."""
+    for name, t in TOPICS.items():
+        if topic == name or topic.endswith(f"/{name.lstrip('/')}"):
+            return t
+    return None
 
 
 #: Every topic but ``/clock`` is polled, never queued in the executor: each look takes at most so many

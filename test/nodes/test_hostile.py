@@ -22,6 +22,7 @@ import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
+from piezofin_msgs.msg import Estimate as EstimateMsg
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
@@ -29,7 +30,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from piezofin_ros.bags.blocks import Block
-from piezofin_ros.nodes._common import QOS_CLOCK, QOS_COMMAND, QOS_DATA, block_msg, msg_block
+from piezofin_ros.nodes._common import QOS_CLOCK, QOS_COMMAND, QOS_DATA, block_msg, msg_block, record_msg
 
 from ..rosutil import Graph, graph, start, start_driving_controller, stop
 
@@ -724,7 +725,7 @@ def test_a_speed_sensor_that_stops_or_lies_is_said_the_demand_stays_allowed_and_
         with graph() as g:
             node = g.add(rclpy.create_node("sensor", namespace=ns, context=g.context))
             speed = node.create_publisher(Float64, TOPIC_SPEED, QOS_COMMAND)
-            estimate = node.create_publisher(Float64MultiArray, TOPIC_ESTIMATE, QOS_DATA)
+            estimate = node.create_publisher(EstimateMsg, TOPIC_ESTIMATE, QOS_DATA)
             node.create_subscription(
                 Float64, TOPIC_DEMAND, lambda m: demands.append((now[0], m.data)), QOS_COMMAND
             )
@@ -734,13 +735,13 @@ def test_a_speed_sensor_that_stops_or_lies_is_said_the_demand_stays_allowed_and_
             g.spin_until(lambda: speed.get_subscription_count() >= 2, 30.0, "speed_loop and recorder")
             g.spin_until(lambda: bool(demands), 30.0, "a first demand")
             # the fin gives what holds 5 cm/s against the drag law (the estimator's self-sensed thrust)
-            fin = Block.from_record({"thrust_self_n": 1.49e-3})
+            fin = record_msg(EstimateMsg, {"thrust_self_n": 1.49e-3}, 1.0)
             for name, seconds, reading in phases:
                 now[0] = name
                 t_end, k = time.monotonic() + seconds, 0
                 while time.monotonic() < t_end:
                     if k % 10 == 0:
-                        estimate.publish(block_msg(fin))
+                        estimate.publish(fin)
                     r = reading(k)
                     if r is not None:
                         speed.publish(Float64(data=r))

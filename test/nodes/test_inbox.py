@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from piezofin_msgs.msg import Estimate as EstimateMsg
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Float64MultiArray
 
@@ -38,6 +39,7 @@ from piezofin_ros.nodes._common import (
     QOS_DATA,
     block_msg,
     msg_block,
+    record_msg,
 )
 
 from ..rosutil import graph, start, stop
@@ -70,11 +72,13 @@ def hostile_blocks(channels: tuple[str, ...]) -> list[Float64MultiArray]:
     return out
 
 
-def estimate_blocks() -> list[Float64MultiArray]:
+def estimate_msgs() -> list[EstimateMsg]:
+    """Hostile values in every field at once, and in one field of an otherwise plausible estimate."""
     names = Estimate.field_names()
-    out = []
-    for x in HOSTILE:
-        out.append(block_msg(Block.from_record(dict.fromkeys(names, x))))
+    out = [record_msg(EstimateMsg, dict.fromkeys(names, x), 1.0) for x in HOSTILE]
+    for name in ("thrust_self_n", "thrust_n", "power_w", "frequency_hz"):
+        for x in HOSTILE:
+            out.append(record_msg(EstimateMsg, {**dict.fromkeys(names, 1e-3), name: x}, 1.0))
     return out
 
 
@@ -101,11 +105,11 @@ ATTACKS = {
     },
     "speed_loop": {
         "swim_speed": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
-        "estimate": (Float64MultiArray, QOS_DATA, estimate_blocks()),
+        "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
     },
     "controller": {
         "thrust_demand": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
-        "estimate": (Float64MultiArray, QOS_DATA, estimate_blocks()),
+        "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
     },
 }
 ARGS = {
@@ -128,9 +132,7 @@ def test_no_message_kills_a_node_or_passes_its_door(exe: str, tmp_path: Path) ->
     try:
         with graph() as g:
             node = g.add(rclpy.create_node("attacker", namespace=ns, context=g.context))
-            node.create_subscription(
-                Float64MultiArray, "estimate", lambda m: heard.append(msg_block(m)), QOS_DATA
-            )
+            node.create_subscription(EstimateMsg, "estimate", lambda m: heard.append(msg_block(m)), QOS_DATA)
             pubs = {
                 topic: node.create_publisher(kind, topic, qos)
                 for topic, (kind, qos, _) in ATTACKS[exe].items()

@@ -697,7 +697,7 @@ def test_estimates_are_plottable_field_by_field(live: dict[str, Any]) -> None:
     thrust = series["/fin/estimate.thrust_n"]
     assert thrust == pytest.approx([e.thrust_n for e in live["estimates"]], rel=1e-12)
     assert stamps == pytest.approx([e.t_end for e in live["estimates"]], abs=1e-9)  # the fin's time
-    assert stamps[0] > 0 and all(b >= a for a, b in zip(stamps, stamps[1:], strict=False))
+    assert stamps[0] > 0 and all(b >= a for a, b in itertools.pairwise(stamps))
     assert len(series["/fin/cmd/frequency_hz"]) == live["recorded"]["/fin/cmd"]
 
 
