@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -19,9 +20,9 @@ from rclpy.experimental import EventsExecutor
 class Graph:
     """One rclpy context and one EventsExecutor; ``spin_until`` with a deadline."""
 
-    def __init__(self) -> None:
+    def __init__(self, domain_id: int | None = None) -> None:
         self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        rclpy.init(context=self.context, domain_id=domain_id)
         self.executor = EventsExecutor(context=self.context)
         self.nodes: list[Any] = []
 
@@ -56,12 +57,66 @@ class Graph:
 
 
 @contextmanager
-def graph() -> Iterator[Graph]:
-    g = Graph()
+def graph(domain_id: int | None = None) -> Iterator[Graph]:
+    """A :class:`Graph` in this process's DDS domain, or in ``domain_id`` (another test's ``ros_env``)."""
+    g = Graph(domain_id)
     try:
         yield g
     finally:
         g.close()
+
+
+def plotted(
+    env: dict[str, str], topics: Sequence[str], messages: int = 3, timeout: float = 60.0
+) -> dict[str, dict[str, list[tuple[float, float]]]]:
+    """What a generic plotter (PlotJuggler's ROS 2 topic source, with "use the header's stamp") makes
+    of ``topics`` in ``env``'s domain: each topic's type as the graph names it, a subscription of that
+    type (reliable, volatile: it matches any publisher), each message's numeric fields flattened into
+    series named by their path (``thrust_n``, ``header/stamp/sec``), each point at the message's
+    ``header.stamp`` (NaN without a header).  Returns ``{topic: {path: [(stamp s, value)]}}`` once each
+    topic gave ``messages`` messages."""
+    import importlib
+
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    def message_class(type_name: str) -> Any:  # ``pkg/msg/Name``, by its generated module
+        pkg, _, name = type_name.split("/")
+        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+    def flat(value: Any, path: str, out: dict[str, float]) -> None:  # by the type's own field list
+        if hasattr(value, "get_fields_and_field_types"):
+            for k in value.get_fields_and_field_types():
+                flat(getattr(value, k), f"{path}/{k}" if path else k, out)
+        elif isinstance(value, (list, tuple)) or getattr(value, "ndim", 0) == 1:
+            for i, v in enumerate(value):
+                flat(v, f"{path}[{i}]", out)
+        elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            out[path] = float(value)
+
+    series: dict[str, dict[str, list[tuple[float, float]]]] = {t: {} for t in topics}
+    counts = dict.fromkeys(topics, 0)
+    with graph(int(env.get("ROS_DOMAIN_ID", "0"))) as g:
+        node = g.add(rclpy.create_node("_plotter", context=g.context))
+        g.spin_until(
+            lambda: set(topics) <= {n for n, _ in node.get_topic_names_and_types()}, timeout, "the topics"
+        )
+        types = dict(node.get_topic_names_and_types())
+
+        def take(topic: str, msg: Any) -> None:
+            fields: dict[str, float] = {}
+            flat(msg, "", fields)
+            stamp = fields.get("header/stamp/sec", math.nan) + fields.get("header/stamp/nanosec", 0.0) * 1e-9
+            for path, value in fields.items():
+                series[topic].setdefault(path, []).append((stamp, value))
+            counts[topic] += 1
+
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        for t in topics:
+            node.create_subscription(message_class(types[t][0]), t, lambda m, t=t: take(t, m), qos)
+        g.spin_until(
+            lambda: all(n >= messages for n in counts.values()), timeout, f"{messages} messages each"
+        )
+    return series
 
 
 def assert_quiet_domain(

@@ -29,6 +29,13 @@ from piezofin_ros.physics.steady import harmonic_balance
 
 from ..rosutil import graph
 
+
+def rclpy_node(name: str, g: Any) -> Any:
+    import rclpy
+
+    return rclpy.create_node(name, context=g.context)
+
+
 pytestmark = pytest.mark.ros
 
 T0 = 1000.0  # simulated start time, far from the wall clock: a wall-clock stamp would show
@@ -571,8 +578,40 @@ def test_player_offers_every_topic_before_its_first_message(tmp_path: Any) -> No
     finally:
         os.chdir(cwd)
     assert player.published == {}  # nothing played yet (rate 0.01) ...
-    for topic in ("/fin/drive", "/fin/tip_velocity", "/fin/loadcell", "/fin/cmd", "/fin/estimate"):
+    for topic in ("/fin/drive", "/fin/tip_velocity", "/fin/loadcell", "/fin/cmd"):
         assert names[topic] == ["std_msgs/msg/Float64MultiArray"], topic  # ... and every topic offered
+    assert names["/fin/estimate"] == ["piezofin_msgs/msg/Estimate"]  # (this older bag's blocks, named)
+
+
+def test_an_older_bags_estimates_play_as_the_named_message() -> None:
+    """The sample bag holds its estimates as ``Float64MultiArray`` blocks (recorded before they were
+    named): the player plays each as a ``piezofin_msgs/Estimate`` with the same values, stamped at its
+    window's end, and says so once; today's controller and speed loop hear them."""
+    from piezofin_msgs.msg import Estimate as EstimateMsg
+
+    from piezofin_ros.nodes._common import QOS_ESTIMATE, msg_block
+
+    sample = "bags/sample_M8528-P1.mcap"
+    recorded = [block_of(m.type_name, m.data).as_dict() for m in read_messages(sample, ["/fin/estimate"])]
+    assert len(recorded) >= 3
+    heard: list[Any] = []
+    with graph() as g:
+        listener = g.add(rclpy_node("listener", g))
+        listener.create_subscription(EstimateMsg, "/fin/estimate", heard.append, QOS_ESTIMATE)
+        player = g.add(
+            Player(
+                context=g.context,
+                parameter_overrides=params(bag=sample, rate=100.0, topics=["/fin/estimate"]),
+            )
+        )
+        g.spin_until(lambda: player.done and len(heard) >= len(recorded), 30.0, "the estimates played")
+    for m, old in zip(heard, recorded, strict=True):  # the older block's fields, the rest NaN
+        named = msg_block(m).as_dict()
+        assert {k: named[k] for k in old} == pytest.approx(old, nan_ok=True)
+        assert all(math.isnan(v) for k, v in named.items() if k not in old)
+    assert [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in heard] == pytest.approx(
+        [r["t_end"] for r in recorded], abs=1e-9
+    )
 
 
 def test_doubles_stay_doubles_and_every_parameter_says_what_it_is() -> None:

@@ -8,6 +8,7 @@ Without either, these tests are skipped with one line saying why.
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import signal
@@ -18,10 +19,33 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ..rosutil import Launch, assert_quiet_domain, node_list, ros2
+from ..rosutil import Launch, assert_quiet_domain, node_list, plotted, ros2
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
+
+
+#: what a person plots of a fin, each a field of ``/fin/estimate`` by its name: the thrust of each source,
+#: each watt, the thrust per each watt, the drive's frequency, voltage and current, the tip's velocity
+PLOTTED = (
+    "thrust_n",
+    "thrust_self_n",
+    "thrust_loadcell_n",
+    "power_w",
+    "power_apparent_w",
+    "power_supply_w",
+    "power_supply_measured_w",
+    "thrust_per_watt",
+    "thrust_per_watt_self",
+    "thrust_per_watt_supply",
+    "thrust_per_watt_self_supply_measured",
+    "frequency_hz",
+    "voltage_pp",
+    "current_rms",
+    "tip_velocity_rms",
+    "tip_velocity_rms_self",
+    "swim_speed_m_s",
+)
 
 
 def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
@@ -41,6 +65,17 @@ def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
         assert suite <= set(direct.stdout.split()), direct.stdout + direct.stderr
         nodes = node_list(ros_env, suite)
         assert suite <= nodes, nodes
+        # the estimate as a plotter sees it: every quantity by its name, stamped in the fin's time
+        echoed = ros2(ros_env, "topic", "echo", "--once", "/fin/estimate", "--field", "thrust_self_n")
+        assert float(echoed.stdout.split()[0]) > 0.0, echoed.stdout + echoed.stderr
+        series = plotted(ros_env, ["/fin/estimate"], messages=3)["/fin/estimate"]
+        for name in PLOTTED:
+            assert name in series, (name, sorted(series))
+        stamps = [t for t, _ in series["thrust_n"]]
+        assert stamps == [v for _, v in series["t_end"]], stamps  # the window's end, in the fin's time
+        assert stamps[0] > 0 and all(b > a for a, b in itertools.pairwise(stamps)), stamps
+        clock = ros2(ros_env, "topic", "echo", "--once", "/clock", "--field", "clock.sec").stdout
+        assert abs(float(clock.split()[0]) - stamps[-1]) < 30.0, (clock, stamps)  # fin time, not wall time
         info = ros2(ros_env, "topic", "info", "-v", "/fin/drive", "--spin-time", "3").stdout
         assert "RELIABLE" in info and "Publisher count: 1" in info, info
         state = ros2(ros_env, "lifecycle", "get", "/fin/fin_sim", "--spin-time", "3")
