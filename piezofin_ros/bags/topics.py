@@ -59,7 +59,7 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_SUPPLY, F64A, "data", "fin_sim, or a driver with a supply meter"),
         Topic(TOPIC_CMD, F64A, "command", "controller"),
         Topic(TOPIC_ESTIMATE, ESTIMATE, "estimate", "thrust_estimator"),
-        Topic(TOPIC_SPEED, F64, "command", "fin_sim with a body, or a fish driver"),
+        Topic(TOPIC_SPEED, F64, "data", "fin_sim with a body, or a fish driver"),
         Topic(TOPIC_STATUS, STRING, "status", "controller"),
         Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),
         Topic(
