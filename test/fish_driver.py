@@ -2,7 +2,8 @@
 ``fin_sim``, in a process of its own, at real time.
 
 It obeys ``cmd`` (frequency, peak-to-peak voltage, on), and publishes ``drive`` (its voltage and
-current monitors), ``swim_speed`` and ``battery`` (``sensor_msgs/BatteryState``) in its namespace.
+current monitors, a ``piezofin_msgs/Drive``: each block of samples with their times, stamped at the
+first), ``swim_speed`` and ``battery`` (``sensor_msgs/BatteryState``) in its namespace.
 Nothing of it is what the stack is told: the fin is the nominal M8528-P1 (the stack's prior is the
 paper's twin), the amplifier is another switching one (70 % efficient, none recovered, 0.12 W
 quiescent), the body has a linear drag term besides the quadratic one and a speed sensor with a
@@ -19,12 +20,13 @@ import sys
 
 import numpy as np
 import rclpy
+from piezofin_msgs.msg import Drive
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Float64MultiArray
 
-from piezofin_ros.bags.blocks import COMMAND_FIELDS, Block
-from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
+from piezofin_ros.bags.blocks import COMMAND_FIELDS
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, msg_block
 from piezofin_ros.physics.amplifier import SwitchingAmplifier
 from piezofin_ros.physics.fin import load_fin
 from piezofin_ros.rig.simulated import SimulatedRig
@@ -50,7 +52,7 @@ class FishDriver(Node):
         self.last_battery = -math.inf
         self.commands: list[tuple[float, float, float]] = []
         self.truth: list[str] = []
-        self.drive = self.create_publisher(Float64MultiArray, "drive", QOS_DATA)
+        self.drive = self.create_publisher(Drive, "drive", QOS_DATA)
         self.speed_pub = self.create_publisher(Float64, "swim_speed", QOS_COMMAND)
         self.battery = self.create_publisher(BatteryState, "battery", QOS_COMMAND)
         self.create_subscription(Float64MultiArray, "cmd", self.on_cmd, QOS_COMMAND)
@@ -73,7 +75,9 @@ class FishDriver(Node):
             b = self.rig.step(BLOCK)
             self.samples += BLOCK
             t = self.t0 + b.t  # (the rig's time from 0: the drive's samples in ROS time)
-            self.drive.publish(block_msg(Block.from_columns(t_s=t, voltage_V=b.voltage, current_A=b.current)))
+            drive = Drive(t_s=t.tolist(), voltage_v=b.voltage.tolist(), current_a=b.current.tolist())
+            drive.header.stamp.sec, drive.header.stamp.nanosec = int(t[0]), round((t[0] % 1) * 1e9) % 10**9
+            self.drive.publish(drive)
             thrust = float(np.mean(b.thrust_true))
             drag = DRAG_QUAD * self.speed * abs(self.speed) + DRAG_LIN * self.speed
             self.speed += (thrust - drag) / MASS_KG * BLOCK / RATE_HZ

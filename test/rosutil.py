@@ -66,6 +66,14 @@ def graph(domain_id: int | None = None) -> Iterator[Graph]:
         g.close()
 
 
+def data_type(topic: str) -> Any:
+    """The message class of the suite's topic ``topic`` (``drive``, ``/fish/drive``, ...), as the topic
+    table declares it."""
+    from piezofin_ros.nodes._common import endpoint
+
+    return endpoint(topic.rsplit("/", 1)[-1])[0]
+
+
 def plotted(
     env: dict[str, str], topics: Sequence[str], messages: int = 3, timeout: float = 60.0
 ) -> dict[str, dict[str, list[tuple[float, float]]]]:

@@ -202,13 +202,16 @@ def check_samples(block: Block, channels: Sequence[str]) -> Block:
     return Block(tuple(channels), np.stack([block[c] for c in channels]))
 
 
-def sample_span(data: bytes) -> tuple[float, float, int] | None:
+def sample_span(data: bytes, named: bool = False) -> tuple[float, float, int] | None:
     """``(first t_s, last t_s, samples)`` of a serialised (CDR) block whose first channel is ``t_s``,
-    read from the bytes without decoding the block (a recorder looks at every block it writes);
+    read from the bytes without decoding the block (a recorder looks at every block it writes): a
+    ``Float64MultiArray`` block, or with ``named`` a named message of samples (a header, then ``t_s``);
     ``None`` for anything else (another layout, a command, garbage)."""
+    if data[:2] != b"\x00\x01":  # little-endian CDR (what every ROS 2 middleware here writes)
+        return None
+    if named:
+        return _named_span(data)
     try:
-        if data[:2] != b"\x00\x01":  # little-endian CDR (what every ROS 2 middleware here writes)
-            return None
         off = 4
         (ndim,) = struct.unpack_from("<I", data, off)
         off += 4
@@ -243,21 +246,73 @@ def sample_span(data: bytes) -> tuple[float, float, int] | None:
     return t0, t1, n
 
 
-def record_fields(msg: Any) -> dict[str, float]:
-    """The named values of a message of the project's own (every field but its header), as a record."""
+#: The channel each field of a named message (``piezofin_msgs``) holds: a message's fields are lower case
+#: (``voltage_v``), the channels name their unit as it is written (``voltage_V``).
+CHANNEL_OF_FIELD = {
+    c.lower(): c
+    for c in (*DRIVE_CHANNELS, *TIP_CHANNELS, *LOADCELL_CHANNELS, *SUPPLY_CHANNELS, *COMMAND_FIELDS)
+}
+
+
+def field_of(channel: str) -> str:
+    """The field of a named message that holds ``channel`` (``voltage_V``: ``voltage_v``)."""
+    return channel.lower()
+
+
+def _named_span(data: bytes) -> tuple[float, float, int] | None:
+    """:func:`sample_span` of a named message of samples: ``std_msgs/Header`` (stamp, frame_id), then
+    ``float64[] t_s``."""
+    try:
+        off = 4 + 8  # the encapsulation, then the stamp's sec and nanosec
+        (length,) = struct.unpack_from("<I", data, off)
+        off = 4 + ((off + 4 + length - 4 + 3) & ~3)  # frame_id, aligned to 4
+        (n,) = struct.unpack_from("<I", data, off)
+        off = 4 + ((off + 4 - 4 + 7) & ~7)  # the doubles, aligned to 8
+        if n < 1:
+            return None
+        t0, t1 = struct.unpack_from("<d", data, off)[0], struct.unpack_from("<d", data, off + 8 * (n - 1))[0]
+    except struct.error:
+        return None
+    if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
+        return None
+    return t0, t1, n
+
+
+def message_fields(msg: Any) -> dict[str, Any]:
+    """The fields of a message of the project's own (``piezofin_msgs``, as rclpy or rosbags decodes it)
+    but its header, by name."""
     if dataclasses.is_dataclass(msg):  # rosbags' (its __msgtype__ is no field of the message)
         names = [f.name for f in dataclasses.fields(msg) if not f.name.startswith("_")]
     else:  # rclpy's
         names = list(msg.get_fields_and_field_types())
-    return {n: float(getattr(msg, n)) for n in names if n != "header"}
+    return {n: getattr(msg, n) for n in names if n != "header"}
 
 
-def record_block(record: dict[str, float], expect: tuple[str, ...] | None = None) -> Block:
-    """A named message's record as a one-sample block, with ``expect``'s names present."""
-    missing = [c for c in expect or () if c not in record]
+def message_block(msg: Any, expect: Sequence[str] | None = None) -> Block:
+    """A named message as a :class:`Block`: a block of samples (a ``float64[]`` field per channel, each
+    as long as the others) or, of scalar fields, a one-sample block (an estimate); the channels named
+    as the blocks name them, ``expect``'s present.  Raises :class:`BlockFormatError` with the reason."""
+    fields = message_fields(msg)
+    arrays = {n: v for n, v in fields.items() if not isinstance(v, (int, float))}
+    if arrays and len(arrays) != len(fields):
+        raise BlockFormatError(f"a message of samples and single values mixed: {', '.join(fields)}")
+    if arrays:
+        columns = {}
+        for name, value in arrays.items():
+            a = np.frombuffer(value, dtype=float) if isinstance(value, (bytes, memoryview)) else value
+            columns[CHANNEL_OF_FIELD.get(name, name)] = np.asarray(a, dtype=float)
+        sizes = {c: a.size for c, a in columns.items()}
+        if sum(sizes.values()) > MAX_VALUES:
+            raise BlockFormatError(f"{sum(sizes.values())} values exceed the limit of {MAX_VALUES}")
+        if len(set(sizes.values())) > 1:
+            raise BlockFormatError(f"its fields differ in length: {sizes}")
+        block = Block.from_columns(**columns)
+    else:
+        block = Block.from_record({CHANNEL_OF_FIELD.get(n, n): float(v) for n, v in fields.items()})
+    missing = [c for c in expect or () if c not in block.names]
     if missing:
-        raise BlockFormatError(f"missing field(s) {', '.join(missing)} (has {', '.join(record)})")
-    return Block.from_record(record)
+        raise BlockFormatError(f"missing field(s) {', '.join(missing)} (has {', '.join(block.names)})")
+    return block
 
 
 def stamp_of(seconds: float) -> tuple[int, int]:

@@ -54,8 +54,10 @@ class GapWatch:
         self.lost: dict[str, int] = {}  # topic -> samples in holes
         self.holes: dict[str, int] = {}  # topic -> holes
 
-    def see(self, topic: str, data: bytes) -> Gap | None:
-        span = sample_span(data)
+    def see(self, topic: str, data: bytes, named: bool = False) -> Gap | None:
+        """The hole this block (its CDR bytes; ``named``: a named message of samples, else a
+        ``Float64MultiArray`` block) makes in its stream, if any."""
+        span = sample_span(data, named)
         if span is None:
             return None
         t0, t1, n = span

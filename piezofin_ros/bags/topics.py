@@ -32,8 +32,12 @@ TOPIC_DIAGNOSTICS = "/diagnostics"
 F64A = "std_msgs/msg/Float64MultiArray"
 F64 = "std_msgs/msg/Float64"
 STRING = "std_msgs/msg/String"
-#: The estimate, named and stamped (piezofin_ros/msg/Estimate.msg); bags before it hold F64A blocks
+#: The project's own messages, named and stamped (piezofin_ros/msg/): bags before them hold F64A blocks
 ESTIMATE = "piezofin_msgs/msg/Estimate"
+DRIVE = "piezofin_msgs/msg/Drive"
+TIP = "piezofin_msgs/msg/TipVelocity"
+LOADCELL = "piezofin_msgs/msg/Loadcell"
+SUPPLY = "piezofin_msgs/msg/Supply"
 
 
 @dataclass(frozen=True)
@@ -53,10 +57,10 @@ class Topic:
 TOPICS: dict[str, Topic] = {
     t.name: t
     for t in (
-        Topic(TOPIC_DRIVE, F64A, "data", "fin_sim, or a rig or fish driver"),
-        Topic(TOPIC_TIP, F64A, "data", "fin_sim, or a rig driver with a vibrometer"),
-        Topic(TOPIC_LOADCELL, F64A, "data", "fin_sim, or a rig driver with a load cell"),
-        Topic(TOPIC_SUPPLY, F64A, "data", "fin_sim, or a driver with a supply meter"),
+        Topic(TOPIC_DRIVE, DRIVE, "data", "fin_sim, or a rig or fish driver"),
+        Topic(TOPIC_TIP, TIP, "data", "fin_sim, or a rig driver with a vibrometer"),
+        Topic(TOPIC_LOADCELL, LOADCELL, "data", "fin_sim, or a rig driver with a load cell"),
+        Topic(TOPIC_SUPPLY, SUPPLY, "data", "fin_sim, or a driver with a supply meter"),
         Topic(TOPIC_CMD, F64A, "command", "controller"),
         Topic(TOPIC_ESTIMATE, ESTIMATE, "estimate", "thrust_estimator"),
         Topic(TOPIC_SPEED, F64, "data", "fin_sim with a body, or a fish driver"),

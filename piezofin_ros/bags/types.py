@@ -11,7 +11,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from ..errors import BagError
-from .blocks import Block, from_layout, record_block, record_fields
+from .blocks import Block, from_layout, message_block
 
 _TYPESTORE: Any = None
 
@@ -38,8 +38,8 @@ def typestore() -> Any:
 
 
 def is_record_type(type_name: str) -> bool:
-    """Whether ``type_name`` is one of the project's own named, stamped messages (a header and named
-    ``float64`` fields), which :func:`block_of` reads as a one-sample block."""
+    """Whether ``type_name`` is one of the project's own named, stamped messages (a header and a field
+    per channel: ``float64`` values, or ``float64[]`` samples), which :func:`block_of` reads as a block."""
     return normalise_type(type_name).startswith(f"{OWN_PACKAGE}/")
 
 
@@ -80,6 +80,6 @@ def block_of(type_name: str, data: bytes, expect: tuple[str, ...] | None = None)
     of each named field), into a :class:`~piezofin_ros.bags.blocks.Block`."""
     msg = decode(type_name, data)
     if is_record_type(type_name):
-        return record_block(record_fields(msg), expect)
+        return message_block(msg, expect)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
     return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))

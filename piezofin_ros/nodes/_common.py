@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import array
 import collections
 import contextlib
 import copy
@@ -17,6 +18,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
+import numpy as np
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
@@ -26,7 +28,15 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ..bags.blocks import Block, check_samples, from_layout, record_block, record_fields, stamp_of, to_layout
+from ..bags.blocks import (
+    CHANNEL_OF_FIELD,
+    Block,
+    check_samples,
+    from_layout,
+    message_block,
+    stamp_of,
+    to_layout,
+)
 from ..config import settings_of
 from ..errors import NodeError, PiezofinError
 
@@ -117,24 +127,46 @@ def block_msg(block: Block) -> Float64MultiArray:
 
 
 def msg_block(msg: Any, expect: Sequence[str] | None = None) -> Block:
-    """Decode a ``Float64MultiArray``, or a named message of the project's own (one sample of each
-    field but its header); raises ``BlockFormatError`` with the reason."""
+    """Decode a ``Float64MultiArray``, or a named message of the project's own (a field per channel:
+    samples, or single values); raises ``BlockFormatError`` with the reason."""
     if not isinstance(msg, Float64MultiArray):
-        return record_block(record_fields(msg), tuple(expect) if expect is not None else None)
+        return message_block(msg, expect)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
     return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
 
 
-def record_msg(msg_type: Any, record: dict[str, float], stamp_s: float) -> Any:
-    """A named message of the project's own (``piezofin_msgs``) holding ``record`` field by field, its
-    ``header.stamp`` at ``stamp_s`` in the fin's time; a field the record lacks is NaN (the message's
-    "the data cannot give it")."""
+def named_msg(msg_type: Any, block: Block, stamp_s: float | None = None) -> Any:
+    """A named message of the project's own (``piezofin_msgs``) holding ``block``: a ``float64[]`` field
+    per channel (every one the message has must be in the block), or a ``float64`` field per value of
+    a one-sample block (NaN where the block lacks it: the message's "the data cannot give it").  Its
+    ``header.stamp`` is ``stamp_s`` in the fin's time, by default the first sample's ``t_s``."""
     msg = msg_type()
+    if stamp_s is None:
+        stamp_s = float(block["t_s"][0]) if "t_s" in block.names and block.n else math.nan
     msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_of(stamp_s)
-    for name in msg_type.get_fields_and_field_types():
-        if name != "header":
-            setattr(msg, name, float(record.get(name, math.nan)))
+    names = block.names
+    for name, kind in msg_type.get_fields_and_field_types().items():
+        if name == "header":
+            continue
+        channel = CHANNEL_OF_FIELD.get(name, name)
+        if kind.startswith("sequence<"):
+            samples = array.array("d")
+            samples.frombytes(np.ascontiguousarray(block[channel], dtype=float).tobytes())
+            setattr(msg, name, samples)
+        else:
+            setattr(msg, name, float(block.scalar(channel)) if channel in names else math.nan)
     return msg
+
+
+def sample_msg(topic: str, block: Block) -> Any:
+    """The message of the suite's sampled ``topic`` (``drive``, ``tip_velocity``, ``loadcell``,
+    ``supply``: its type in the topic table) holding ``block``, stamped at its first sample."""
+    return named_msg(endpoint(topic)[0], block)
+
+
+def record_msg(msg_type: Any, record: dict[str, float], stamp_s: float) -> Any:
+    """A one-sample named message (an estimate) holding ``record`` by name (:func:`named_msg`)."""
+    return named_msg(msg_type, Block.from_record(record), stamp_s)
 
 
 # --------------------------------------------------------------------------------- parameters

@@ -81,11 +81,11 @@ from ._common import (
     TOPIC_TIP,
     Inbox,
     StartupError,
-    block_msg,
     declare,
     endpoint,
     freeze_parameters,
     msg_block,
+    named_msg,
     run_node,
 )
 from ._diagnostics import ERROR, OK, STALE, WARN, Diagnostics, Report
@@ -592,7 +592,8 @@ class FinSim(LifecycleNode):
             ),
         }
         for topic, block in blocks.items():
-            self._pubs[topic].publish(block_msg(block))  # type: ignore[attr-defined]
+            pub = self._pubs[topic]
+            pub.publish(named_msg(pub.msg_type, block))  # type: ignore[attr-defined]
             self.published[topic] += n
         self.blocks_published += 1
         if self._swimmer is not None:

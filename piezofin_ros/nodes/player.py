@@ -1,9 +1,9 @@
 """``player``: replay an MCAP bag with its original timing, a rate factor, topic selection, ``/clock``.
 
 Messages are published as the serialised bytes stored in the bag (no decode), but for the blocks of
-an older bag where the suite's topic is a named message now (an ``estimate`` recorded as a
-``std_msgs/Float64MultiArray``): each is played as the named message, so today's nodes hear it.  Pacing uses a
-steady clock: bag time ``t_bag0 + rate * (steady - steady0)``.  With ``publish_clock`` the node
+an older bag where the suite's topic is a named message now (a ``drive`` or an ``estimate`` recorded
+as a ``std_msgs/Float64MultiArray``): each is played as the named message, so today's nodes hear it.
+Pacing uses a steady clock: bag time ``t_bag0 + rate * (steady - steady0)``.  With ``publish_clock`` the node
 publishes that bag time on ``/clock`` (the bag's own ``/clock`` is not replayed), so nodes
 with ``use_sim_time`` follow the recording.  An unreadable file gives one error line naming it;
 a file damaged part-way is played up to the damage, which is then reported.
@@ -34,7 +34,7 @@ from ._common import (
     endpoint,
     freeze_parameters,
     message_class,
-    record_msg,
+    named_msg,
     run_node,
 )
 from .recorder import qos_for, table_topic
@@ -132,11 +132,12 @@ class Player(Node):
                 pub = self._publisher(m)
                 if pub is not None and m.topic in self._upgraded:
                     try:
-                        record = block_of(m.type_name, m.data).as_dict()
+                        block = block_of(m.type_name, m.data)
                     except ValueError as exc:  # (MessageError, BlockFormatError: a block it cannot read)
                         self.get_logger().warning(f"not playing a message of {m.topic}: {exc}", once=True)
                         continue
-                    pub.publish(record_msg(self._upgraded[m.topic], record, record.get("t_end", 0.0)))
+                    stamp = block.scalar("t_end") if "t_end" in block.names else None  # (an estimate's)
+                    pub.publish(named_msg(self._upgraded[m.topic], block, stamp))
                     self.published[m.topic] = self.published.get(m.topic, 0) + 1
                 elif pub is not None:
                     pub.publish(m.data)

@@ -36,6 +36,7 @@ from std_msgs.msg import String
 from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
 from ..bags.gaps import Gap, GapWatch
 from ..bags.topics import F64, F64A, SAMPLED, STRING, TOPICS, Topic
+from ..bags.types import is_record_type
 from ..config import setting
 from ._common import (
     QOS,
@@ -331,7 +332,7 @@ class Recorder(Node):
             self.bag.add_topic(topic, self._types[topic], qos)
         self.bag.write(topic, time_ns, data)
         if topic in self._sampled:
-            gap = self.gaps.see(topic, data)
+            gap = self.gaps.see(topic, data, named=is_record_type(self._types[topic]))
             if gap is not None:
                 self._keep_gap(gap, time_ns)
         if self.plot_fields and topic in self._plot:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from rclpy.context import Context
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64, Float64MultiArray
+from std_msgs.msg import Float64
 
 from ..bags.blocks import (
     DRIVE_CHANNELS,
@@ -127,7 +127,7 @@ class ThrustEstimator(Node):
             (TOPIC_LOADCELL, self._on_loadcell, LOADCELL_CHANNELS),
             (TOPIC_SUPPLY, self._on_supply, SUPPLY_CHANNELS),
         ):
-            inbox.polled(Float64MultiArray, topic, handler, samples(channels), depth=500, most=BLOCKS_A_LOOK)
+            inbox.polled(endpoint(topic)[0], topic, handler, samples(channels), depth=500, most=BLOCKS_A_LOOK)
         # the newest speed only, polled: a flood of it costs one reading per look (it starved the drive's)
         inbox.latest(Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s"))
         inbox.polled(BatteryState, TOPIC_BATTERY, self._on_battery, battery_reading, depth=50, most=10)

@@ -15,8 +15,8 @@ import rclpy
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import IncludeLaunchDescription
 from launch.launch_description_sources import PythonLaunchDescriptionSource
+from piezofin_msgs.msg import Drive, Estimate
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64MultiArray
 
 NAMESPACES = ("left", "right")
 
@@ -59,13 +59,13 @@ class TestTwoFins(unittest.TestCase):
         for ns in NAMESPACES:
 
             def on_drive(msg, ns=ns):
-                first_times[ns].append(round(msg.data[0], 6))  # t_s of the block's first sample
+                first_times[ns].append(round(msg.t_s[0], 6))  # the block's first sample
 
             def on_estimate(msg, ns=ns):
                 estimates[ns] += 1
 
-            subs.append(self.node.create_subscription(Float64MultiArray, f"/{ns}/drive", on_drive, qos))
-            subs.append(self.node.create_subscription(Float64MultiArray, f"/{ns}/estimate", on_estimate, qos))
+            subs.append(self.node.create_subscription(Drive, f"/{ns}/drive", on_drive, qos))
+            subs.append(self.node.create_subscription(Estimate, f"/{ns}/estimate", on_estimate, qos))
         # estimates from both fins (the first trial ends after ~20 s of fin time, ~2 s of wall time)
         self.spin(120.0, until=lambda: all(estimates.values()))
         assert all(estimates.values()), f"estimates per fin: {estimates}"

@@ -20,7 +20,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, block_msg, msg_block
 
-from ..rosutil import BIN, graph, start, start_driving_controller, stop
+from ..rosutil import BIN, data_type, graph, start, start_driving_controller, stop
 
 pytestmark = pytest.mark.ros
 
@@ -40,7 +40,7 @@ def test_no_drops_at_the_default_rate_for_10_s() -> None:
             node = g.add(rclpy.create_node("counter", namespace="xp", context=g.context))
             for topic, store in blocks.items():
                 node.create_subscription(
-                    Float64MultiArray, topic, lambda m, s=store: s.append(msg_block(m)), QOS_DATA
+                    data_type(topic), topic, lambda m, s=store: s.append(msg_block(m)), QOS_DATA
                 )
             cmd = node.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
             change = node.create_client(ChangeState, "fin_sim/change_state")
@@ -207,7 +207,7 @@ def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Pat
         with graph() as g:
             node = g.add(rclpy.create_node("watcher", namespace="kill", context=g.context))
             node.create_subscription(
-                Float64MultiArray,
+                data_type("drive"),
                 "drive",
                 lambda m: seen.append((time.time(), float(msg_block(m)["t_s"][-1]))),
                 QOS_DATA,
@@ -258,7 +258,7 @@ def _drive_then_kill_the_controller(timeout_s: float) -> tuple[np.ndarray, np.nd
         with graph() as g:
             node = g.add(rclpy.create_node("watcher", namespace="wd", context=g.context))
             node.create_subscription(
-                Float64MultiArray, "drive", lambda m: drive.append(msg_block(m)), QOS_DATA
+                data_type("drive"), "drive", lambda m: drive.append(msg_block(m)), QOS_DATA
             )
 
             def peak() -> float:

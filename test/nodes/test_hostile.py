@@ -32,7 +32,7 @@ from std_msgs.msg import Float64MultiArray
 from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_CLOCK, QOS_COMMAND, QOS_DATA, block_msg, msg_block, record_msg
 
-from ..rosutil import Graph, graph, start, start_driving_controller, stop
+from ..rosutil import Graph, data_type, graph, start, start_driving_controller, stop
 
 pytestmark = pytest.mark.ros
 QUIET = 8.0  # V: 1 % of the 800 Vpp drive's amplitude (400 V)
@@ -51,7 +51,7 @@ class Witness:
     def __post_init__(self) -> None:
         self.node = self.g.add(rclpy.create_node("attacker", namespace=self.ns, context=self.g.context))
         self.node.create_subscription(
-            Float64MultiArray,
+            data_type("drive"),
             "drive",
             lambda m: self.blocks.append((time.monotonic(), msg_block(m))),
             QOS_DATA,

@@ -12,16 +12,18 @@ a number that came from them.
 
 from __future__ import annotations
 
+import array
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import rclpy
 from piezofin_msgs.msg import Estimate as EstimateMsg
 from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64, Float64MultiArray
+from std_msgs.msg import Float64
 
 from piezofin_ros.bags.blocks import (
     CHANNEL_MOST,
@@ -30,6 +32,7 @@ from piezofin_ros.bags.blocks import (
     SUPPLY_CHANNELS,
     TIP_CHANNELS,
     Block,
+    field_of,
 )
 from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.nodes._common import (
@@ -37,12 +40,12 @@ from piezofin_ros.nodes._common import (
     BATTERY_MOST_V,
     QOS_COMMAND,
     QOS_DATA,
-    block_msg,
     msg_block,
     record_msg,
+    sample_msg,
 )
 
-from ..rosutil import graph, start, stop
+from ..rosutil import data_type, graph, start, stop
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -50,25 +53,31 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 HOSTILE = [1e308, -1e308, math.inf, -math.inf, 1e155, 1.3e155, 1e300, -1e300, 1e30]
 
 
-def block(channels: tuple[str, ...], value: float, n: int = 50, t0: float = 0.0) -> Float64MultiArray:
+def block(topic: str, channels: tuple[str, ...], value: float, n: int = 50, t0: float = 0.0) -> Any:
     t = t0 + np.arange(n) * 1e-3
     cols = {c: (t if c == "t_s" else np.full(n, value)) for c in channels}
-    return block_msg(Block.from_columns(**cols))
+    return sample_msg(topic, Block.from_columns(**cols))
 
 
-def hostile_blocks(channels: tuple[str, ...]) -> list[Float64MultiArray]:
-    out = [block(channels, x) for x in HOSTILE]
+def hostile_blocks(topic: str, channels: tuple[str, ...]) -> list[Any]:
+    """Values no reading holds (the largest doubles, infinities, just beyond each channel's range), and
+    the shapes no block has: fields of unequal length, no sample, times that do not increase or are
+    not finite, a block of 200k values."""
+    out = [block(topic, channels, x) for x in HOSTILE]
     for c in channels[1:]:  # just beyond each channel's range, one channel at a time
         most = CHANNEL_MOST[c]
         cols = {k: (np.arange(50) * 1e-3 if k == "t_s" else np.zeros(50)) for k in channels}
         cols[c] = np.full(50, 1.5 * most)
-        out.append(block_msg(Block.from_columns(**cols)))
-    wrong = block(channels, 1.0)
-    wrong.layout.dim[0].label = "voltage_mV"  # a label that is not the contract's
-    out.append(wrong)
-    big = Float64MultiArray()  # a 200k-value block with no layout
-    big.data = [1e300] * 200_000
-    out.append(big)
+        out.append(sample_msg(topic, Block.from_columns(**cols)))
+    uneven = block(topic, channels, 1e-3)
+    setattr(uneven, field_of(channels[-1]), array.array("d", [1e-3] * 49))
+    out.append(uneven)
+    out.append(block(topic, channels, 1e-3, n=0))
+    for t in ([0.0, 0.0, 1e-3], [0.0, math.nan, 2e-3], [0.0, math.inf, 2e-3], [2e-3, 1e-3, 0.0]):
+        m = block(topic, channels, 1e-3, n=3)
+        m.t_s = array.array("d", t)
+        out.append(m)
+    out.append(block(topic, channels, 1e300, n=200_000 // len(channels)))
     return out
 
 
@@ -97,10 +106,10 @@ def battery_states() -> list[BatteryState]:
 ATTACKS = {
     "thrust_estimator": {
         "swim_speed": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
-        "drive": (Float64MultiArray, QOS_DATA, hostile_blocks(DRIVE_CHANNELS)),
-        "tip_velocity": (Float64MultiArray, QOS_DATA, hostile_blocks(TIP_CHANNELS)),
-        "loadcell": (Float64MultiArray, QOS_DATA, hostile_blocks(LOADCELL_CHANNELS)),
-        "supply": (Float64MultiArray, QOS_DATA, hostile_blocks(SUPPLY_CHANNELS)),
+        "drive": (data_type("drive"), QOS_DATA, hostile_blocks("drive", DRIVE_CHANNELS)),
+        "tip_velocity": (data_type("tip_velocity"), QOS_DATA, hostile_blocks("tip_velocity", TIP_CHANNELS)),
+        "loadcell": (data_type("loadcell"), QOS_DATA, hostile_blocks("loadcell", LOADCELL_CHANNELS)),
+        "supply": (data_type("supply"), QOS_DATA, hostile_blocks("supply", SUPPLY_CHANNELS)),
         "battery": (BatteryState, QOS_COMMAND, battery_states()),
     },
     "speed_loop": {
@@ -161,7 +170,9 @@ def test_no_message_kills_a_node_or_passes_its_door(exe: str, tmp_path: Path) ->
                     t = k * 0.05 + np.arange(50) * 1e-3
                     v = 200.0 * np.sin(2 * np.pi * 5 * t)
                     i = 1e-5 * np.cos(2 * np.pi * 5 * t)
-                    pubs["drive"].publish(block_msg(Block.from_columns(t_s=t, voltage_V=v, current_A=i)))
+                    pubs["drive"].publish(
+                        sample_msg("drive", Block.from_columns(t_s=t, voltage_V=v, current_A=i))
+                    )
                     pubs["swim_speed"].publish(Float64(data=0.05))
                     g.spin_for(0.02)
                 # its estimates, as soon as they come: behind the attack's 1.6 MB blocks, on CI's loaded

@@ -11,16 +11,16 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import rclpy
-from std_msgs.msg import Float64MultiArray
 
 from piezofin_ros.bags.blocks import DRIVE_CHANNELS
 from piezofin_ros.nodes._common import QOS_DATA, msg_block
 
-from ..rosutil import Launch, listed, ros2
+from ..rosutil import Launch, data_type, listed, ros2
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -47,12 +47,12 @@ class DriveProbe:
         self.peaks: dict[str, list[tuple[float, float]]] = {ns: [] for ns in namespaces}
         for ns in namespaces:
             self.node.create_subscription(
-                Float64MultiArray, f"/{ns}/drive", lambda m, _ns=ns: self._on(_ns, m), QOS_DATA
+                data_type("drive"), f"/{ns}/drive", lambda m, _ns=ns: self._on(_ns, m), QOS_DATA
             )
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
-    def _on(self, ns: str, msg: Float64MultiArray) -> None:
+    def _on(self, ns: str, msg: Any) -> None:
         v = msg_block(msg, expect=DRIVE_CHANNELS)["voltage_V"]
         self.peaks[ns].append((time.monotonic(), float(np.max(np.abs(v)))))
 

@@ -27,7 +27,7 @@ from piezofin_ros.nodes.recorder import Recorder
 from piezofin_ros.nodes.thrust_estimator import ThrustEstimator
 from piezofin_ros.physics.steady import harmonic_balance
 
-from ..rosutil import graph
+from ..rosutil import data_type, graph
 
 
 def rclpy_node(name: str, g: Any) -> Any:
@@ -146,9 +146,11 @@ def test_rosbags_reads_every_recorded_message(live: dict[str, Any]) -> None:
         samples = 0
         for conn, _, raw in reader.messages():
             counts[conn.topic] = counts.get(conn.topic, 0) + 1
-            if conn.topic == "/fin/drive":
+            if conn.topic == "/fin/drive":  # (piezofin_msgs/Drive, from the schema the bag carries)
                 msg = reader.deserialize(raw, conn.msgtype)
-                samples += msg.layout.dim[1].size
+                assert len(msg.voltage_v) == len(msg.current_a) == len(msg.t_s)
+                assert msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 == pytest.approx(msg.t_s[0])
+                samples += len(msg.t_s)
     assert counts == {k: v for k, v in live["recorded"].items() if v}
     assert samples == live["published"]["drive"]  # not one sample lost between fin_sim and the bag
     assert counts["/fin/estimate"] == len(live["estimates"])
@@ -323,7 +325,7 @@ def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
         )
         probe = g.add(__import__("rclpy").create_node("probe", context=g.context))
         drive: list[Block] = []
-        probe.create_subscription(Float64MultiArray, "drive", lambda m: drive.append(m), QOS_DATA)
+        probe.create_subscription(data_type("drive"), "drive", lambda m: drive.append(m), QOS_DATA)
         cmd = probe.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
 
         def send(f: float, v: float, on: float) -> None:
@@ -373,7 +375,7 @@ def test_drive_limits_can_be_tightened_live_over_the_parameter_service() -> None
         sim = g.add(FinSim(context=g.context, parameter_overrides=params(realtime_factor=10.0)))
         operator = g.add(__import__("rclpy").create_node("operator", context=g.context))
         drive: list[Any] = []
-        operator.create_subscription(Float64MultiArray, "drive", drive.append, QOS_DATA)
+        operator.create_subscription(data_type("drive"), "drive", drive.append, QOS_DATA)
         cmd = operator.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
         client = AsyncParameterClient(operator, "fin_sim")
         g.spin_until(client.services_are_ready, timeout=10.0, what="fin_sim's parameter services")
@@ -578,9 +580,9 @@ def test_player_offers_every_topic_before_its_first_message(tmp_path: Any) -> No
     finally:
         os.chdir(cwd)
     assert player.published == {}  # nothing played yet (rate 0.01) ...
-    for topic in ("/fin/drive", "/fin/tip_velocity", "/fin/loadcell", "/fin/cmd"):
-        assert names[topic] == ["std_msgs/msg/Float64MultiArray"], topic  # ... and every topic offered
-    assert names["/fin/estimate"] == ["piezofin_msgs/msg/Estimate"]  # (this older bag's blocks, named)
+    assert names["/fin/cmd"] == ["std_msgs/msg/Float64MultiArray"]  # ... and every topic offered,
+    for topic, named in (("drive", "Drive"), ("tip_velocity", "TipVelocity"), ("estimate", "Estimate")):
+        assert names[f"/fin/{topic}"] == [f"piezofin_msgs/msg/{named}"], topic  # (older blocks, named)
 
 
 def test_an_older_bags_estimates_play_as_the_named_message() -> None:
