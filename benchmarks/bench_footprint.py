@@ -34,12 +34,12 @@ RSS_GOAL_MB = 120.0
 BASELINE = """
 import rclpy
 from rclpy.node import Node
-from std_msgs.msg import Float64MultiArray
+from piezofin_msgs.msg import Drive
 from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
 rclpy.init()
 node = Node("bare_subscriber")
 qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-node.create_subscription(Float64MultiArray, "{ns}/drive", lambda msg: None, qos)
+node.create_subscription(Drive, "{ns}/drive", lambda msg: None, qos)
 try:
     rclpy.spin(node)
 except KeyboardInterrupt:

@@ -146,13 +146,14 @@ def bench_main_job() -> dict[str, float]:
 
 
 def bench_crossprocess(factor: float, block_s: float, seconds: float) -> dict[str, float]:
+    from typing import Any
+
     import rclpy
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState
     from rclpy.experimental import EventsExecutor
-    from std_msgs.msg import Float64MultiArray
 
-    from piezofin_ros.nodes._common import QOS_DATA
+    from piezofin_ros.nodes._common import QOS_DATA, endpoint
 
     env = {
         k: v for k, v in os.environ.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "LD_LIBRARY_PATH")
@@ -183,13 +184,13 @@ def bench_crossprocess(factor: float, block_s: float, seconds: float) -> dict[st
     counts = {"drive": 0, "tip_velocity": 0, "loadcell": 0}
 
     def counter(topic: str):
-        def cb(msg: Float64MultiArray) -> None:
-            counts[topic] += msg.layout.dim[1].size
+        def cb(msg: Any) -> None:
+            counts[topic] += len(msg.t_s)
 
         return cb
 
     for topic in counts:
-        node.create_subscription(Float64MultiArray, f"{ns}/{topic}", counter(topic), QOS_DATA)
+        node.create_subscription(endpoint(topic)[0], f"{ns}/{topic}", counter(topic), QOS_DATA)
     ex = EventsExecutor(context=ctx)
     ex.add_node(node)
     change = node.create_client(ChangeState, f"{ns}/fin_sim/change_state")

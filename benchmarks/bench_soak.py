@@ -100,7 +100,6 @@ def drops(t_blocks: list[np.ndarray], period: float) -> int:
 def soak(seconds: float, warmup_s: float, directory: Path, progress: bool = True) -> SoakResult:
     import rclpy
     from rclpy.experimental import EventsExecutor
-    from std_msgs.msg import Float64MultiArray
 
     from piezofin_ros.bags import block_of, read_messages
     from piezofin_ros.nodes._common import QOS_DATA, endpoint, msg_block
@@ -156,7 +155,7 @@ def soak(seconds: float, warmup_s: float, directory: Path, progress: bool = True
                 estimates.append((float(b["t_end"][0]), time.monotonic()))
 
     for topic in blocks:
-        node.create_subscription(Float64MultiArray, topic, lambda m, t=topic: on_data(t, m), QOS_DATA)
+        node.create_subscription(endpoint(topic)[0], topic, lambda m, t=topic: on_data(t, m), QOS_DATA)
     node.create_subscription(endpoint("estimate")[0], "estimate", on_estimate, QOS_DATA)
     rss_warm: dict[str, int] = {}
     try:

@@ -19,7 +19,7 @@ from std_msgs.msg import Float64
 
 from piezofin_ros.bags.blocks import Block
 from piezofin_ros.estimation.estimator import Estimate
-from piezofin_ros.nodes._common import block_msg, record_msg
+from piezofin_ros.nodes._common import block_msg, record_msg, sample_msg
 
 
 def messages(kind: str) -> list:
@@ -36,13 +36,13 @@ def messages(kind: str) -> list:
     if kind == "cmd":
         return [block_msg(Block.from_record({"frequency_hz": 5.0, "voltage_pp_V": 0.0, "on": 0.0}))]
     t = 1e6 + np.arange(20) * 1e-3  # (times of its own, far from the fin's)
-    columns = {
-        "supply": {"supply_voltage_V": np.full(20, 7.4), "supply_current_A": np.full(20, 0.01)},
-        "drive": {"voltage_V": np.zeros(20), "current_A": np.zeros(20)},
-        "tip": {"tip_velocity_m_s": np.zeros(20)},
-        "loadcell": {"displacement_m": np.zeros(20)},
+    topic, columns = {
+        "supply": ("supply", {"supply_voltage_V": np.full(20, 7.4), "supply_current_A": np.full(20, 0.01)}),
+        "drive": ("drive", {"voltage_V": np.zeros(20), "current_A": np.zeros(20)}),
+        "tip": ("tip_velocity", {"tip_velocity_m_s": np.zeros(20)}),
+        "loadcell": ("loadcell", {"displacement_m": np.zeros(20)}),
     }[kind]
-    return [block_msg(Block.from_columns(t_s=t, **columns))]
+    return [sample_msg(topic, Block.from_columns(t_s=t, **columns))]
 
 
 def main(topic: str, kind: str, rate: float, seconds: float) -> int:

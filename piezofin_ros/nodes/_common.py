@@ -392,6 +392,14 @@ def freeze_parameters(
 SAY_EVERY_S = 1.0
 
 
+#: What changed, for a publisher of an older type (:meth:`Inbox._check_types`).
+TYPE_HINTS = {
+    f"piezofin_msgs/msg/{name}": " (a float64[] field per channel, its unit in lower case, e.g. voltage_v; "
+    "header.stamp the first sample's time)"
+    for name in ("Drive", "TipVelocity", "Loadcell", "Supply")
+}
+
+
 class Inbox:
     """The one door by which a node takes messages from other processes.
 
@@ -407,6 +415,8 @@ class Inbox:
 
     #: How often the polled subscriptions are looked at, s of wall time.
     POLL_S = 0.01
+    #: How often the publishers of the polled topics are asked their type, s of wall time.
+    TYPES_S = 2.0
 
     def __init__(self, node: Node) -> None:
         from rclpy.clock import Clock, ClockType
@@ -420,6 +430,8 @@ class Inbox:
         self.refused_at = -math.inf  # (time.monotonic) the latest refusal
         self.failed: collections.Counter[str] = collections.Counter()
         self.polled_count: collections.Counter[str] = collections.Counter()  # messages taken by polls
+        self._types_at = -math.inf  # (time.monotonic) the last look at the publishers' types
+        self.wrong_types: set[tuple[str, str]] = set()  # (topic, type) a publisher sends that is not read
 
     def refused_recently(self, within_s: float = 2.0) -> bool:
         """Whether a message was refused in the last ``within_s`` of wall time."""
@@ -471,6 +483,9 @@ class Inbox:
         return sub
 
     def _poll(self) -> None:
+        if time.monotonic() - self._types_at >= self.TYPES_S:
+            self._types_at = time.monotonic()
+            self._check_types()
         for sub, topic, handler, check, most in self._polls:
             for _ in range(most):
                 with sub.handle:
@@ -479,6 +494,23 @@ class Inbox:
                     break
                 self.polled_count[topic] += 1
                 self._deliver(topic, taken[0], handler, check)
+
+    def _check_types(self) -> None:
+        """One error line per topic and type when a publisher sends a type this node does not read (a
+        rig driver written before the blocks were named: DDS never matches them, so nothing would
+        arrive and nothing would say why)."""
+        for sub, topic, *_ in self._polls:
+            want = f"{sub.msg_type.__module__.split('.')[0]}/msg/{sub.msg_type.__name__}"
+            name = self._node.resolve_topic_name(topic)
+            for info in self._node.get_publishers_info_by_topic(name):
+                if info.topic_type == want or (name, info.topic_type) in self.wrong_types:
+                    continue
+                self.wrong_types.add((name, info.topic_type))
+                who = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+                self._node.get_logger().error(
+                    f"{who} publishes {name} as {info.topic_type}, which this node does not read: "
+                    f"{topic} is {want} now{TYPE_HINTS.get(want, '')} (docs/reference.md, Topics)"
+                )
 
     def close(self) -> None:
         self._polls.clear()

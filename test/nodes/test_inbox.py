@@ -23,7 +23,7 @@ import pytest
 import rclpy
 from piezofin_msgs.msg import Estimate as EstimateMsg
 from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray
 
 from piezofin_ros.bags.blocks import (
     CHANNEL_MOST,
@@ -40,6 +40,7 @@ from piezofin_ros.nodes._common import (
     BATTERY_MOST_V,
     QOS_COMMAND,
     QOS_DATA,
+    block_msg,
     msg_block,
     record_msg,
     sample_msg,
@@ -199,3 +200,38 @@ def test_no_message_kills_a_node_or_passes_its_door(exe: str, tmp_path: Path) ->
     for b in heard:  # what the node published never carries a number from the attack
         values = b.values[np.isfinite(b.values)]
         assert np.all(np.abs(values) < 1e12), dict(zip(b.names, b.values[:, 0], strict=True))
+
+
+def test_a_driver_of_the_older_blocks_is_told_what_changed(tmp_path: Path) -> None:
+    """A rig driver written before the blocks were named publishes ``drive`` as a ``Float64MultiArray``:
+    DDS never matches it with the estimator's ``piezofin_msgs/Drive``, so nothing arrives.  The
+    estimator (its own process, as ``ros2 run`` starts it) says so in one error line naming the driver,
+    the type it sends and the type it must send, once however long the driver goes on, and lives."""
+    ns = "older_driver"
+    log = tmp_path / "estimator.log"
+    proc = start("thrust_estimator", "-r", f"__ns:=/{ns}", log=log)
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("old_rig_driver", namespace=ns, context=g.context))
+            pub = node.create_publisher(Float64MultiArray, "drive", QOS_DATA)
+            t0 = time.monotonic()
+            k = 0
+            while time.monotonic() - t0 < 30.0 and "publishes" not in log.read_text():
+                t = k * 0.05 + np.arange(50) * 1e-3
+                pub.publish(
+                    block_msg(Block.from_columns(t_s=t, voltage_V=np.zeros(50), current_A=np.zeros(50)))
+                )
+                g.spin_for(0.05)
+                k += 1
+            g.spin_for(5.0)  # (more looks at the graph: still one line)
+            alive = proc.poll() is None
+    finally:
+        stop(proc)
+    out = log.read_text()
+    said = [line for line in out.splitlines() if "publishes" in line]
+    assert alive and len(said) == 1, out[-3000:]
+    assert (
+        "[ERROR]" in said[0]
+        and f"/{ns}/old_rig_driver publishes /{ns}/drive as std_msgs/msg/Float64MultiArray" in said[0]
+    )
+    assert "drive is piezofin_msgs/msg/Drive now" in said[0] and "voltage_v" in said[0], said[0]

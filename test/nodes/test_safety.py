@@ -17,7 +17,7 @@ from piezofin_ros.bags.blocks import Block
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg, msg_block
 from piezofin_ros.nodes.fin_sim import FinSim
 
-from ..rosutil import graph
+from ..rosutil import data_type, graph
 
 ROOT = Path(__file__).resolve().parents[2]
 V_MAX = 600.0  # Vpp: a configured limit below the hard cap, so clamping shows
@@ -112,7 +112,7 @@ def test_fuzzed_commands_never_take_the_drive_out_of_its_limits() -> None:
         sim.trigger_activate()
         probe = g.add(rclpy.create_node("fuzzer", namespace="fz", context=g.context))
         drive: list[Block] = []
-        probe.create_subscription(Float64MultiArray, "drive", lambda m: drive.append(msg_block(m)), QOS_DATA)
+        probe.create_subscription(data_type("drive"), "drive", lambda m: drive.append(msg_block(m)), QOS_DATA)
         cmd = probe.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
         g.spin_until(lambda: cmd.get_subscription_count() > 0 and drive, timeout=20.0, what="match")
         sent = 0
