@@ -20,6 +20,7 @@ This module has no ROS dependency: nodes convert messages with :func:`from_layou
 
 from __future__ import annotations
 
+import array
 import dataclasses
 import math
 import struct
@@ -297,16 +298,18 @@ def message_block(msg: Any, expect: Sequence[str] | None = None) -> Block:
     if arrays and len(arrays) != len(fields):
         raise BlockFormatError(f"a message of samples and single values mixed: {', '.join(fields)}")
     if arrays:
-        columns = {}
-        for name, value in arrays.items():
-            a = np.frombuffer(value, dtype=float) if isinstance(value, (bytes, memoryview)) else value
-            columns[CHANNEL_OF_FIELD.get(name, name)] = np.asarray(a, dtype=float)
+        columns = {  # (rclpy's array.array('d') without a copy; rosbags' numpy arrays as they are)
+            CHANNEL_OF_FIELD.get(name, name): np.frombuffer(value, dtype=float)
+            if isinstance(value, array.array)
+            else np.asarray(value, dtype=float).ravel()
+            for name, value in arrays.items()
+        }
         sizes = {c: a.size for c, a in columns.items()}
         if sum(sizes.values()) > MAX_VALUES:
             raise BlockFormatError(f"{sum(sizes.values())} values exceed the limit of {MAX_VALUES}")
         if len(set(sizes.values())) > 1:
             raise BlockFormatError(f"its fields differ in length: {sizes}")
-        block = Block.from_columns(**columns)
+        block = Block(tuple(columns), np.stack(list(columns.values())))
     else:
         block = Block.from_record({CHANNEL_OF_FIELD.get(n, n): float(v) for n, v in fields.items()})
     missing = [c for c in expect or () if c not in block.names]

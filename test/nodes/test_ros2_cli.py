@@ -68,11 +68,17 @@ def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
         # the estimate as a plotter sees it: every quantity by its name, stamped in the fin's time
         echoed = ros2(ros_env, "topic", "echo", "--once", "/fin/estimate", "--field", "thrust_self_n")
         assert float(echoed.stdout.split()[0]) > 0.0, echoed.stdout + echoed.stderr
-        series = plotted(ros_env, ["/fin/estimate"], messages=3)["/fin/estimate"]
+        both = plotted(ros_env, ["/fin/estimate", "/fin/drive"], messages=3)
+        series, drive = both["/fin/estimate"], both["/fin/drive"]
         for name in PLOTTED:
             assert name in series, (name, sorted(series))
+        for name in ("voltage_v[0]", "current_a[49]", "t_s[0]"):  # the blocks' samples, by name and index
+            assert name in drive, (name, sorted(drive)[:10])
+        first = drive["t_s[0]"]  # stamped at the first sample's time (to the stamp's nanosecond)
+        assert [t for t, _ in first] == pytest.approx([v for _, v in first], abs=1e-6), first
         stamps = [t for t, _ in series["thrust_n"]]
-        assert stamps == [v for _, v in series["t_end"]], stamps  # the window's end, in the fin's time
+        ends = [v for _, v in series["t_end"]]
+        assert stamps == pytest.approx(ends, abs=1e-6), stamps  # the window's end, in the fin's time
         assert stamps[0] > 0 and all(b > a for a, b in itertools.pairwise(stamps)), stamps
         clock = ros2(ros_env, "topic", "echo", "--once", "/clock", "--field", "clock.sec").stdout
         assert abs(float(clock.split()[0]) - stamps[-1]) < 30.0, (clock, stamps)  # fin time, not wall time
