@@ -36,16 +36,17 @@ if [ ! -x "$VENV/bin/python" ] || [ "$(cat "$VENV/.piezofin-stamp" 2>/dev/null)"
   done
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$PKG" 2> >(grep -v "^WARNING: Location" >&2)
   stamp_of > "$VENV/.piezofin-stamp"
+  rm -f "$VENV/.piezofin-msgs-stamp"  # (a venv set up again builds its messages again)
 fi
 # The messages of the project's own (piezofin_msgs: a name per quantity, a header stamped in the fin's
 # time), built by rosidl from piezofin_ros/msg/ into the venv itself (its lib/ is on the wheels' library
-# path, its site-packages imports them): about 6 s, once, and again when a definition changes.
+# path, its site-packages imports them): about 10 s, once, and again when a definition changes.
 msgs_stamp() { cat "$PKG"/piezofin_ros/msg/*.msg "$PKG"/interfaces/piezofin_msgs/* | sha1sum | cut -d' ' -f1; }
 if [ "$(cat "$VENV/.piezofin-msgs-stamp" 2>/dev/null)" != "$(msgs_stamp)" ]; then
   for tool in cmake c++; do
     command -v "$tool" >/dev/null 2>&1 || { echo "piezofin: building piezofin_msgs needs cmake and a C++ compiler (Debian/Ubuntu: sudo apt install cmake g++)" >&2; exit 1; }
   done
-  echo "piezofin: building the messages piezofin_msgs into $VENV (rosidl, about 6 s)" >&2
+  echo "piezofin: building the messages piezofin_msgs into $VENV (rosidl, about 10 s)" >&2
   rm -rf "$VENV/.build/piezofin_msgs" && mkdir -p "$VENV/.build"
   if ! (export AMENT_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
         cmake -S "$PKG/interfaces/piezofin_msgs" -B "$VENV/.build/piezofin_msgs" -DCMAKE_INSTALL_PREFIX="$VENV" \
