@@ -43,7 +43,7 @@ def run(n_fins: int, extra: list[str]) -> dict[str, object]:
             drives = [c for c in reader.connections if c.topic.endswith("/drive")]
             for conn, _, raw in reader.messages(drives):
                 m = reader.deserialize(raw, conn.msgtype)
-                times.setdefault(conn.topic, []).append(np.asarray(m.data[: m.layout.dim[1].size]))
+                times.setdefault(conn.topic, []).append(np.asarray(m.t_s))  # (piezofin_msgs/Drive)
     t = {k: np.concatenate(v) for k, v in sorted(times.items())}
     first = next(iter(t.values()))
     gaps = {k: int(np.sum(np.diff(v) > 1.5e-3)) for k, v in t.items()}

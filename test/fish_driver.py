@@ -3,7 +3,8 @@
 
 It obeys ``cmd`` (frequency, peak-to-peak voltage, on), and publishes ``drive`` (its voltage and
 current monitors, a ``piezofin_msgs/Drive``: each block of samples with their times, stamped at the
-first), ``swim_speed`` and ``battery`` (``sensor_msgs/BatteryState``) in its namespace.
+first), ``swim_speed`` (``geometry_msgs/TwistStamped``: its speed sensor's ``twist.linear.x``, stamped
+when read) and ``battery`` (``sensor_msgs/BatteryState``) in its namespace.
 Nothing of it is what the stack is told: the fin is the nominal M8528-P1 (the stack's prior is the
 paper's twin), the amplifier is another switching one (70 % efficient, none recovered, 0.12 W
 quiescent), the body has a linear drag term besides the quadratic one and a speed sensor with a
@@ -20,10 +21,11 @@ import sys
 
 import numpy as np
 import rclpy
+from geometry_msgs.msg import TwistStamped
 from piezofin_msgs.msg import Drive
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64, Float64MultiArray
+from std_msgs.msg import Float64MultiArray
 
 from piezofin_ros.bags.blocks import COMMAND_FIELDS
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, msg_block
@@ -53,7 +55,7 @@ class FishDriver(Node):
         self.commands: list[tuple[float, float, float]] = []
         self.truth: list[str] = []
         self.drive = self.create_publisher(Drive, "drive", QOS_DATA)
-        self.speed_pub = self.create_publisher(Float64, "swim_speed", QOS_COMMAND)
+        self.speed_pub = self.create_publisher(TwistStamped, "swim_speed", QOS_DATA)
         self.battery = self.create_publisher(BatteryState, "battery", QOS_COMMAND)
         self.create_subscription(Float64MultiArray, "cmd", self.on_cmd, QOS_COMMAND)
         self.create_timer(BLOCK / RATE_HZ, self.step)
@@ -82,7 +84,11 @@ class FishDriver(Node):
             drag = DRAG_QUAD * self.speed * abs(self.speed) + DRAG_LIN * self.speed
             self.speed += (thrust - drag) / MASS_KG * BLOCK / RATE_HZ
             self.rig.swim_speed_m_s = self.speed
-            self.speed_pub.publish(Float64(data=self.speed + SPEED_BIAS + SPEED_NOISE * self.rng.normal()))
+            reading = TwistStamped()
+            reading.header.stamp = drive.header.stamp  # (read with the block's first sample)
+            reading.header.frame_id = "base_link"
+            reading.twist.linear.x = self.speed + SPEED_BIAS + SPEED_NOISE * self.rng.normal()
+            self.speed_pub.publish(reading)
             self.draws.append(float(np.mean(b.supply_voltage * b.supply_current)))
             self.truth.append(
                 f"{t[-1]:.3f},{self.speed:.6f},{thrust:.6e},{self.draws[-1]:.6e},{self.rig.drive.voltage_pp:.1f}"

@@ -19,13 +19,15 @@ from std_msgs.msg import Float64
 
 from piezofin_ros.bags.blocks import Block
 from piezofin_ros.estimation.estimator import Estimate
-from piezofin_ros.nodes._common import block_msg, record_msg, sample_msg
+from piezofin_ros.nodes._common import block_msg, record_msg, sample_msg, speed_msg
 
 
 def messages(kind: str) -> list:
     rng = np.random.default_rng(1)
     if kind == "speed":
-        return [Float64(data=float(x)) for x in rng.uniform(0.0, 0.2, 64)]
+        from geometry_msgs.msg import TwistStamped
+
+        return [speed_msg(TwistStamped, float(x), 1.0) for x in rng.uniform(0.0, 0.2, 64)]
     if kind == "demand":
         return [Float64(data=float(x)) for x in rng.uniform(1e-4, 8e-3, 64)]
     if kind == "estimate":

@@ -10,6 +10,7 @@ identification's stepped sine and the campaign's time trace.  A sampled topic's 
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -38,12 +39,14 @@ MAX_SKIPPED_LINES = 100
 @dataclass(frozen=True)
 class FinMessage:
     """One usable message of a fin: its topic ``kind`` (relative to the namespace, e.g. ``"drive"``),
-    its log time, and its content: a :class:`~.blocks.Block` or, for ``swim_speed``, a value."""
+    its log time, and its content: a :class:`~.blocks.Block` or, for ``swim_speed``, a value and the
+    time it was measured (its stamp, s; NaN in bags before the speed was stamped)."""
 
     kind: str
     time_ns: int
     block: Block | None = None
     value: float = float("nan")
+    stamp_s: float = float("nan")
 
 
 @dataclass
@@ -83,7 +86,15 @@ def read_fin(
         kind = topics[m.topic]
         try:
             if kind == TOPIC_SPEED:
-                yield FinMessage(kind, m.log_time_ns, value=float(decode(m.type_name, m.data).data))
+                msg = decode(m.type_name, m.data)
+                if hasattr(msg, "twist"):  # geometry_msgs/TwistStamped (a std_msgs/Float64 before)
+                    stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+                    speed = float(msg.twist.linear.x)
+                    yield FinMessage(
+                        kind, m.log_time_ns, value=speed, stamp_s=stamp if stamp > 0 else math.nan
+                    )
+                else:
+                    yield FinMessage(kind, m.log_time_ns, value=float(msg.data))
                 continue
             if kind == TOPIC_CMD:
                 block = block_of(m.type_name, m.data, expect=COMMAND_FIELDS)

@@ -31,6 +31,9 @@ TOPIC_DIAGNOSTICS = "/diagnostics"
 
 F64A = "std_msgs/msg/Float64MultiArray"
 F64 = "std_msgs/msg/Float64"
+#: A speed sensor's reading: ``twist.linear.x`` (m/s, forward), stamped when measured; bags before it
+#: hold it as a ``std_msgs/Float64``
+SPEED = "geometry_msgs/msg/TwistStamped"
 STRING = "std_msgs/msg/String"
 #: The project's own messages, named and stamped (piezofin_ros/msg/): bags before them hold F64A blocks
 ESTIMATE = "piezofin_msgs/msg/Estimate"
@@ -63,7 +66,7 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_SUPPLY, SUPPLY, "data", "fin_sim, or a driver with a supply meter"),
         Topic(TOPIC_CMD, F64A, "command", "controller"),
         Topic(TOPIC_ESTIMATE, ESTIMATE, "estimate", "thrust_estimator"),
-        Topic(TOPIC_SPEED, F64, "data", "fin_sim with a body, or a fish driver"),
+        Topic(TOPIC_SPEED, SPEED, "data", "fin_sim with a body, or a fish driver"),
         Topic(TOPIC_STATUS, STRING, "status", "controller"),
         Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),
         Topic(

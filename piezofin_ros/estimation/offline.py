@@ -7,6 +7,7 @@ log-time order, and returns its estimates with those the live ``thrust_estimator
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -81,8 +82,8 @@ class Replayer:
         self.messages += 1
         est, b = self.estimator, m.block
         try:
-            if m.kind == TOPIC_SPEED:
-                est.add_speed(self._last_t, m.value)
+            if m.kind == TOPIC_SPEED:  # (from its stamp, as live; from the latest drive sample unstamped)
+                est.add_speed(m.stamp_s if math.isfinite(m.stamp_s) else self._last_t, m.value)
                 return
             assert b is not None
             if m.kind == TOPIC_ESTIMATE:

@@ -394,9 +394,12 @@ SAY_EVERY_S = 1.0
 
 #: What changed, for a publisher of an older type (:meth:`Inbox._check_types`).
 TYPE_HINTS = {
-    f"piezofin_msgs/msg/{name}": " (a float64[] field per channel, its unit in lower case, e.g. voltage_v; "
-    "header.stamp the first sample's time)"
-    for name in ("Drive", "TipVelocity", "Loadcell", "Supply")
+    **{
+        f"piezofin_msgs/msg/{name}": " (a float64[] field per channel, its unit in lower case, e.g. "
+        "voltage_v; header.stamp the first sample's time)"
+        for name in ("Drive", "TipVelocity", "Loadcell", "Supply")
+    },
+    "geometry_msgs/msg/TwistStamped": " (the speed in twist.linear.x, m/s; header.stamp when it was read)",
 }
 
 
@@ -597,11 +600,32 @@ def scalar(lo: float, hi: float, unit: str) -> Callable[[Any], float]:
     return check
 
 
-def samples(channels: tuple[str, ...]) -> Callable[[Float64MultiArray], Block]:
+def speed_reading(msg: Any) -> tuple[float, float]:
+    """A speed sensor's ``geometry_msgs/TwistStamped``: (its stamp, s, NaN when unset; its
+    ``twist.linear.x``, m/s, finite and within what any fish swims)."""
+    from ..physics.swim import SPEED_MOST_M_S
+
+    u = float(msg.twist.linear.x)
+    if not (math.isfinite(u) and abs(u) <= SPEED_MOST_M_S):
+        raise MessageRefused(f"{u!r} m/s is not within [{-SPEED_MOST_M_S:g}, {SPEED_MOST_M_S:g}] m/s")
+    stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+    return (stamp if stamp > 0 else math.nan), u
+
+
+def speed_msg(msg_type: Any, speed_m_s: float, stamp_s: float) -> Any:
+    """A speed sensor's reading (``geometry_msgs/TwistStamped``, ``base_link``) at ``stamp_s``."""
+    msg = msg_type()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_of(stamp_s)
+    msg.header.frame_id = "base_link"
+    msg.twist.linear.x = float(speed_m_s)
+    return msg
+
+
+def samples(channels: tuple[str, ...]) -> Callable[[Any], Block]:
     """A check for a block of samples on ``channels``: its layout, its times and each value's
     physical range (:func:`~piezofin_ros.bags.blocks.check_samples`)."""
 
-    def check(msg: Float64MultiArray) -> Block:
+    def check(msg: Any) -> Block:
         return check_samples(msg_block(msg, expect=channels), channels)
 
     return check

@@ -50,7 +50,7 @@ from rclpy.time import Time
 from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64, Float64MultiArray
+from std_msgs.msg import Float64MultiArray
 
 from ..bags.blocks import COMMAND_FIELDS, Block, BlockFormatError
 from ..config import setting
@@ -87,6 +87,7 @@ from ._common import (
     msg_block,
     named_msg,
     run_node,
+    speed_msg,
 )
 from ._diagnostics import ERROR, OK, STALE, WARN, Diagnostics, Report
 
@@ -609,7 +610,8 @@ class FinSim(LifecycleNode):
             n / self._rig_config.sample_rate_hz, float(np.mean(b.thrust_true)), rig.drive.frequency_hz, supply
         )
         rig.swim_speed_m_s = fish.speed_m_s
-        self._speed_pub.publish(Float64(data=fish.speed_reading()))  # type: ignore[attr-defined]
+        pub = self._speed_pub
+        pub.publish(speed_msg(pub.msg_type, fish.speed_reading(), float(b.t[-1])))  # type: ignore[attr-defined]
         if self._battery_pub is None:
             return
         t = float(b.t[-1])

@@ -23,8 +23,8 @@ from rclpy.node import Node
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from ..bags import BagError, BagMessage, bag_topics, block_of, read_messages, resolve_bag
-from ..bags.topics import F64A
+from ..bags import BagError, BagMessage, bag_topics, block_of, decode, read_messages, resolve_bag
+from ..bags.topics import F64, F64A, SPEED
 from ..bags.types import is_record_type, normalise_type
 from ..config import setting
 from ._common import (
@@ -36,6 +36,7 @@ from ._common import (
     message_class,
     named_msg,
     run_node,
+    speed_msg,
 )
 from .recorder import qos_for, table_topic
 
@@ -94,11 +95,12 @@ class Player(Node):
         if pub is None and m.topic not in self._skipped:
             type_name = m.type_name
             table = table_topic(m.topic)
-            if table is not None and is_record_type(table.type) and normalise_type(type_name) == F64A:
+            older = normalise_type(type_name)
+            if table is not None and (
+                (is_record_type(table.type) and older == F64A) or (table.type == SPEED and older == F64)
+            ):
                 type_name = table.type
-                self.get_logger().info(
-                    f"playing {m.topic} of an older bag (std_msgs/Float64MultiArray blocks) as {type_name}"
-                )
+                self.get_logger().info(f"playing {m.topic} of an older bag ({older}) as {type_name}")
             try:
                 pub = self.create_publisher(message_class(type_name), m.topic, qos_for(m.topic, type_name))
                 self._pubs[m.topic] = pub
@@ -108,6 +110,16 @@ class Player(Node):
                 self._skipped.add(m.topic)
                 self.get_logger().warning(f"not playing {m.topic}: type {m.type_name} unavailable ({exc})")
         return pub
+
+    def _upgrade(self, m: BagMessage) -> Any:
+        """An older bag's message as the suite's topic is now: a block as its named message (an
+        estimate stamped at its window's end, samples at their first), a speed as a ``TwistStamped``
+        at the time it was recorded."""
+        msg_type = self._upgraded[m.topic]
+        if normalise_type(m.type_name) == F64:
+            return speed_msg(msg_type, float(decode(m.type_name, m.data).data), m.log_time_ns * 1e-9)
+        block = block_of(m.type_name, m.data)
+        return named_msg(msg_type, block, block.scalar("t_end") if "t_end" in block.names else None)
 
     def _tick(self) -> None:
         if self.done:
@@ -132,12 +144,10 @@ class Player(Node):
                 pub = self._publisher(m)
                 if pub is not None and m.topic in self._upgraded:
                     try:
-                        block = block_of(m.type_name, m.data)
+                        pub.publish(self._upgrade(m))
                     except ValueError as exc:  # (MessageError, BlockFormatError: a block it cannot read)
                         self.get_logger().warning(f"not playing a message of {m.topic}: {exc}", once=True)
                         continue
-                    stamp = block.scalar("t_end") if "t_end" in block.names else None  # (an estimate's)
-                    pub.publish(named_msg(self._upgraded[m.topic], block, stamp))
                     self.published[m.topic] = self.published.get(m.topic, 0) + 1
                 elif pub is not None:
                     pub.publish(m.data)

@@ -46,7 +46,7 @@ from ._common import (
     freeze_parameters,
     msg_block,
     run_node,
-    scalar,
+    speed_reading,
 )
 from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 
@@ -142,9 +142,7 @@ class SpeedLoopNode(Node):
         self._status = self.create_publisher(*endpoint(TOPIC_LOOP_STATUS))
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         # the newest reading only, polled: a flood costs one reading per look
-        self.inbox.latest(
-            Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s")
-        )
+        self.inbox.latest(endpoint(TOPIC_SPEED)[0], TOPIC_SPEED, self._on_speed, speed_reading)
         self.inbox.polled(
             endpoint(TOPIC_ESTIMATE)[0], TOPIC_ESTIMATE, self._on_estimate, fin_thrust, depth=200, most=20
         )
@@ -261,7 +259,9 @@ class SpeedLoopNode(Node):
         self._cmd_vel_t = math.nan
         self.loop.set_setpoint(0.0)
 
-    def _on_speed(self, speed_m_s: float) -> None:
+    def _on_speed(self, reading: tuple[float, float]) -> None:
+        # (the loop runs on its node clock: a reading counts when it arrives, whatever its stamp)
+        speed_m_s = reading[1]
         now = self._now()
         self.odometry.add(now, speed_m_s)
         if not self.loop.measure(now, speed_m_s):

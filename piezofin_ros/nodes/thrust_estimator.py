@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from rclpy.context import Context
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64
 
 from ..bags.blocks import (
     DRIVE_CHANNELS,
@@ -32,7 +31,6 @@ from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
 from ..estimation.selfsense import Calibration
 from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.fin import MEDIA, Fin, load_fin
-from ..physics.swim import SPEED_MOST_M_S
 from ._common import (
     TOPIC_BATTERY,
     TOPIC_DRIVE,
@@ -51,7 +49,7 @@ from ._common import (
     record_msg,
     run_node,
     samples,
-    scalar,
+    speed_reading,
 )
 from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 
@@ -129,7 +127,7 @@ class ThrustEstimator(Node):
         ):
             inbox.polled(endpoint(topic)[0], topic, handler, samples(channels), depth=500, most=BLOCKS_A_LOOK)
         # the newest speed only, polled: a flood of it costs one reading per look (it starved the drive's)
-        inbox.latest(Float64, TOPIC_SPEED, self._on_speed, scalar(-SPEED_MOST_M_S, SPEED_MOST_M_S, "m/s"))
+        inbox.latest(endpoint(TOPIC_SPEED)[0], TOPIC_SPEED, self._on_speed, speed_reading)
         inbox.polled(BatteryState, TOPIC_BATTERY, self._on_battery, battery_reading, depth=50, most=10)
         self._last_t = float("nan")
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
@@ -204,9 +202,11 @@ class ThrustEstimator(Node):
             t = self._fin_time()
         self._emit(self.core.add_battery(t, voltage, current))
 
-    def _on_speed(self, speed_m_s: float) -> None:
-        # The speed applies from the latest drive sample on (the fish stack's message has no stamp).
-        self.core.add_speed(self._fin_time(), speed_m_s)
+    def _on_speed(self, reading: tuple[float, float]) -> None:
+        # The speed applies from its stamp on (the fin's time), or from the latest drive sample where
+        # the sensor left the stamp unset.
+        stamp, speed_m_s = reading
+        self.core.add_speed(stamp if math.isfinite(stamp) else self._fin_time(), speed_m_s)
 
     def _emit(self, estimates: list[Estimate]) -> None:
         if estimates and self.core.supply_meter != self._meter:

@@ -228,9 +228,13 @@ def _rewritten(src: Path, dst: Path, negate: dict[str, str]) -> Path:
     channel ``negate[topic]`` of each block on that topic turned in sign: a rig driver of the other
     sign convention."""
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
+    with AnyReader([src]) as reader:  # the project's own messages, from the schemas the bag carries
+        for c in reader.connections:
+            if c.msgtype not in store.fielddefs:
+                store.register(get_types_from_msg(c.msgdef.data, c.msgtype))
     with (
         AnyReader([src], default_typestore=store) as reader,
         Writer(dst, version=8, storage_plugin=StoragePlugin.MCAP) as writer,
@@ -239,12 +243,16 @@ def _rewritten(src: Path, dst: Path, negate: dict[str, str]) -> Path:
         for conn, t, raw in reader.messages():
             if conn.topic in negate:
                 msg = reader.deserialize(raw, conn.msgtype)
-                labels = msg.layout.dim[0].label.split(",")
-                n = msg.layout.dim[1].size
-                k = labels.index(negate[conn.topic])
-                data = msg.data.copy()
-                data[k * n : (k + 1) * n] *= -1.0
-                msg.data = data
+                if hasattr(msg, "layout"):  # (a Float64MultiArray block, channel-major)
+                    labels = msg.layout.dim[0].label.split(",")
+                    n = msg.layout.dim[1].size
+                    k = labels.index(negate[conn.topic])
+                    data = msg.data.copy()
+                    data[k * n : (k + 1) * n] *= -1.0
+                    msg.data = data
+                else:  # (a piezofin_msgs block: the channel's field, in lower case)
+                    field = negate[conn.topic].lower()
+                    setattr(msg, field, -getattr(msg, field))
                 raw = store.serialize_cdr(msg, conn.msgtype)
             writer.write(conns[conn.id], t, raw)
     return dst

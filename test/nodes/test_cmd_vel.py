@@ -14,9 +14,9 @@ import rclpy
 from geometry_msgs.msg import Twist
 from std_msgs.msg import Float64, String
 
-from piezofin_ros.nodes._common import QOS_COMMAND, QOS_STATUS
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, QOS_STATUS, speed_msg
 
-from ..rosutil import graph, start, stop
+from ..rosutil import data_type, graph, start, stop
 
 pytestmark = pytest.mark.ros
 
@@ -92,12 +92,12 @@ def test_odometry_is_dead_reckoned_from_the_speed_sensor_with_its_covariance() -
     try:
         with graph() as g:
             node = g.add(rclpy.create_node("sensor", namespace="odo", context=g.context))
-            speed = node.create_publisher(Float64, "swim_speed", QOS_COMMAND)
+            speed = node.create_publisher(data_type("swim_speed"), "swim_speed", QOS_DATA)
             node.create_subscription(Odometry, "odom", odoms.append, QOS_COMMAND)
             g.spin_until(lambda: speed.get_subscription_count() > 0 and odoms, timeout=60.0, what="match")
             t0 = time.monotonic()
             while time.monotonic() - t0 < 3.0:
-                speed.publish(Float64(data=0.05))
+                speed.publish(speed_msg(data_type("swim_speed"), 0.05, 0.0))
                 g.spin_for(0.05)
             swum = time.monotonic() - t0
             g.spin_for(0.3)

@@ -30,7 +30,15 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
 from piezofin_ros.bags.blocks import Block
-from piezofin_ros.nodes._common import QOS_CLOCK, QOS_COMMAND, QOS_DATA, block_msg, msg_block, record_msg
+from piezofin_ros.nodes._common import (
+    QOS_CLOCK,
+    QOS_COMMAND,
+    QOS_DATA,
+    block_msg,
+    msg_block,
+    record_msg,
+    speed_msg,
+)
 
 from ..rosutil import Graph, data_type, graph, start, start_driving_controller, stop
 
@@ -724,7 +732,7 @@ def test_a_speed_sensor_that_stops_or_lies_is_said_the_demand_stays_allowed_and_
     try:
         with graph() as g:
             node = g.add(rclpy.create_node("sensor", namespace=ns, context=g.context))
-            speed = node.create_publisher(Float64, TOPIC_SPEED, QOS_COMMAND)
+            speed = node.create_publisher(data_type(TOPIC_SPEED), TOPIC_SPEED, QOS_DATA)
             estimate = node.create_publisher(EstimateMsg, TOPIC_ESTIMATE, QOS_DATA)
             node.create_subscription(
                 Float64, TOPIC_DEMAND, lambda m: demands.append((now[0], m.data)), QOS_COMMAND
@@ -744,7 +752,7 @@ def test_a_speed_sensor_that_stops_or_lies_is_said_the_demand_stays_allowed_and_
                         estimate.publish(fin)
                     r = reading(k)
                     if r is not None:
-                        speed.publish(Float64(data=r))
+                        speed.publish(speed_msg(data_type(TOPIC_SPEED), r, 0.0))
                         sent.append(r)
                     k += 1
                     g.spin_for(0.05)
@@ -765,5 +773,8 @@ def test_a_speed_sensor_that_stops_or_lies_is_said_the_demand_stays_allowed_and_
     assert "speed sensor silent" in out_loop and "a sensor that lies" in out_loop, out_loop
     assert len(out_loop.splitlines()) <= 40, out_loop  # one line per kind, at most one a second
     assert "Traceback" not in out_loop + out_rec, out_loop + out_rec
-    recorded = [float(decode(m.type_name, m.data).data) for m in read_messages(bag, [f"/{ns}/{TOPIC_SPEED}"])]
+    recorded = [
+        float(decode(m.type_name, m.data).twist.linear.x)
+        for m in read_messages(bag, [f"/{ns}/{TOPIC_SPEED}"])
+    ]
     np.testing.assert_array_equal(recorded, sent)  # every reading, NaN and lies included, in order

@@ -44,6 +44,7 @@ from piezofin_ros.nodes._common import (
     msg_block,
     record_msg,
     sample_msg,
+    speed_msg,
 )
 
 from ..rosutil import data_type, graph, start, stop
@@ -82,6 +83,12 @@ def hostile_blocks(topic: str, channels: tuple[str, ...]) -> list[Any]:
     return out
 
 
+def speed_readings() -> list[Any]:
+    """A speed sensor's hostile readings: every hostile value and NaN, stamped or not."""
+    kind = data_type("swim_speed")
+    return [speed_msg(kind, x, stamp) for x in [*HOSTILE, math.nan] for stamp in (0.0, 1.0)]
+
+
 def estimate_msgs() -> list[EstimateMsg]:
     """Hostile values in every field at once, and in one field of an otherwise plausible estimate."""
     names = Estimate.field_names()
@@ -106,7 +113,7 @@ def battery_states() -> list[BatteryState]:
 #: each node, its namespace-relative subscriptions and the hostile messages of each
 ATTACKS = {
     "thrust_estimator": {
-        "swim_speed": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
+        "swim_speed": (data_type("swim_speed"), QOS_DATA, speed_readings()),
         "drive": (data_type("drive"), QOS_DATA, hostile_blocks("drive", DRIVE_CHANNELS)),
         "tip_velocity": (data_type("tip_velocity"), QOS_DATA, hostile_blocks("tip_velocity", TIP_CHANNELS)),
         "loadcell": (data_type("loadcell"), QOS_DATA, hostile_blocks("loadcell", LOADCELL_CHANNELS)),
@@ -114,7 +121,7 @@ ATTACKS = {
         "battery": (BatteryState, QOS_COMMAND, battery_states()),
     },
     "speed_loop": {
-        "swim_speed": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
+        "swim_speed": (data_type("swim_speed"), QOS_DATA, speed_readings()),
         "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
     },
     "controller": {
@@ -174,7 +181,7 @@ def test_no_message_kills_a_node_or_passes_its_door(exe: str, tmp_path: Path) ->
                     pubs["drive"].publish(
                         sample_msg("drive", Block.from_columns(t_s=t, voltage_V=v, current_A=i))
                     )
-                    pubs["swim_speed"].publish(Float64(data=0.05))
+                    pubs["swim_speed"].publish(speed_msg(data_type("swim_speed"), 0.05, float(t[-1])))
                     g.spin_for(0.02)
                 # its estimates, as soon as they come: behind the attack's 1.6 MB blocks, on CI's loaded
                 # machine (three test workers beside it), the estimator once published none within a
@@ -203,8 +210,9 @@ def test_no_message_kills_a_node_or_passes_its_door(exe: str, tmp_path: Path) ->
 
 
 def test_a_driver_of_the_older_blocks_is_told_what_changed(tmp_path: Path) -> None:
-    """A rig driver written before the blocks were named publishes ``drive`` as a ``Float64MultiArray``:
-    DDS never matches it with the estimator's ``piezofin_msgs/Drive``, so nothing arrives.  The
+    """A rig driver written before the blocks were named publishes ``drive`` as a ``Float64MultiArray``
+    (and its speed sensor an unstamped ``Float64``): DDS never matches them with the estimator's
+    ``piezofin_msgs/Drive`` (``TwistStamped``), so nothing arrives.  The
     estimator (its own process, as ``ros2 run`` starts it) says so in one error line naming the driver,
     the type it sends and the type it must send, once however long the driver goes on, and lives."""
     ns = "older_driver"
@@ -214,13 +222,15 @@ def test_a_driver_of_the_older_blocks_is_told_what_changed(tmp_path: Path) -> No
         with graph() as g:
             node = g.add(rclpy.create_node("old_rig_driver", namespace=ns, context=g.context))
             pub = node.create_publisher(Float64MultiArray, "drive", QOS_DATA)
+            speed = node.create_publisher(Float64, "swim_speed", QOS_COMMAND)  # (its sensor's, unstamped)
             t0 = time.monotonic()
             k = 0
-            while time.monotonic() - t0 < 30.0 and "publishes" not in log.read_text():
+            while time.monotonic() - t0 < 30.0 and log.read_text().count("publishes") < 2:
                 t = k * 0.05 + np.arange(50) * 1e-3
                 pub.publish(
                     block_msg(Block.from_columns(t_s=t, voltage_V=np.zeros(50), current_A=np.zeros(50)))
                 )
+                speed.publish(Float64(data=0.05))
                 g.spin_for(0.05)
                 k += 1
             g.spin_for(5.0)  # (more looks at the graph: still one line)
@@ -228,8 +238,11 @@ def test_a_driver_of_the_older_blocks_is_told_what_changed(tmp_path: Path) -> No
     finally:
         stop(proc)
     out = log.read_text()
-    said = [line for line in out.splitlines() if "publishes" in line]
+    said = [line for line in out.splitlines() if "publishes" in line and "/drive" in line]
     assert alive and len(said) == 1, out[-3000:]
+    sensor = [line for line in out.splitlines() if "publishes" in line and "/swim_speed" in line]
+    assert len(sensor) == 1 and "as std_msgs/msg/Float64," in sensor[0], out[-3000:]
+    assert "swim_speed is geometry_msgs/msg/TwistStamped now (the speed in twist.linear.x" in sensor[0]
     assert (
         "[ERROR]" in said[0]
         and f"/{ns}/old_rig_driver publishes /{ns}/drive as std_msgs/msg/Float64MultiArray" in said[0]
