@@ -4,8 +4,9 @@ pass that decodes and checks each message, counting (and describing, up to a bou
 Every reader of a fin's recording goes through :func:`read_fin`: the estimator's offline replay,
 the diagnosis' noise scan (both in one pass, :func:`read_fin` feeding several consumers), the
 identification's stepped sine and the campaign's time trace.  A sampled topic's block is checked
-(:func:`~.blocks.check_samples`) and holds its channels only; a command keeps its fields; a
-``std_msgs/Float64`` topic (``swim_speed``) gives its value.
+(:func:`~.blocks.check_samples`) and holds its channels only (a ``Float64MultiArray`` block of an
+older bag, or a named one); a command keeps its fields; ``swim_speed`` gives its value and stamp
+(a ``geometry_msgs/TwistStamped``, or an older bag's unstamped ``std_msgs/Float64``).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """``speed_loop``: a fish's speed set-point to the optimising controller's thrust demand.
 
-Subscribes ``swim_speed`` (std_msgs/Float64, m/s: the fish's speed sensor) and publishes
+Subscribes ``swim_speed`` (geometry_msgs/TwistStamped, m/s: the fish's speed sensor) and publishes
 ``thrust_demand`` (std_msgs/Float64, N per fin) at ``rate_hz`` on the node's clock, with what it is
 doing on ``speed_loop/status`` (std_msgs/String).  The set-point is the parameter ``speed_m_s``,
 settable live (``ros2 param set /fish/speed_loop speed_m_s 0.06``), or a fish stack's ``cmd_vel``

@@ -2,9 +2,10 @@
 
 Subscribes ``drive`` (required), ``tip_velocity`` and ``loadcell`` (optional: a fish has
 neither), ``supply`` or ``battery`` (sensor_msgs/BatteryState: the supply watt measured) and
-``swim_speed`` (std_msgs/Float64, m/s); publishes one ``estimate`` (piezofin_msgs/Estimate: each
-quantity by name, stamped at the window's end in the fin's time) per window.  All timing comes from
-the samples' own time stamps, so a replayed bag gives the estimates recorded live.
+``swim_speed`` (geometry_msgs/TwistStamped, m/s); publishes one ``estimate``
+(piezofin_msgs/Estimate: each quantity by name, stamped at the window's end in the fin's time) per
+window.  All timing comes from the samples' own time stamps, so a replayed bag gives the estimates
+recorded live.
 """
 
 from __future__ import annotations
