@@ -154,6 +154,12 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
             assert "twist:" in speed.stdout and "lost" not in speed.stdout + speed.stderr, (
                 speed.stdout + speed.stderr
             )
+        # the fish's speed and battery as a plotter sees them: by name, stamped in the fish's time
+        fish_series = plotted(ros_env, ["/fish/swim_speed", "/fish/battery"], messages=3)
+        for topic, name in (("/fish/swim_speed", "twist/linear/x"), ("/fish/battery", "percentage")):
+            points = fish_series[topic][name]
+            stamps = [t for t, _ in points]
+            assert stamps[0] > 0 and all(b > a for a, b in itertools.pairwise(stamps)), (topic, points)
         battery = ros2(ros_env, "topic", "echo", "--once", "/fish/battery", timeout=60.0)
         assert "percentage:" in battery.stdout and "voltage:" in battery.stdout, (
             battery.stdout + battery.stderr
