@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import array
 import math
 import os
 import signal
@@ -95,7 +96,7 @@ def plotted(
         if hasattr(value, "get_fields_and_field_types"):
             for k in value.get_fields_and_field_types():
                 flat(getattr(value, k), f"{path}/{k}" if path else k, out)
-        elif isinstance(value, (list, tuple)) or getattr(value, "ndim", 0) == 1:
+        elif isinstance(value, (list, tuple, array.array)) or getattr(value, "ndim", 0) == 1:
             for i, v in enumerate(value):
                 flat(v, f"{path}[{i}]", out)
         elif isinstance(value, (int, float)) and not isinstance(value, bool):
