@@ -1,12 +1,13 @@
 """``player``: replay an MCAP bag with its original timing, a rate factor, topic selection, ``/clock``.
 
-Messages are published as the serialised bytes stored in the bag (no decode), but for the blocks of
-an older bag where the suite's topic is a named message now (a ``drive`` or an ``estimate`` recorded
-as a ``std_msgs/Float64MultiArray``): each is played as the named message, so today's nodes hear it.
-Pacing uses a steady clock: bag time ``t_bag0 + rate * (steady - steady0)``.  With ``publish_clock`` the node
-publishes that bag time on ``/clock`` (the bag's own ``/clock`` is not replayed), so nodes
-with ``use_sim_time`` follow the recording.  An unreadable file gives one error line naming it;
-a file damaged part-way is played up to the damage, which is then reported.
+Messages are published as the serialised bytes stored in the bag (no decode), but for an older
+bag's messages where the suite's topic has another type now (a ``drive`` or an ``estimate`` recorded
+as a ``std_msgs/Float64MultiArray``, a ``swim_speed`` as a ``std_msgs/Float64``): each is played as
+today's type, so today's nodes hear it.  Pacing uses a steady clock: bag time
+``t_bag0 + rate * (steady - steady0)``.  With ``publish_clock`` the node publishes that bag time on
+``/clock`` (the bag's own ``/clock`` is not replayed), so nodes with ``use_sim_time`` follow the
+recording.  An unreadable file gives one error line naming it; a file damaged part-way is played up
+to the damage, which is then reported.
 """
 
 from __future__ import annotations
