@@ -8,7 +8,6 @@ fish's surge step.  Read one as the recipe; it fails if that recipe stops being 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -18,14 +17,18 @@ from numpy.typing import ArrayLike
 from scipy import optimize
 
 from piezofin_ros.control.objective import THRUST_PER_WATT
-from piezofin_ros.control.optimise import Correction, Optimiser
 from piezofin_ros.physics import amplifier as amplifiers
-from piezofin_ros.physics.amplifier import Amplifier, AmplifierError, amplifier_from_mapping
+from piezofin_ros.physics.amplifier import (
+    Amplifier,
+    AmplifierError,
+    amplifier_from_mapping,
+    power_above_zero,
+)
 from piezofin_ros.physics.fin import Fin
 from piezofin_ros.physics.swim import Body, bending_speed
 from piezofin_ros.rig.fish import FreeSwimmer
 
-from .control.test_optimise import LIMITS
+from .control.test_objective import choices_against_brute_force
 from .physics.test_amplifier import test_the_closed_form_is_the_time_domain_law_on_a_sine as amplifier_law
 
 
@@ -53,13 +56,9 @@ class TransformerAmplifier(Amplifier):
         return self.quiescent_w + np.abs(np.asarray(v, float) * np.asarray(i, float)) / self.efficiency
 
     def steady(self, voltage_pp: ArrayLike, current_rms: ArrayLike, power_w: ArrayLike) -> Any:
-        # p(t) = P - S cos(2 w t + phi), S = Vrms Irms: mean |p| = 2 (P (1 - a/pi) + S sin(a)/pi) - P,
-        # a = arccos(P / S)
-        P = np.asarray(power_w, float)
-        S = np.asarray(voltage_pp, float) / (2 * math.sqrt(2)) * np.asarray(current_rms, float)
-        a = np.arccos(np.clip(np.divide(P, S, out=np.ones_like(S * P), where=S > 0), -1.0, 1.0))
-        above = np.where(S > 0, P * (1 - a / math.pi) + S * np.sin(a) / math.pi, np.maximum(P, 0.0))
-        return self.quiescent_w + (2 * above - P) / self.efficiency
+        # mean |p| = the mean above zero, plus the mean below it (that less P): 2 above - P
+        above = power_above_zero(voltage_pp, current_rms, power_w)
+        return self.quiescent_w + (2 * above - np.asarray(power_w, float)) / self.efficiency
 
     def describe(self) -> str:
         return f"a transformer-coupled stage, {self.efficiency:.0%} efficient either way"
@@ -99,18 +98,7 @@ def test_an_objective_is_one_callable_the_optimiser_takes(m8528: Fin) -> None:
     optimiser (and, for a node's ``objective`` parameter, a row in ``OBJECTIVES``).  By itself: the
     optimiser's map ranks by it (its choice is the brute force's best over the same map), its status
     names it, and it chooses another point than thrust per watt does."""
-    f = np.geomspace(LIMITS.frequency_min_hz, LIMITS.frequency_max_hz, 4000)
-    pred = Correction().predict(m8528, f, np.full_like(f, 400.0))
-    thrust, power = np.asarray(pred.thrust_n), np.asarray(pred.power_w)
-    ok = thrust >= 1e-3
-    chosen = {}
-    for objective in (ThrustSquaredPerWatt(), THRUST_PER_WATT):
-        opt = Optimiser(m8528, LIMITS, voltage_pp=400.0, objective=objective, identify=False)
-        c = opt.choice
-        assert c is not None and opt.status()["objective"] == objective.name
-        best = float(np.max(objective(thrust[ok], power[ok])))
-        assert float(objective(c.thrust_n, c.power_w)) >= 0.98 * best, objective.name
-        chosen[objective.name] = c
+    chosen, _ = choices_against_brute_force(m8528, (ThrustSquaredPerWatt(), THRUST_PER_WATT))
     assert chosen[ThrustSquaredPerWatt.name].thrust_n > chosen[THRUST_PER_WATT.name].thrust_n
 
 

@@ -237,11 +237,19 @@ def sample_span(data: bytes, named: bool = False) -> tuple[float, float, int] | 
         if not first_label.startswith(b"t_s,"):
             return None
         n = sizes[1] if ndim == 2 else 1
-        if n < 1 or count < n:
+        if count < n:
             return None
-        t0, t1 = struct.unpack_from("<d", data, off)[0], struct.unpack_from("<d", data, off + 8 * (n - 1))[0]
+        return _times_at(data, off, n)
     except struct.error:
         return None
+
+
+def _times_at(data: bytes, off: int, n: int) -> tuple[float, float, int] | None:
+    """``(first, last, n)`` of ``n`` sample times stored as doubles from ``off``; ``None`` when there is
+    none or they are not finite and in order (``struct.error`` past the end, for the caller)."""
+    if n < 1:
+        return None
+    t0, t1 = struct.unpack_from("<d", data, off)[0], struct.unpack_from("<d", data, off + 8 * (n - 1))[0]
     if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
         return None
     return t0, t1, n
@@ -269,14 +277,9 @@ def _named_span(data: bytes) -> tuple[float, float, int] | None:
         off = 4 + ((off + 4 + length - 4 + 3) & ~3)  # frame_id, aligned to 4
         (n,) = struct.unpack_from("<I", data, off)
         off = 4 + ((off + 4 - 4 + 7) & ~7)  # the doubles, aligned to 8
-        if n < 1:
-            return None
-        t0, t1 = struct.unpack_from("<d", data, off)[0], struct.unpack_from("<d", data, off + 8 * (n - 1))[0]
+        return _times_at(data, off, n)
     except struct.error:
         return None
-    if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
-        return None
-    return t0, t1, n
 
 
 def message_fields(msg: Any) -> dict[str, Any]:

@@ -188,6 +188,19 @@ class Amplifier:
         return f", {q:g} W quiescent" if q else ""
 
 
+def power_above_zero(voltage_pp: ArrayLike, current_rms: ArrayLike, power_w: ArrayLike) -> FloatArray:
+    """The mean of the part of ``p(t) = v i`` above zero on a sinusoidal drive of ``voltage_pp`` whose
+    current has RMS ``current_rms`` and whose ``mean(v i)`` is ``power_w``, W: with
+    ``p(t) = P - S cos(2 w t + phi)``, ``S = Vrms Irms``, it is ``P (1 - a/pi) + S sin(a) / pi``,
+    ``a = arccos(P / S)`` (the part below zero has that mean less ``P``).  A kind whose draw treats
+    the two directions of the power apart takes its closed form from here."""
+    P = np.asarray(power_w, float)
+    S = np.asarray(voltage_pp, float) / (2 * math.sqrt(2)) * np.asarray(current_rms, float)
+    c = np.clip(np.divide(P, S, out=np.ones_like(S * P), where=S > 0), -1.0, 1.0)
+    a = np.arccos(c)
+    return np.where(S > 0, P * (1 - a / math.pi) + S * np.sin(a) / math.pi, np.maximum(P, 0.0))  # type: ignore[no-any-return]
+
+
 @dataclass(frozen=True)
 class LinearAmplifier(Amplifier):
     kind: ClassVar[str] = "linear"
@@ -236,14 +249,8 @@ class SwitchingAmplifier(Amplifier):
         return self.quiescent_w + np.maximum(p, 0.0) / self.efficiency + self.recovered * np.minimum(p, 0.0)
 
     def steady(self, voltage_pp: ArrayLike, current_rms: ArrayLike, power_w: ArrayLike) -> FloatArray:
-        # p(t) = P - S cos(2 w t + phi) with S = Vrms Irms: the part above zero has the mean
-        # P (1 - a/pi) + S sin(a) / pi, a = arccos(P / S); the part below zero, that less P
-        P = np.asarray(power_w, float)
-        S = np.asarray(voltage_pp, float) / (2 * math.sqrt(2)) * np.asarray(current_rms, float)
-        c = np.clip(np.divide(P, S, out=np.ones_like(S * P), where=S > 0), -1.0, 1.0)
-        a = np.arccos(c)
-        above = np.where(S > 0, P * (1 - a / math.pi) + S * np.sin(a) / math.pi, np.maximum(P, 0.0))
-        below = above - P
+        above = power_above_zero(voltage_pp, current_rms, power_w)
+        below = above - np.asarray(power_w, float)  # (the part below zero: the mean less P)
         return self.quiescent_w + above / self.efficiency - self.recovered * below
 
     def describe(self) -> str:

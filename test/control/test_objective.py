@@ -4,6 +4,7 @@ unless told otherwise, and a fish's range (speed per watt of everything it pays)
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -36,17 +37,20 @@ def test_an_objective_out_of_range_is_one_clear_error(bad: dict[str, float]) -> 
         PerWatt(**bad)
 
 
-def test_the_optimiser_takes_the_maps_best_by_the_objective_it_is_given(m8528: Fin) -> None:
-    """No demand, no trial yet: the choice is the map's best frequency at the configured voltage by
-    the objective passed in, against a brute force over the same map; a fish whose 0.3 W of hotel
-    load dwarfs the fin's watt goes farthest near the most thrust, not at the best thrust per watt."""
-    f = np.geomspace(LIMITS.frequency_min_hz, LIMITS.frequency_max_hz, 4000)
-    pred = Correction().predict(m8528, f, np.full_like(f, 400.0))
+#: the frequencies of the brute force over the optimiser's map (at 400 Vpp, no demand)
+BRUTE_F = np.geomspace(LIMITS.frequency_min_hz, LIMITS.frequency_max_hz, 4000)
+
+
+def choices_against_brute_force(fin: Fin, objectives: Any) -> tuple[dict[str, Any], np.ndarray]:
+    """Each objective's choice by a fresh optimiser (no demand, no trial), checked against the brute
+    force's best over the same map: named in the status, within 2 % of it.  Returns the choices by
+    the objective's name and the map's thrust over :data:`BRUTE_F`."""
+    pred = Correction().predict(fin, BRUTE_F, np.full_like(BRUTE_F, 400.0))
     thrust, power = np.asarray(pred.thrust_n), np.asarray(pred.power_w)
     ok = thrust >= 1e-3
     chosen = {}
-    for objective in (THRUST_PER_WATT, range_per_charge(0.3)):
-        opt = Optimiser(m8528, LIMITS, voltage_pp=400.0, objective=objective, identify=False)
+    for objective in objectives:
+        opt = Optimiser(fin, LIMITS, voltage_pp=400.0, objective=objective, identify=False)
         c = opt.choice
         assert c is not None and opt.status()["objective"] == objective.name
         best = float(np.max(objective(thrust[ok], power[ok])))
@@ -54,5 +58,13 @@ def test_the_optimiser_takes_the_maps_best_by_the_objective_it_is_given(m8528: F
         # its mean, and thrust per watt is best at that edge)
         assert float(objective(c.thrust_n, c.power_w)) >= 0.98 * best, objective.name
         chosen[objective.name] = c
+    return chosen, thrust
+
+
+def test_the_optimiser_takes_the_maps_best_by_the_objective_it_is_given(m8528: Fin) -> None:
+    """No demand, no trial yet: the choice is the map's best frequency at the configured voltage by
+    the objective passed in, against a brute force over the same map; a fish whose 0.3 W of hotel
+    load dwarfs the fin's watt goes farthest near the most thrust, not at the best thrust per watt."""
+    chosen, thrust = choices_against_brute_force(m8528, (THRUST_PER_WATT, range_per_charge(0.3)))
     tpw, fish = chosen[THRUST_PER_WATT.name], chosen[range_per_charge(0.3).name]
-    assert fish.thrust_n > tpw.thrust_n and abs(fish.frequency_hz / f[np.argmax(thrust)] - 1) < 0.02
+    assert fish.thrust_n > tpw.thrust_n and abs(fish.frequency_hz / BRUTE_F[np.argmax(thrust)] - 1) < 0.02
