@@ -24,6 +24,7 @@ import rclpy
 from geometry_msgs.msg import TwistStamped
 from piezofin_msgs.msg import Drive
 from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64MultiArray
 
@@ -55,8 +56,9 @@ class FishDriver(Node):
         self.commands: list[tuple[float, float, float]] = []
         self.truth: list[str] = []
         self.drive = self.create_publisher(Drive, "drive", QOS_DATA)
-        self.speed_pub = self.create_publisher(TwistStamped, "swim_speed", QOS_DATA)
-        self.battery = self.create_publisher(BatteryState, "battery", QOS_COMMAND)
+        # (its sensors as ROS sensor drivers publish them: best-effort)
+        self.speed_pub = self.create_publisher(TwistStamped, "swim_speed", qos_profile_sensor_data)
+        self.battery = self.create_publisher(BatteryState, "battery", qos_profile_sensor_data)
         self.create_subscription(Float64MultiArray, "cmd", self.on_cmd, QOS_COMMAND)
         self.create_timer(BLOCK / RATE_HZ, self.step)
         self.get_logger().info("driving the fin from cmd; publishing drive, swim_speed, battery")

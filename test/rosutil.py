@@ -80,8 +80,8 @@ def plotted(
 ) -> dict[str, dict[str, list[tuple[float, float]]]]:
     """What a generic plotter (PlotJuggler's ROS 2 topic source, with "use the header's stamp") makes
     of ``topics`` in ``env``'s domain: each topic's type as the graph names it, a subscription of that
-    type (reliable, volatile: it matches any publisher), each message's numeric fields flattened into
-    series named by their path (``thrust_n``, ``header/stamp/sec``), each point at the message's
+    type (best-effort, volatile: it matches any publisher), each message's numeric fields flattened
+    into series named by their path (``thrust_n``, ``header/stamp/sec``), each point at the message's
     ``header.stamp`` (NaN without a header).  Returns ``{topic: {path: [(stamp s, value)]}}`` once each
     topic gave ``messages`` messages."""
     import importlib
@@ -119,7 +119,7 @@ def plotted(
                 series[topic].setdefault(path, []).append((stamp, value))
             counts[topic] += 1
 
-        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
         for t in topics:
             node.create_subscription(message_class(types[t][0]), t, lambda m, t=t: take(t, m), qos)
         g.spin_until(

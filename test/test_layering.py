@@ -191,20 +191,24 @@ def test_each_topic_is_declared_once_and_documented() -> None:
     recorder's list and a re-export list.  Now one table (``bags.topics.TOPICS``): every topic name
     the module declares is in it, its QoS profile exists, the recorder's lists are the table's, and
     docs/reference.md's topic table has a row for each with its type."""
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
     from piezofin_ros.bags import topics
     from piezofin_ros.nodes._common import QOS, endpoint
     from piezofin_ros.nodes.recorder import GLOBAL_TOPICS, SUITE_TOPICS
 
     declared = {v for k, v in vars(topics).items() if k.startswith("TOPIC_")}
     assert declared == set(topics.TOPICS)
-    rows, previous = {}, ""
+    rows, qos_cells, previous = {}, {}, ("", "")
     text = (PACKAGE.parent / "docs" / "reference.md").read_text()
     section = text[text.index("### Topics") : text.index("**Blocks**")]
     for line in section.splitlines():
         cells = [c.strip() for c in line.strip("|").split("|")]
-        if len(cells) > 2 and (name := re.match(r"`([^`]+)`", cells[0])):
-            rows[name.group(1)] = previous if cells[1] == "same" else cells[1]  # ("same": the row above's)
-            previous = rows[name.group(1)]
+        if len(cells) > 4 and (name := re.match(r"`([^`]+)`", cells[0])):
+            # ("same": the row above's)
+            rows[name.group(1)] = previous[0] if cells[1] == "same" else cells[1]
+            qos_cells[name.group(1)] = previous[1] if cells[4] == "same" else cells[4]
+            previous = (rows[name.group(1)], qos_cells[name.group(1)])
     for name, t in topics.TOPICS.items():
         assert t.qos in QOS, name
         cls, topic, qos = endpoint(name)
@@ -216,6 +220,11 @@ def test_each_topic_is_declared_once_and_documented() -> None:
         )
         short = t.type.replace("/msg/", "/")
         assert name in rows and short in rows[name], (name, short, rows.get(name))
+        said = qos_cells[name]  # the docs' QoS: the profile's reliability, durability and depth
+        best_effort = qos.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert said.startswith("best-effort" if best_effort else "reliable"), (name, said)
+        assert f"keep last {qos.depth}" in said, (name, said)
+        assert ("transient-local" in said) == (qos.durability == DurabilityPolicy.TRANSIENT_LOCAL), name
     recorded = {n: t.type for n, t in topics.TOPICS.items() if t.recorded}
     assert recorded == {**SUITE_TOPICS, **GLOBAL_TOPICS}
 

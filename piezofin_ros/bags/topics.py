@@ -66,13 +66,13 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_SUPPLY, SUPPLY, "data", "fin_sim, or a driver with a supply meter"),
         Topic(TOPIC_CMD, F64A, "command", "controller"),
         Topic(TOPIC_ESTIMATE, ESTIMATE, "estimate", "thrust_estimator"),
-        Topic(TOPIC_SPEED, SPEED, "data", "fin_sim with a body, or a fish driver"),
+        Topic(TOPIC_SPEED, SPEED, "sensor", "fin_sim with a body, or a fish driver"),
         Topic(TOPIC_STATUS, STRING, "status", "controller"),
         Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),
         Topic(
             TOPIC_BATTERY,
             "sensor_msgs/msg/BatteryState",
-            "command",
+            "sensor",
             "fin_sim with a battery, or a fish driver",
         ),
         Topic(TOPIC_LOOP_STATUS, STRING, "status", "speed_loop"),
@@ -88,6 +88,15 @@ TOPICS: dict[str, Topic] = {
         ),
     )
 }
+
+
+def table_topic(topic: str) -> Topic | None:
+    """The table's entry of a topic name, relative or absolute (``/left/estimate``: ``estimate``)."""
+    for name, t in TOPICS.items():
+        if topic == name or topic.endswith(f"/{name.lstrip('/')}"):
+            return t
+    return None
+
 
 #: The sample channels of each sampled topic, in wire order.
 SAMPLED = {

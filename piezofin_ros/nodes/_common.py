@@ -58,6 +58,17 @@ QOS_ESTIMATE = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+#: A fish's sensor readings (its speed, its battery), as ROS sensor drivers publish them
+#: (``qos_profile_sensor_data``): best-effort, so that a late joiner (``ros2 topic echo --once``) is
+#: never told of samples "lost" from before it joined (Fast DDS counts a reliable late joiner's
+#: pre-match samples so on a busy topic), and the suite's best-effort readers match a driver's
+#: reliable publisher and its best-effort one alike; only the newest reading matters.
+QOS_SENSOR = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
 #: Commands: reliable, short history.
 QOS_COMMAND = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
 #: A status (JSON in a String), sent when it changes: transient-local, the latest one kept, so that
@@ -74,6 +85,7 @@ QOS_DIAGNOSTICS = QoSProfile(
 #: The profiles by the name the topic table (``bags.topics.TOPICS``) gives them.
 QOS = {
     "data": QOS_DATA,
+    "sensor": QOS_SENSOR,
     "estimate": QOS_ESTIMATE,
     "command": QOS_COMMAND,
     "status": QOS_STATUS,
@@ -99,6 +111,7 @@ from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contrac
     TOPIC_SUPPLY,
     TOPIC_TIP,
     TOPICS,
+    table_topic,
 )
 
 
@@ -113,6 +126,14 @@ def endpoint(topic: str) -> tuple[Any, str, QoSProfile]:
     """``(message class, topic, QoS)`` of a topic of the table, for ``create_publisher``."""
     t = TOPICS[topic]
     return message_class(t.type), topic, QOS[t.qos]
+
+
+def reliability_of(topic: str) -> Any:
+    """The reliability a subscriber asks of a topic: its profile's in the topic table (a relative or
+    absolute name; best-effort for a sensor reading, which matches any publisher), reliable for a
+    topic the table does not know."""
+    t = table_topic(topic)
+    return ReliabilityPolicy.RELIABLE if t is None else QOS[t.qos].reliability
 
 
 def block_msg(block: Block) -> Float64MultiArray:
@@ -481,7 +502,7 @@ class Inbox:
             self._helper = helper_node(node, "inbox")
             # one timer looks at every polled subscription, in the order they were made
             node.create_timer(self.POLL_S, self._poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        qos = Q(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+        qos = Q(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability_of(topic))
         sub = self._helper.create_subscription(msg_type, node.resolve_topic_name(topic), never, qos)
         self._polls.append((sub, topic, handler, check, most))
         return sub
@@ -501,15 +522,21 @@ class Inbox:
 
     def _check_types(self) -> None:
         """One error line per topic and type when a publisher sends a type this node does not read (a
-        rig driver written before the blocks were named: DDS never matches them, so nothing would
-        arrive and nothing would say why)."""
+        rig driver written before the blocks were named), and per topic when it publishes best-effort
+        what this node reads reliable (a block): DDS never matches them, so nothing would arrive and
+        nothing would say why."""
         for sub, topic, *_ in self._polls:
             want = f"{sub.msg_type.__module__.split('.')[0]}/msg/{sub.msg_type.__name__}"
             name = self._node.resolve_topic_name(topic)
             for info in self._node.get_publishers_info_by_topic(name):
-                if info.topic_type == want or (name, info.topic_type) in self.wrong_types:
+                unmatched = (
+                    reliability_of(topic) == ReliabilityPolicy.RELIABLE
+                    and info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+                )
+                got = "best-effort" if info.topic_type == want and unmatched else info.topic_type
+                if got == want or (name, got) in self.wrong_types:
                     continue
-                key = (name, info.topic_type)
+                key = (name, got)
                 if info.node_name.startswith("_NODE_NAME_UNKNOWN") and self._unnamed[key] < 3:
                     self._unnamed[key] += 1  # (its node's name comes later in discovery: a look or two)
                     continue
@@ -519,6 +546,13 @@ class Inbox:
                     if not info.node_name.startswith("_NODE_NAME_UNKNOWN")
                     else "a node of unknown name"
                 )
+                if got == "best-effort":
+                    self._node.get_logger().error(
+                        f"{who} publishes {name} best-effort, which this node's reliable reader never "
+                        f"matches: every sample of {topic} counts, publish it reliable "
+                        "(docs/reference.md, Topics)"
+                    )
+                    continue
                 self._node.get_logger().error(
                     f"{who} publishes {name} as {info.topic_type}, which this node does not read: "
                     f"{topic} is {want} now{TYPE_HINTS.get(want, '')} (docs/reference.md, Topics)"

@@ -25,7 +25,7 @@ from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
 from ..bags import BagError, BagMessage, bag_topics, block_of, decode, read_messages, resolve_bag
-from ..bags.topics import F64, F64A, SPEED
+from ..bags.topics import F64, F64A, SPEED, table_topic
 from ..bags.types import is_record_type, normalise_type
 from ..config import setting
 from ._common import (
@@ -39,7 +39,7 @@ from ._common import (
     run_node,
     speed_msg,
 )
-from .recorder import qos_for, table_topic
+from .recorder import qos_for
 
 
 @dataclass(frozen=True)

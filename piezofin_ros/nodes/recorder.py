@@ -30,12 +30,12 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from std_msgs.msg import String
 
 from ..bags import BagWriter, block_of, message_definition, normalise_type, qos_profile
 from ..bags.gaps import Gap, GapWatch
-from ..bags.topics import F64, F64A, SAMPLED, STRING, TOPICS, Topic
+from ..bags.topics import F64, F64A, SAMPLED, STRING, TOPICS, table_topic
 from ..bags.types import is_record_type
 from ..config import setting
 from ._common import (
@@ -51,6 +51,7 @@ from ._common import (
     helper_node,
     message_class,
     never,
+    reliability_of,
     run_node,
 )
 from ._diagnostics import ERROR, OK, Diagnostics, Report
@@ -70,14 +71,6 @@ def qos_for(topic: str, type_name: str) -> Any:
     if table is not None and table.type == normalise_type(type_name):
         return QOS[table.qos]
     return QOS_DATA if type_name == F64A else QOS_COMMAND
-
-
-def table_topic(topic: str) -> Topic | None:
-    """The topic table's entry of an absolute topic name (``/left/estimate``: ``estimate``)."""
-    for name, t in TOPICS.items():
-        if topic == name or topic.endswith(f"/{name.lstrip('/')}"):
-            return t
-    return None
 
 
 #: Every topic but ``/clock`` is polled, never queued in the executor: each look takes at most so many
@@ -278,7 +271,7 @@ class Recorder(Node):
             self._helper = helper_node(self, "poll")
             self.create_timer(POLL_S, self._poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
         depth = SAMPLED_DEPTH if topic in self._sampled else POLL_DEPTH
-        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+        qos = QoSProfile(depth=depth, reliability=reliability_of(topic))
         self._polled.append(topic)
         return self._helper.create_subscription(cls, topic, never, qos, raw=True)
 

@@ -40,6 +40,7 @@ from piezofin_ros.nodes._common import (
     BATTERY_MOST_V,
     QOS_COMMAND,
     QOS_DATA,
+    QOS_SENSOR,
     block_msg,
     msg_block,
     record_msg,
@@ -113,15 +114,15 @@ def battery_states() -> list[BatteryState]:
 #: each node, its namespace-relative subscriptions and the hostile messages of each
 ATTACKS = {
     "thrust_estimator": {
-        "swim_speed": (data_type("swim_speed"), QOS_DATA, speed_readings()),
+        "swim_speed": (data_type("swim_speed"), QOS_SENSOR, speed_readings()),
         "drive": (data_type("drive"), QOS_DATA, hostile_blocks("drive", DRIVE_CHANNELS)),
         "tip_velocity": (data_type("tip_velocity"), QOS_DATA, hostile_blocks("tip_velocity", TIP_CHANNELS)),
         "loadcell": (data_type("loadcell"), QOS_DATA, hostile_blocks("loadcell", LOADCELL_CHANNELS)),
         "supply": (data_type("supply"), QOS_DATA, hostile_blocks("supply", SUPPLY_CHANNELS)),
-        "battery": (BatteryState, QOS_COMMAND, battery_states()),
+        "battery": (BatteryState, QOS_SENSOR, battery_states()),
     },
     "speed_loop": {
-        "swim_speed": (data_type("swim_speed"), QOS_DATA, speed_readings()),
+        "swim_speed": (data_type("swim_speed"), QOS_SENSOR, speed_readings()),
         "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
     },
     "controller": {
@@ -248,3 +249,53 @@ def test_a_driver_of_the_older_blocks_is_told_what_changed(tmp_path: Path) -> No
         and f"/{ns}/old_rig_driver publishes /{ns}/drive as std_msgs/msg/Float64MultiArray" in said[0]
     )
     assert "drive is piezofin_msgs/msg/Drive now" in said[0] and "voltage_v" in said[0], said[0]
+
+
+def test_a_driver_publishing_best_effort_is_read_where_a_reading_may_drop_and_told_where_it_may_not(
+    tmp_path: Path,
+) -> None:
+    """ROS sensor drivers publish best-effort (``qos_profile_sensor_data``).  A fish driver's speed
+    sensor so published is read (the estimate carries its speed): the suite reads a sensor's readings
+    best-effort, which matches either publisher.  Its drive blocks so published would never be
+    matched by the estimator's reliable reader (every sample counts): one error line names the
+    driver and says to publish them reliable, however long it goes on, and the estimator lives."""
+    from rclpy.qos import qos_profile_sensor_data
+
+    ns = "lossy_driver"
+    log = tmp_path / "estimator.log"
+    proc = start("thrust_estimator", "-r", f"__ns:=/{ns}", log=log)
+    speeds: list[float] = []
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("sensor_driver", namespace=ns, context=g.context))
+            lossy = g.add(rclpy.create_node("lossy_rig", namespace=ns, context=g.context))
+            drive = node.create_publisher(data_type("drive"), "drive", QOS_DATA)
+            lossy_drive = lossy.create_publisher(data_type("drive"), "drive", qos_profile_sensor_data)
+            speed = node.create_publisher(data_type("swim_speed"), "swim_speed", qos_profile_sensor_data)
+            node.create_subscription(
+                EstimateMsg, "estimate", lambda m: speeds.append(m.swim_speed_m_s), QOS_DATA
+            )
+            t0 = time.monotonic()
+            k = 0
+            while time.monotonic() - t0 < 40.0 and not (
+                speeds and speeds[-1] > 0 and "best-effort" in log.read_text()
+            ):
+                t = k * 0.05 + np.arange(50) * 1e-3
+                v = 100.0 * np.sin(2 * np.pi * 5.0 * t)
+                b = Block.from_columns(t_s=t, voltage_V=v, current_A=1e-6 * np.cos(2 * np.pi * 5.0 * t))
+                drive.publish(sample_msg("drive", b))
+                lossy_drive.publish(sample_msg("drive", b))
+                speed.publish(speed_msg(data_type("swim_speed"), 0.05, float(t[-1])))
+                g.spin_for(0.05)
+                k += 1
+            g.spin_for(5.0)  # (more looks at the graph: still one line)
+            alive = proc.poll() is None
+    finally:
+        stop(proc)
+    out = log.read_text()
+    said = [line for line in out.splitlines() if "best-effort" in line]
+    assert alive and len(said) == 1, out[-3000:]
+    assert "[ERROR]" in said[0] and f"/{ns}/lossy_rig publishes /{ns}/drive best-effort" in said[0], said
+    assert "publish it reliable" in said[0], said[0]
+    assert "swim_speed" not in said[0] and "publishes" not in out.replace(said[0], ""), out[-3000:]
+    assert speeds and speeds[-1] == pytest.approx(0.05), speeds[-5:]
