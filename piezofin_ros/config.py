@@ -25,6 +25,10 @@ from typing import Any
 #: therefore limited to +-500 V, i.e. 1000 Vpp.  The paper drives at most 800 Vpp.  (Here, among the
 #: settings, so that the nodes a fish runs know it without loading the simulated rig.)
 HARD_VOLTAGE_PP_MAX = 1000.0
+#: The window no instantaneous drive voltage may leave, whatever its offset (a DC bias that bends the
+#: fin to steer): the P1 (d33) MFC's rating, -500 V .. +1500 V (Smart Material, *MFC engineering
+#: properties*, Vmin and Vmax), which is not symmetric.
+HARD_VOLTAGE_WINDOW_V = (-500.0, 1500.0)
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,8 @@ LOADCELL_CHANNELS = ("t_s", "displacement_m")
 SUPPLY_CHANNELS = ("t_s", "supply_voltage_V", "supply_current_A")
 #: Fields of an actuation command, in wire order (also accepted unlabelled in this order).
 COMMAND_FIELDS = ("frequency_hz", "voltage_pp_V", "on")
+#: A command's optional fields, after those (unlabelled too): the drive's offset, V (0 without it).
+COMMAND_OPTIONAL = ("bias_V",)
 
 #: The physical range of each sampled channel: a reading beyond (or infinite) is no reading of this
 #: rig or fish, whoever sent it.  Generous: an MFC is rated -500..+1500 V and draws milliamperes; a
@@ -132,12 +134,14 @@ def from_layout(
     *,
     expect: Sequence[str] | None = None,
     data_offset: int = 0,
+    optional: Sequence[str] = (),
 ) -> Block:
     """Decode a ``Float64MultiArray`` into a :class:`Block`, checking every size.
 
     ``expect`` names the channels the receiver needs; they must all be present (others are
     kept).  An unlabelled message (no ``dim``) is accepted only with ``expect``, as one
-    sample in that order, which is what a person typing ``ros2 topic pub`` writes.
+    sample in that order, which is what a person typing ``ros2 topic pub`` writes, followed by
+    as many of ``optional`` as it holds.
     Raises :class:`BlockFormatError` with the reason on any inconsistency.
     """
     values = np.asarray(data, dtype=float).ravel()
@@ -148,11 +152,13 @@ def from_layout(
     if len(dims) == 0:
         if expect is None:
             raise BlockFormatError("message has no layout (dim is empty)")
-        if values.size != len(expect):
+        names = (*expect, *optional)
+        if not len(expect) <= values.size <= len(names):
+            held = f"{len(expect)} to {len(names)}" if optional else f"{len(expect)}"
             raise BlockFormatError(
-                f"unlabelled message must hold {len(expect)} values ({', '.join(expect)}), got {values.size}"
+                f"unlabelled message must hold {held} values ({', '.join(names)}), got {values.size}"
             )
-        return Block(tuple(expect), values.reshape(len(expect), 1))
+        return Block(names[: values.size], values.reshape(values.size, 1))
     if len(dims) > 2:
         raise BlockFormatError(f"block has at most 2 dimensions, got {len(dims)}")
     label, nc, stride0 = dims[0]
@@ -259,7 +265,14 @@ def _times_at(data: bytes, off: int, n: int) -> tuple[float, float, int] | None:
 #: (``voltage_v``), the channels name their unit as it is written (``voltage_V``).
 CHANNEL_OF_FIELD = {
     c.lower(): c
-    for c in (*DRIVE_CHANNELS, *TIP_CHANNELS, *LOADCELL_CHANNELS, *SUPPLY_CHANNELS, *COMMAND_FIELDS)
+    for c in (
+        *DRIVE_CHANNELS,
+        *TIP_CHANNELS,
+        *LOADCELL_CHANNELS,
+        *SUPPLY_CHANNELS,
+        *COMMAND_FIELDS,
+        *COMMAND_OPTIONAL,
+    )
 }
 
 

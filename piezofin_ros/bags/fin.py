@@ -16,7 +16,7 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
-from .blocks import COMMAND_FIELDS, Block, BlockFormatError, check_samples
+from .blocks import COMMAND_FIELDS, COMMAND_OPTIONAL, Block, BlockFormatError, check_samples
 from .reader import Damage, read_messages
 from .topics import (  # noqa: F401 (re-exported: a reader of a fin's bag needs the names too)
     SAMPLED,
@@ -98,7 +98,7 @@ def read_fin(
                     yield FinMessage(kind, m.log_time_ns, value=float(msg.data))
                 continue
             if kind == TOPIC_CMD:
-                block = block_of(m.type_name, m.data, expect=COMMAND_FIELDS)
+                block = block_of(m.type_name, m.data, expect=COMMAND_FIELDS, optional=COMMAND_OPTIONAL)
             elif kind in SAMPLED:
                 block = check_samples(block_of(m.type_name, m.data), SAMPLED[kind])
             else:

@@ -75,11 +75,15 @@ def decode(type_name: str, data: bytes) -> Any:
         raise MessageError(f"not a valid {type_name} message ({exc})") from None
 
 
-def block_of(type_name: str, data: bytes, expect: tuple[str, ...] | None = None) -> Block:
+def block_of(
+    type_name: str, data: bytes, expect: tuple[str, ...] | None = None, optional: tuple[str, ...] = ()
+) -> Block:
     """Decode a ``Float64MultiArray`` message, or one of the project's own named messages (one sample
     of each named field), into a :class:`~piezofin_ros.bags.blocks.Block`."""
     msg = decode(type_name, data)
     if is_record_type(type_name):
         return message_block(msg, expect)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
-    return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
+    return from_layout(
+        dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset), optional=optional
+    )

@@ -44,7 +44,9 @@ velocity:
 Windows
 -------
 A drive period runs between two upward zero crossings of the voltage (with hysteresis against
-noise).  Consecutive periods of the same length and amplitude (within ``tolerance``) form a
+noise); where a DC offset holds the drive off zero (no crossing for 2.5 s), between upward
+crossings of its middle, followed period by period until zero lies inside the swing again.
+Consecutive periods of the same length and amplitude (within ``tolerance``) form a
 *segment* (a period that differs from the first one but not from the median of the last five
 continues it, so a ramp's tail or a slow drift does not split a trial); a burst of the paper's
 protocol is one segment, and so is steady continuous driving.
@@ -527,6 +529,9 @@ class StreamEstimator:
         self._prev = (math.nan, math.nan)  # last drive sample (t, v)
         self._vmin = math.inf
         self._vmax = -math.inf
+        self._mid = 0.0  # V, the drive's middle (its offset): the last period's, or the last MID_S's
+        self._mid_since = math.nan  # when the swing _vmin.._vmax began to be gathered
+        self._mid_old = 0.0
         self._last_cross = math.nan
         self._segment: _Segment | None = None
         self._pending: list[_Pending] = []
@@ -642,13 +647,17 @@ class StreamEstimator:
             if not self._on:
                 self._place_battery(first_above - 0.1)  # (the readings before: taken with it off)
                 self._on = True
+                self._mid_since = first_above  # (a middle is looked for from here)
                 self._on_event(first_above)
             self._last_above = float(t[len(above) - 1 - np.argmax(above[::-1])])
-        # Upward zero crossings with hysteresis (v must have gone below -h since the last one).
+        # Upward zero crossings with hysteresis (v must have gone below -h since the last one); of
+        # the drive's middle where an offset holds it off zero (``_mid``, :meth:`_new_middle`).
         h = 0.5 * cfg.on_threshold_v
         t_prev, v_prev = self._prev
         tt = np.concatenate([[t_prev], t]) if math.isfinite(t_prev) else t
-        vv = np.concatenate([[v_prev], v]) if math.isfinite(t_prev) else v
+        vv = (np.concatenate([[v_prev], v]) if math.isfinite(t_prev) else v) - self._mid
+        if not math.isfinite(self._mid_since):
+            self._mid_since = float(tt[0])
         cand = np.flatnonzero((vv[:-1] < 0) & (vv[1:] >= 0)) + 1
         start = 0
         for k in cand.tolist():
@@ -663,18 +672,41 @@ class StreamEstimator:
             if math.isfinite(self._last_cross) and self._on:
                 self._on_period(self._last_cross, float(tc), self._vmax - self._vmin)
             self._last_cross = float(tc)
+            if self._mid != 0.0:  # (offset: the middle followed period by period)
+                self._new_middle(float(tc))
+                vv = vv - (self._mid - self._mid_old)
             self._vmin, self._vmax = math.inf, -math.inf
+            self._mid_since = float(tc)
         rest = vv[start:]
         if rest.size:
             self._vmin = min(self._vmin, float(rest.min()))
             self._vmax = max(self._vmax, float(rest.max()))
+        if self._on and float(tt[-1]) - self._mid_since > self.MID_S and self._vmax - self._vmin > 2.0 * h:
+            self._new_middle(float(tt[-1]))  # (no crossing while on: a drive held off zero)
         self._prev = (float(t[-1]), float(v[-1]))
         if self._on and float(t[-1]) - self._last_above > cfg.off_hold_s:
             self._on = False
             self._last_cross = math.nan
+            self._mid = 0.0
             if self._segment is not None:
                 self._end_segment(self._last_above, by_off=True)
             self._off_since = self._last_above + cfg.post_delay_s
+
+    #: Where no crossing of the middle came for this long (s; beyond the slowest period of the
+    #: drive's band, 2 s), the middle is taken from the swing seen since.
+    MID_S = 2.5
+
+    def _new_middle(self, t: float) -> None:
+        """Take the middle of the swing gathered since ``_mid_since`` (relative to the old middle) as
+        the level whose crossings time the periods from ``t`` on, zero again once zero lies well
+        inside the swing (its middle half); and start gathering again."""
+        self._mid_old = self._mid
+        if math.isfinite(self._vmin) and math.isfinite(self._vmax):
+            low, high = self._mid + self._vmin, self._mid + self._vmax
+            mid = 0.5 * (low + high)
+            self._mid = 0.0 if abs(mid) < 0.25 * (high - low) else mid
+        self._vmin, self._vmax = math.inf, -math.inf
+        self._mid_since = t
 
     def _on_event(self, t_on: float) -> None:
         cfg = self.config

@@ -147,13 +147,16 @@ def block_msg(block: Block) -> Float64MultiArray:
     return msg
 
 
-def msg_block(msg: Any, expect: Sequence[str] | None = None) -> Block:
-    """Decode a ``Float64MultiArray``, or a named message of the project's own (a field per channel:
-    samples, or single values); raises ``BlockFormatError`` with the reason."""
+def msg_block(msg: Any, expect: Sequence[str] | None = None, optional: Sequence[str] = ()) -> Block:
+    """Decode a ``Float64MultiArray`` (unlabelled: ``expect``, then as many of ``optional`` as it
+    holds), or a named message of the project's own (a field per channel: samples, or single
+    values); raises ``BlockFormatError`` with the reason."""
     if not isinstance(msg, Float64MultiArray):
         return message_block(msg, expect)
     dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
-    return from_layout(dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset))
+    return from_layout(
+        dims, msg.data, expect=expect, data_offset=int(msg.layout.data_offset), optional=optional
+    )
 
 
 def named_msg(msg_type: Any, block: Block, stamp_s: float | None = None) -> Any:

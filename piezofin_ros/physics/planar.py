@@ -48,11 +48,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..config import HARD_VOLTAGE_WINDOW_V
 from .fin import Fin
 from .swim import Body, SwimError
 
 #: The P1 (d33) MFC's rated voltage, V (Smart Material's engineering properties: Vmin, Vmax).
-MFC_P1_WINDOW_V = (-500.0, 1500.0)
+MFC_P1_WINDOW_V = HARD_VOLTAGE_WINDOW_V
 
 
 @dataclass(frozen=True)

@@ -3,10 +3,11 @@
 This is what ``fin_sim`` streams, block by block, and what offline tools can run without
 ROS.  It reproduces the paper's set-up (Sec. 3):
 
-* **Drive** (:class:`Drive`): a phase-continuous sine whose amplitude follows the command at
-  a bounded slew rate, so the voltage never steps; a burst started from rest begins at a zero
-  crossing.  Commands are checked by :func:`check_command` (rejected or clamped, with the
-  reason); a watchdog ramps the drive to zero when commands stop.
+* **Drive** (:class:`Drive`): a phase-continuous sine on an offset (a DC bias, to steer), whose
+  amplitude and offset follow the command at a bounded slew rate, so the voltage never steps and
+  never leaves the MFC's window (:attr:`DriveLimits.voltage_min_v`, ``voltage_max_v``); a burst
+  started from rest begins at a zero crossing.  Commands are checked by :func:`check_command`
+  (rejected or clamped, with the reason); a watchdog ramps the drive to zero when commands stop.
 * **Fin**: the time-domain engine's RK4 step (:mod:`piezofin_ros.physics.timedomain`), advanced
   incrementally with its state carried across blocks.  With a ``model`` (a diagnosed
   :class:`~piezofin_ros.physics.model.Model` model's ``knobs_at``) the coefficients of
@@ -28,13 +29,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
-from ..config import HARD_VOLTAGE_PP_MAX, setting
+from ..config import HARD_VOLTAGE_PP_MAX, HARD_VOLTAGE_WINDOW_V, setting
 from ..errors import RigError
 from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.effects import clip_ratio
@@ -52,6 +53,9 @@ LAG_HISTORY_S = 0.05
 #: down at least this fast, whatever ``slew_vpp_per_s`` is set to: from the hard cap to zero in
 #: 0.25 s.  A slower configured slew only slows the way *up* and commanded changes, never a stop.
 STOP_SLEW_VPP_PER_S = 4000.0
+#: A stop takes the offset to zero at least this fast: from the window's top (1,500 V) in 0.25 s, as
+#: the amplitude from the hard cap (a fin of 20 nF draws 0.1 mA on the way).
+STOP_BIAS_V_PER_S = 6000.0
 
 
 @dataclass(frozen=True)
@@ -69,33 +73,66 @@ class DriveLimits:
     command_timeout_s: float = setting(
         1.0, "drive limits: watchdog, ramp to zero after this long without a command, s", 0.01, 60.0
     )
+    voltage_min_v: float = setting(
+        HARD_VOLTAGE_WINDOW_V[0],
+        "drive limits: the lowest instantaneous voltage, offset and sine together, V (the P1 MFC's -500)",
+        HARD_VOLTAGE_WINDOW_V[0],
+        0.0,
+    )
+    voltage_max_v: float = setting(
+        HARD_VOLTAGE_WINDOW_V[1],
+        "drive limits: the highest instantaneous voltage, offset and sine together, V (the P1 MFC's 1500)",
+        0.0,
+        HARD_VOLTAGE_WINDOW_V[1],
+    )
+
+    #: the limits that may be 0 (a cap of 0: no drive; the window's edges) or below it
+    _AT_LEAST: ClassVar[dict[str, float]] = {
+        "voltage_pp_max": 0.0,
+        "voltage_max_v": 0.0,
+        "voltage_min_v": HARD_VOLTAGE_WINDOW_V[0],
+    }
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
             # bool is an int in Python: `true` must not become a 1 Vpp cap or a 1 s watchdog
             number = isinstance(value, (int, float)) and not isinstance(value, bool)
-            if not (
-                number and math.isfinite(value) and (value >= 0 if f.name == "voltage_pp_max" else value > 0)
-            ):
-                bound = ">= 0" if f.name == "voltage_pp_max" else "> 0"
+            least = self._AT_LEAST.get(f.name)
+            if not (number and math.isfinite(value) and (value >= least if least is not None else value > 0)):
+                bound = f">= {least:g}" if least is not None else "> 0"
                 raise RigError(f"{f.name} must be a finite number {bound}, got {value!r}")
-        if self.frequency_min_hz >= self.frequency_max_hz:
-            raise RigError(
-                f"frequency_min_hz ({self.frequency_min_hz}) must be below frequency_max_hz "
-                f"({self.frequency_max_hz})"
-            )
         if self.voltage_pp_max > HARD_VOLTAGE_PP_MAX:
             raise RigError(
                 f"voltage_pp_max {self.voltage_pp_max} V exceeds the hard cap of {HARD_VOLTAGE_PP_MAX} V "
                 "(MFC P1 rating -500..+1500 V, symmetric drive)"
+            )
+        low, high = HARD_VOLTAGE_WINDOW_V
+        for name, lo, hi in (("voltage_min_v", low, 0.0), ("voltage_max_v", 0.0, high)):
+            if not lo <= getattr(self, name) <= hi:
+                raise RigError(
+                    f"{name} {getattr(self, name):g} V must lie within [{lo:g}, {hi:g}] V: the window "
+                    f"holds 0 V and lies within the MFC's rating [{low:g}, {high:g}] V"
+                )
+        half = 0.5 * self.voltage_pp_max
+        if not (self.voltage_min_v <= -half and half <= self.voltage_max_v):
+            raise RigError(
+                f"the window [{self.voltage_min_v:g}, {self.voltage_max_v:g}] V must hold a drive of "
+                f"voltage_pp_max {self.voltage_pp_max:g} Vpp with no offset: lower voltage_pp_max to "
+                f"{2 * min(-self.voltage_min_v, self.voltage_max_v):g} or widen the window"
+            )
+        if self.frequency_min_hz >= self.frequency_max_hz:
+            raise RigError(
+                f"frequency_min_hz ({self.frequency_min_hz}) must be below frequency_max_hz "
+                f"({self.frequency_max_hz})"
             )
 
 
 def loosened(new: DriveLimits, old: DriveLimits) -> list[str]:
     """The limits ``new`` relaxes against ``old`` (empty: every limit as tight or tighter).
 
-    Tighter means: a lower voltage cap, a slower slew, a shorter watchdog, a narrower band.
+    Tighter means: a lower voltage cap, a slower slew, a shorter watchdog, a narrower band, a narrower
+    window.
     """
     out = []
     for name, looser in (
@@ -104,6 +141,8 @@ def loosened(new: DriveLimits, old: DriveLimits) -> list[str]:
         ("command_timeout_s", new.command_timeout_s > old.command_timeout_s),
         ("frequency_min_hz", new.frequency_min_hz < old.frequency_min_hz),
         ("frequency_max_hz", new.frequency_max_hz > old.frequency_max_hz),
+        ("voltage_min_v", new.voltage_min_v < old.voltage_min_v),
+        ("voltage_max_v", new.voltage_max_v > old.voltage_max_v),
     ):
         if looser:
             out.append(f"{name} {getattr(old, name):g} -> {getattr(new, name):g}")
@@ -112,32 +151,38 @@ def loosened(new: DriveLimits, old: DriveLimits) -> list[str]:
 
 @dataclass(frozen=True)
 class DriveCommand:
-    """A checked actuation command: sine at ``frequency_hz`` and ``voltage_pp`` (V), or off."""
+    """A checked actuation command: sine at ``frequency_hz`` and ``voltage_pp`` (V) on an offset
+    ``bias_v`` (V), or off."""
 
     frequency_hz: float
     voltage_pp: float
     on: bool
+    bias_v: float = 0.0
 
 
 OFF = DriveCommand(0.0, 0.0, False)
 
 
 def check_command(
-    frequency_hz: float, voltage_pp: float, on: float, limits: DriveLimits
+    frequency_hz: float, voltage_pp: float, on: float, limits: DriveLimits, bias_v: float = 0.0
 ) -> tuple[DriveCommand | None, str | None]:
     """Check a raw command; returns ``(command or None if rejected, reason or None)``.
 
     Off is always accepted (it is the safe state), whatever the other fields hold.  An on
     command with a non-finite field, a frequency outside the band or a negative voltage is
-    rejected; a voltage above the limit is clamped to it.  Either way the reason is returned
-    for the log.
+    rejected; a voltage above the limit is clamped to it, and then an offset that would take the
+    sine out of the window (``voltage_min_v + a <= bias_v <= voltage_max_v - a``, ``a`` half the
+    peak-to-peak voltage) to the window's edge.  Either way the reason is returned for the log.
     """
     if not math.isfinite(on) or on not in (0.0, 1.0):
         return None, f"rejected: 'on' must be 0 or 1, got {on!r}"
     if on == 0.0:
         return OFF, None
-    if not (math.isfinite(frequency_hz) and math.isfinite(voltage_pp)):
-        return None, f"rejected: non-finite frequency {frequency_hz!r} Hz or voltage {voltage_pp!r} V"
+    if not (math.isfinite(frequency_hz) and math.isfinite(voltage_pp) and math.isfinite(bias_v)):
+        return None, (
+            f"rejected: non-finite frequency {frequency_hz!r} Hz, voltage {voltage_pp!r} V "
+            f"or offset {bias_v!r} V"
+        )
     if not limits.frequency_min_hz <= frequency_hz <= limits.frequency_max_hz:
         return None, (
             f"rejected: frequency {frequency_hz:g} Hz outside "
@@ -145,22 +190,41 @@ def check_command(
         )
     if voltage_pp < 0:
         return None, f"rejected: negative peak-to-peak voltage {voltage_pp:g} V"
+    reasons = []
     if voltage_pp > limits.voltage_pp_max:
-        return DriveCommand(frequency_hz, limits.voltage_pp_max, True), (
-            f"clamped: {voltage_pp:g} Vpp above the limit, driving {limits.voltage_pp_max:g} Vpp"
+        reasons.append(f"clamped: {voltage_pp:g} Vpp above the limit, driving {limits.voltage_pp_max:g} Vpp")
+        voltage_pp = limits.voltage_pp_max
+    low, high = bias_window(voltage_pp, limits)
+    if not low <= bias_v <= high:
+        clamped = min(max(bias_v, low), high)
+        reasons.append(
+            f"clamped: an offset of {bias_v:g} V takes {voltage_pp:g} Vpp out of the window "
+            f"[{limits.voltage_min_v:g}, {limits.voltage_max_v:g}] V, driving {clamped:g} V"
         )
-    return DriveCommand(frequency_hz, voltage_pp, True), None
+        bias_v = clamped
+    return DriveCommand(frequency_hz, voltage_pp, True, bias_v), "; ".join(reasons) or None
+
+
+def bias_window(voltage_pp: float, limits: DriveLimits) -> tuple[float, float]:
+    """The offsets a drive of ``voltage_pp`` may carry within the limits' window, V (never empty for a
+    voltage within ``voltage_pp_max``: the window holds it with no offset)."""
+    half = 0.5 * voltage_pp
+    return limits.voltage_min_v + half, limits.voltage_max_v - half
 
 
 @dataclass
 class Drive:
-    """Phase-continuous, slew-limited sine ``v = a(t) sin(phase(t))``, advanced in time.
+    """Phase-continuous, slew-limited sine on an offset, ``v = b(t) + a(t) sin(phase(t))``, advanced
+    in time.
 
-    ``a`` is the amplitude (V, half the peak-to-peak voltage).  It moves toward the target at
-    ``limits.slew_vpp_per_s / 2``; the frequency changes at once but the phase stays continuous,
-    so ``v`` is continuous and ``dv/dt`` exact (needed for the capacitive current).  A *stop*
-    (:meth:`stop`: off, watchdog, a lowered cap) ramps down at least at
-    :data:`STOP_SLEW_VPP_PER_S`, so no setting can make a stop slow.
+    ``a`` is the amplitude (V, half the peak-to-peak voltage), ``b`` the offset (V, a DC bias).  Each
+    moves toward its target at ``limits.slew_vpp_per_s / 2`` V/s; the frequency changes at once but
+    the phase stays continuous, so ``v`` is continuous and ``dv/dt`` exact (needed for the
+    capacitive current).  A *stop* (:meth:`stop`: off, watchdog, a lowered cap) ramps down at least
+    at :data:`STOP_SLEW_VPP_PER_S`, so no setting can make a stop slow; off, the watchdog and
+    lifecycle take the offset to zero too.  At every instant the offset is held where the sine stays
+    within the window (``voltage_min_v + a(t) <= b(t) <= voltage_max_v - a(t)``), whichever of the
+    two ramps is the faster: as the amplitude grows the offset yields, and ``v`` stays continuous.
 
     The watchdog *latches*: once it has ramped the drive to zero, on-commands are refused until
     an off command re-arms it (:attr:`tripped`).  A commander that merely resumes its stream
@@ -177,6 +241,8 @@ class Drive:
     last_command_t: float = -math.inf
     stopping: bool = False  # ramping down for a stop: at least STOP_SLEW_VPP_PER_S
     tripped: bool = False  # the watchdog cut the drive; an off command re-arms it
+    bias: float = 0.0  # V, the offset at time t
+    bias_target: float = 0.0  # V
 
     def apply(self, command: DriveCommand, t: float) -> None:
         """Take a checked command at time ``t`` (``>= self.t``; applied from ``self.t`` on)."""
@@ -192,16 +258,26 @@ class Drive:
         self.frequency_hz = command.frequency_hz
         self.stopping = False
         self.target = 0.5 * min(command.voltage_pp, self.limits.voltage_pp_max, HARD_VOLTAGE_PP_MAX)
+        low, high = bias_window(2.0 * self.target, self.limits)
+        self.bias_target = min(max(command.bias_v, low), high)
 
-    def stop(self, cap_vpp: float = 0.0) -> None:
-        """Ramp down to ``cap_vpp`` (default zero) at the stop rate, if above it."""
+    def stop(self, cap_vpp: float = 0.0, *, keep_bias: bool = False) -> None:
+        """Ramp down to ``cap_vpp`` (default zero) at the stop rate, if above it, and the offset to
+        zero (kept by a lowered cap: ``keep_bias``)."""
         if self.target > 0.5 * cap_vpp:
             self.target = 0.5 * cap_vpp
+        if not keep_bias:
+            self.bias_target = 0.0
         self.stopping = True
+
+    @property
+    def driving(self) -> bool:
+        """Whether the drive is asked for anything but 0 V (a sine or an offset)."""
+        return self.target > 0.0 or self.bias_target != 0.0
 
     def watchdog(self, t: float) -> str | None:
         """Ramp to zero if no command came for ``command_timeout_s`` and latch; returns the reason once."""
-        if self.target > 0.0 and t - self.last_command_t > self.limits.command_timeout_s:
+        if self.driving and t - self.last_command_t > self.limits.command_timeout_s:
             self.stop()
             self.tripped = True
             return (
@@ -211,28 +287,48 @@ class Drive:
             )
         return None
 
-    def render(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """``v(t)``, ``dv/dt(t)`` and the amplitude ``a(t)`` at times ``t`` (>= ``self.t``), then
-        advance to ``t[-1]``."""
+    def render(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``v(t)``, ``dv/dt(t)``, the amplitude ``a(t)`` and the offset ``b(t)`` at times ``t``
+        (>= ``self.t``), then advance to ``t[-1]``."""
         t = np.asarray(t, dtype=float)
-        gap = self.target - self.amplitude
-        rate = self.limits.slew_vpp_per_s
-        if gap < 0 and self.stopping:
-            rate = max(rate, STOP_SLEW_VPP_PER_S)
-        slew = 0.5 * rate
         tau = t - self.t
-        ramp_time = abs(gap) / slew
-        amp = self.amplitude + math.copysign(slew, gap) * np.minimum(tau, ramp_time)
-        amp_rate = np.where(tau < ramp_time, math.copysign(slew, gap), 0.0)
+        amp, amp_rate = self._ramp(
+            self.amplitude, self.target, tau, self.target < self.amplitude, 0.5 * STOP_SLEW_VPP_PER_S
+        )
+        free, free_rate = self._ramp(
+            self.bias, self.bias_target, tau, abs(self.bias_target) < abs(self.bias), STOP_BIAS_V_PER_S
+        )
+        # the offset yields to the amplitude where together they would leave the window (unless a
+        # tightened window left the drive outside it: then both ramp to rest, never stepping in)
+        low, high = self.limits.voltage_min_v + amp, self.limits.voltage_max_v - amp
+        if low[0] - 1e-9 <= free[0] <= high[0] + 1e-9:
+            bias = np.clip(free, low, high)
+            bias_rate = np.where(free > high, -amp_rate, np.where(free < low, amp_rate, free_rate))
+        else:
+            bias, bias_rate = free, free_rate
         w = 2.0 * math.pi * self.frequency_hz
         ph = self.phase + w * tau
         s, c = np.sin(ph), np.cos(ph)
-        v = amp * s
-        dv = amp_rate * s + amp * w * c
+        v = bias + amp * s
+        dv = bias_rate + amp_rate * s + amp * w * c
         self.t = float(t[-1])
         self.amplitude = float(amp[-1]) if abs(float(amp[-1]) - self.target) > 1e-12 else self.target
+        self.bias = float(bias[-1]) if abs(float(bias[-1]) - self.bias_target) > 1e-12 else self.bias_target
         self.phase = float(math.fmod(ph[-1], 2.0 * math.pi))
-        return v, dv, amp
+        return v, dv, amp, bias
+
+    def _ramp(
+        self, now: float, target: float, tau: FloatArray, toward_rest: bool, stop_v_per_s: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """A value and its rate, ramping from ``now`` to ``target`` at the slew (V/s: half the
+        Vpp/s), at least ``stop_v_per_s`` where a stop takes it toward rest."""
+        gap = target - now
+        slew = 0.5 * self.limits.slew_vpp_per_s
+        if toward_rest and self.stopping:
+            slew = max(slew, stop_v_per_s)
+        ramp_time = abs(gap) / slew
+        value = now + math.copysign(slew, gap) * np.minimum(tau, ramp_time)
+        return value, np.where(tau < ramp_time, math.copysign(slew, gap), 0.0)
 
     @property
     def voltage_pp(self) -> float:
@@ -369,9 +465,11 @@ class SimulatedRig:
         """Simulated time since the first sample's origin ``t0`` (s)."""
         return self._k / self.config.sample_rate_hz
 
-    def command(self, frequency_hz: float, voltage_pp: float, on: float) -> tuple[bool, str | None]:
+    def command(
+        self, frequency_hz: float, voltage_pp: float, on: float, bias_v: float = 0.0
+    ) -> tuple[bool, str | None]:
         """Check and apply a raw command now; returns ``(accepted, reason)``."""
-        cmd, reason = check_command(frequency_hz, voltage_pp, on, self.drive.limits)
+        cmd, reason = check_command(frequency_hz, voltage_pp, on, self.drive.limits, bias_v)
         if cmd is None:
             return False, reason
         if cmd.on and self.drive.tripped:
@@ -409,8 +507,17 @@ class SimulatedRig:
         if (d.target > 0.0 and not in_band) or not trial_in_band:
             self.stop()
             return f"limits tightened; {d.frequency_hz:g} Hz is outside the new band: ramping to zero"
+        outside = not (
+            limits.voltage_min_v + d.amplitude - 1e-9 <= d.bias <= limits.voltage_max_v - d.amplitude + 1e-9
+        )
+        if outside or d.bias_target != min(max(d.bias_target, limits.voltage_min_v), limits.voltage_max_v):
+            self.stop()
+            return (
+                f"limits tightened; the drive ({d.bias:g} V +- {d.amplitude:g} V) leaves the new window "
+                f"[{limits.voltage_min_v:g}, {limits.voltage_max_v:g}] V: ramping to zero"
+            )
         if d.target > 0.5 * limits.voltage_pp_max:
-            d.stop(limits.voltage_pp_max)
+            d.stop(limits.voltage_pp_max, keep_bias=True)
             return f"limits tightened; the drive ramps down to {limits.voltage_pp_max:g} Vpp"
         return "limits tightened"
 
@@ -484,14 +591,16 @@ class SimulatedRig:
         h = dt / substeps
         k0 = self._k
         nodes = self._t0 + (k0 + np.arange(2 * substeps * n + 1) / (2 * substeps)) * dt
-        v_nodes, dv_nodes, amp_nodes = self.drive.render(nodes)
+        v_nodes, dv_nodes, amp_nodes, bias_nodes = self.drive.render(nodes)
         if float(kn.voltage_scale) != 1.0:  # the amplifier sags: its whole output scaled
             v_nodes = v_nodes * float(kn.voltage_scale)
             dv_nodes = dv_nodes * float(kn.voltage_scale)
-        if float(kn.voltage) < 1.0:  # the amplifier clips: same fundamental as the model's drive
+            bias_nodes = bias_nodes * float(kn.voltage_scale)
+        if float(kn.voltage) < 1.0:  # the amplifier clips its swing: same fundamental as the model's drive
             r = clip_ratio(float(kn.voltage))
-            inside = np.abs(v_nodes) < r * amp_nodes
-            v_nodes = np.clip(v_nodes, -r * amp_nodes, r * amp_nodes)
+            swing = v_nodes - bias_nodes
+            inside = np.abs(swing) < r * amp_nodes
+            v_nodes = bias_nodes + np.clip(swing, -r * amp_nodes, r * amp_nodes)
             dv_nodes = np.where(inside, dv_nodes, 0.0)
         eta, deta = integrate_nodes(fin, v_nodes[None, :], h, substeps, self._state, kn)
         self._state = np.array([[eta[0, -1], deta[0, -1]]])

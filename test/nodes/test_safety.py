@@ -198,3 +198,74 @@ def test_nothing_in_a_bag_or_a_config_can_execute_code() -> None:
             if forbidden.search(line):
                 offenders.append(f"{path.relative_to(ROOT)}:{n}: {line.strip()}")
     assert not offenders, offenders
+
+
+#: offsets no fish asks (V): beyond the window each way, the largest doubles, infinities, NaN
+HOSTILE_OFFSETS = [1e308, -1e308, math.inf, -math.inf, math.nan, 1e9, -1e9, 5e-324, 700.0, 1500.0, -500.0]
+
+
+def offset_commands() -> list[Float64MultiArray]:
+    """Commands carrying an offset: unlabelled (four values, as typed) and labelled, with every hostile
+    offset, at the cap and beyond it, on and off, and with too many values."""
+    out = []
+    for b in HOSTILE_OFFSETS:
+        for v, on in ((600.0, 1.0), (1e6, 1.0), (0.0, 1.0), (600.0, 0.0)):
+            out.append(Float64MultiArray(data=[5.0, v, on, b]))
+            out.append(
+                block_msg(Block.from_record({"frequency_hz": 5.0, "voltage_pp_V": v, "on": on, "bias_V": b}))
+            )
+        out.append(Float64MultiArray(data=[5.0, 600.0, 1.0, b, b]))  # five values: refused
+    return out
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_an_attacker_in_another_process_cannot_take_the_offset_out_of_the_window(tmp_path: Path) -> None:
+    """Issue 42: ``cmd`` carries an offset (a fourth value, ``bias_V``).  fin_sim runs as ``ros2 run``
+    starts it, with a window of -400..+700 V and a 600 Vpp cap; from this process, rounds of every
+    hostile offset, unlabelled and labelled, on and off, between valid biased commands, as fast as
+    DDS takes them.  Every sample of the drive lies within the window and is finite, the drive never
+    steps, each refusal or clamp is said with its reason, and the process lives."""
+    from ..rosutil import start, stop
+
+    ns = "offset_attack"
+    log = tmp_path / "fin_sim.log"
+    window = (-400.0, 700.0)
+    proc = start(
+        "fin_sim", "-r", f"__ns:=/{ns}", "-p", "autostart:=true", "-p", "realtime_factor:=5.0",
+        "-p", "rig.voltage_noise_v:=0.0", "-p", "limits.voltage_pp_max:=600.0",
+        "-p", f"limits.voltage_min_v:={window[0]}", "-p", f"limits.voltage_max_v:={window[1]}",
+        log=log,
+    )  # fmt: skip
+    drive: list[Block] = []
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("attacker", namespace=ns, context=g.context))
+            node.create_subscription(
+                data_type("drive"), "drive", lambda m: drive.append(msg_block(m)), QOS_DATA
+            )
+            cmd = node.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+            g.spin_until(lambda: cmd.get_subscription_count() > 0 and drive, 30.0, "fin_sim")
+            hostile = offset_commands()
+            for k in range(40):  # 40 rounds, each a valid biased command then the attack
+                cmd.publish(Float64MultiArray(data=[5.0, 600.0, 1.0, 400.0 if k % 2 else -100.0]))
+                g.spin_for(0.05)
+                for m in hostile:
+                    cmd.publish(m)
+                g.spin_for(0.05)
+            cmd.publish(Float64MultiArray(data=[5.0, 0.0, 0.0]))
+            g.spin_for(1.0)
+            alive = proc.poll() is None
+    finally:
+        stop(proc)
+    out = log.read_text()
+    assert alive and "Traceback" not in out, out[-3000:]
+    assert "rejected: non-finite" in out and "out of the window" in out and "must hold 3 to 4 values" in out
+    t = np.concatenate([b["t_s"] for b in drive])
+    v = np.concatenate([b["voltage_V"] for b in drive])
+    assert np.all(np.isfinite(v)) and np.all(np.diff(t) > 0)
+    assert window[0] - 1e-9 <= v.min() and v.max() <= window[1] + 1e-9, (v.min(), v.max())
+    assert v.max() > 600.0 and v.min() < -350.0  # (the offsets were taken, both ways)
+    max_step = (300.0 * 2 * math.pi * 5.0 + SLEW / 2 + 6000.0) * np.diff(t)  # sine, both ramps
+    assert np.all(np.abs(np.diff(v)) <= max_step + 1e-9)
+    assert np.max(np.abs(v[-20:])) < 1.0
