@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from piezofin_ros.config import HARD_VOLTAGE_WINDOW_V
 from piezofin_ros.estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
+from piezofin_ros.physics.amplifier import load_amplifier
 from piezofin_ros.physics.fin import Fin, load_fin
 from piezofin_ros.rig.simulated import DriveLimits, RigConfig, SimulatedRig, bias_window, check_command
 
@@ -150,23 +151,34 @@ def test_the_offset_ramps_at_the_slew_and_yields_to_the_amplitude(m8528: Fin) ->
     assert bias_window(800.0, rig.drive.limits) == (-100.0, 1100.0)
 
 
-def biased_run(fin: Fin, bias_v: float) -> list[Estimate]:
-    rig = SimulatedRig(fin, seed=3)
-    est = StreamEstimator(fin, EstimatorConfig(window_s=4.0))
+def biased_run(fin: Fin, bias_v: float) -> tuple[list[Estimate], np.ndarray]:
+    """Running estimates of 20 s at 6 Hz, 300 Vpp on the offset; and the rig's samples (t, v, i, the
+    supply's watt as its meter reads it)."""
+    switching = load_amplifier("fish-switching")  # (its draw follows v i: the offset moves it)
+    rig = SimulatedRig(fin, seed=3, amplifier=switching)
+    est = StreamEstimator(fin, EstimatorConfig(window_s=4.0), amplifier=switching)
     out: list[Estimate] = []
-    for _ in range(400):  # 20 s at 6 Hz, 300 Vpp on the offset
+    samples = []
+    for _ in range(400):
         rig.command(6.0, 300.0, 1, bias_v)
         b = rig.step(50)
         out += est.add_drive(b.t, b.voltage, b.current)
-    return [e for e in out + est.flush() if not e.final]
+        samples.append(np.stack([b.t, b.voltage, b.current, b.supply_voltage * b.supply_current]))
+    return [e for e in out + est.flush() if not e.final], np.concatenate(samples, axis=1)
 
 
 def test_the_estimator_reads_a_biased_drive_as_the_same_sine(m8528: Fin) -> None:
     """An offset held beyond the amplitude leaves no zero crossing: the estimator times the periods
     from the drive's middle instead, and a linear fin's estimate is the unbiased one's."""
-    plain, biased = biased_run(m8528, 0.0), biased_run(m8528, 800.0)
+    (plain, _), (biased, samples) = biased_run(m8528, 0.0), biased_run(m8528, 800.0)
     assert len(biased) >= 2 and len(plain) >= 2
     for p, b in zip(plain[-2:], biased[-2:], strict=True):
         assert b.frequency_hz == pytest.approx(6.0, rel=1e-3)
         assert b.voltage_pp == pytest.approx(p.voltage_pp, rel=2e-3)
         assert b.thrust_self_n == pytest.approx(p.thrust_self_n, rel=1e-2)
+        # the fin's watt is the sine's (the offset's DC times the current monitor's noise left out);
+        # the supply's as its meter reads it, the amplifier drawing on the whole voltage
+        assert b.power_w == pytest.approx(p.power_w, rel=5e-2)
+        t, _, _, supply = samples
+        inside = (t > b.t_start) & (t <= b.t_end)
+        assert b.power_supply_w == pytest.approx(float(np.mean(supply[inside])), rel=1e-2)
