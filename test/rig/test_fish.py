@@ -49,3 +49,51 @@ def test_an_empty_battery_is_said_and_a_fish_without_one_never_empties() -> None
     free = FreeSwimmer(body, 0.09, None)
     free.advance(1.0, 0.001, 5.0, 1.0)
     assert not free.empty and math.isnan(free.reading().voltage_v)
+
+
+def test_an_offset_turns_the_fish_at_the_planar_bodys_steady_yaw_rate() -> None:
+    """Issue 42: the rig's drive with an offset yaws a body that turns; after 40 s its yaw rate is
+    the planar body's closed form at the speed it swims (the fin's tilted thrust and lift at its lever
+    arm against the body's cross-flow drag and the fin's lift), and its IMU reads that rate with its
+    bias and integrates a heading that drifts by the bias alone."""
+    from piezofin_ros.physics.planar import bias_side_force_n, fin_yaw_damping, slender_planar
+
+    fin = load_fin("M8528-P1")
+    body = load_body("mfc-fish")
+    planar = slender_planar(body, fin)
+    rig = SimulatedRig(fin, amplifier=load_amplifier("fish-switching"))
+    fish = FreeSwimmer(body, fin.L, planar=planar, fin=fin, gyro_noise_rad_s=0.0)
+    f, vpp, bias, n = 5.5, 800.0, 1100.0, 50
+    rates = []
+    for _ in range(int(40.0 / 0.05)):
+        rig.command(f, vpp, 1, bias)
+        rig.swim_speed_m_s = fish.speed_m_s
+        b = rig.step(n)
+        fish.advance(n / 1000.0, float(b.thrust_true.mean()), f, 0.0, rig.drive.bias)
+        rates.append(fish.imu_reading()[0])
+    thrust = float(harmonic_balance(fin, f, vpp).thrust_n)
+    u = fish.speed_m_s
+    moment = bias_side_force_n(fin, thrust, bias, u) * planar.fin_lever_m
+    expected = planar.steady_yaw_rate(moment, fin_yaw_damping(planar, fin, u))
+    assert math.degrees(expected) > 1.0  # (the nominal fin: 1.7 deg/s; the twin, docs/fish.md: 2.4)
+    assert fish.yaw_rate_rad_s == pytest.approx(expected, rel=0.03)
+    assert rates[-1] == pytest.approx(fish.yaw_rate_rad_s + fish.gyro_bias_rad_s, rel=1e-9)
+    _, heading, var = fish.imu_reading()
+    assert heading - fish.heading_rad == pytest.approx(fish.gyro_bias_rad_s * 40.0, rel=1e-6)
+    assert var == pytest.approx((fish.gyro_bias_rad_s * 40.0) ** 2)
+    # it swims a circle: the radius is the speed over the yaw rate
+    assert math.hypot(fish.x_m, fish.y_m) > 1.0 and fish.heading_rad > 0.9 and fish.y_m > 0.5
+
+
+def test_a_fish_that_turns_swims_straight_as_before_without_an_offset() -> None:
+    fin = load_fin("M8528-P1")
+    body = load_body("mfc-fish")
+    from piezofin_ros.physics.planar import slender_planar
+
+    straight = FreeSwimmer(body, fin.L)
+    turning = FreeSwimmer(body, fin.L, planar=slender_planar(body, fin), fin=fin)
+    for _ in range(200):
+        for fish in (straight, turning):
+            fish.advance(0.05, 0.004, 5.5, 0.05)
+    assert turning.speed_m_s == straight.speed_m_s and turning.heading_rad == 0.0
+    assert turning.x_m == pytest.approx(straight.distance_m) and turning.y_m == 0.0
