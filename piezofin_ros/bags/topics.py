@@ -26,6 +26,8 @@ TOPIC_BATTERY = "battery"  # sensor_msgs/BatteryState: a fish's battery
 TOPIC_LOOP_STATUS = "speed_loop/status"  # std_msgs/String: what the speed loop is doing
 TOPIC_CMD_VEL = "cmd_vel"  # geometry_msgs/Twist (or TwistStamped): a fish stack's velocity command
 TOPIC_ODOM = "odom"  # nav_msgs/Odometry: the speed loop's dead reckoning
+TOPIC_IMU = "imu"  # sensor_msgs/Imu: a fish's yaw rate and heading
+TOPIC_BIAS = "bias_demand"  # std_msgs/Float64: the drive's offset the yaw loop asks, V
 TOPIC_CLOCK = "/clock"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 
@@ -69,12 +71,14 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_SPEED, SPEED, "sensor", "fin_sim with a body, or a fish driver"),
         Topic(TOPIC_STATUS, STRING, "status", "controller"),
         Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),
+        Topic(TOPIC_BIAS, F64, "command", "speed_loop (its yaw loop), or a fish stack"),
         Topic(
             TOPIC_BATTERY,
             "sensor_msgs/msg/BatteryState",
             "sensor",
             "fin_sim with a battery, or a fish driver",
         ),
+        Topic(TOPIC_IMU, "sensor_msgs/msg/Imu", "sensor", "fin_sim with a body that turns, or a fish driver"),
         Topic(TOPIC_LOOP_STATUS, STRING, "status", "speed_loop"),
         Topic(TOPIC_CMD_VEL, "geometry_msgs/msg/Twist", "command", "a fish stack", recorded=False),
         Topic(TOPIC_ODOM, "nav_msgs/msg/Odometry", "command", "speed_loop", recorded=False),

@@ -546,6 +546,7 @@ class StreamEstimator:
         self._mid = 0.0  # V, the drive's middle (its offset): the last period's, or the last MID_S's
         self._mid_since = math.nan  # when the swing _vmin.._vmax began to be gathered
         self._mid_old = 0.0
+        self._moments = [0.0, 0.0, 0.0]  # the period so far: count, sum, sum of squares (relative to _mid)
         self._last_cross = math.nan
         self._segment: _Segment | None = None
         self._pending: list[_Pending] = []
@@ -679,22 +680,25 @@ class StreamEstimator:
             if seg.size:
                 self._vmin = min(self._vmin, float(seg.min()))
                 self._vmax = max(self._vmax, float(seg.max()))
+                self._gather(seg)
             start = k
             if self._vmin >= -h:
                 continue
             tc = tt[k - 1] - vv[k - 1] * (tt[k] - tt[k - 1]) / (vv[k] - vv[k - 1])
             if math.isfinite(self._last_cross) and self._on:
-                self._on_period(self._last_cross, float(tc), self._vmax - self._vmin)
+                self._on_period(self._last_cross, float(tc), self._swing())
             self._last_cross = float(tc)
             if self._mid != 0.0:  # (offset: the middle followed period by period)
                 self._new_middle(float(tc))
                 vv = vv - (self._mid - self._mid_old)
             self._vmin, self._vmax = math.inf, -math.inf
+            self._moments = [0.0, 0.0, 0.0]
             self._mid_since = float(tc)
         rest = vv[start:]
         if rest.size:
             self._vmin = min(self._vmin, float(rest.min()))
             self._vmax = max(self._vmax, float(rest.max()))
+            self._gather(rest)
         if self._on and float(tt[-1]) - self._mid_since > self.MID_S and self._vmax - self._vmin > 2.0 * h:
             self._new_middle(float(tt[-1]))  # (no crossing while on: a drive held off zero)
         self._prev = (float(t[-1]), float(v[-1]))
@@ -710,6 +714,25 @@ class StreamEstimator:
     #: drive's band, 2 s), the middle is taken from the swing seen since.
     MID_S = 2.5
 
+    def _gather(self, v: FloatArray) -> None:
+        """A period's samples so far: their count, sum and sum of squares (its swing, :meth:`_swing`)."""
+        m = self._moments
+        m[0] += v.size
+        m[1] += float(np.sum(v))
+        m[2] += float(np.sum(v * v))
+
+    def _swing(self) -> float:
+        """The period's peak-to-peak voltage, as a sine's: ``2 sqrt(2)`` times its samples' standard
+        deviation (their max less their min where it has too few).  An offset that moves by ``d``
+        over the period adds ``d^2 / 12`` to the variance, not ``d`` to the swing: a yaw loop's
+        offset, moving tens of volts a period, splits no segment (max less min, it split every one
+        and no estimate came for 20 s)."""
+        n, total, squares = self._moments
+        if n < 8:
+            return self._vmax - self._vmin
+        var = max(squares / n - (total / n) ** 2, 0.0)
+        return 2.0 * math.sqrt(2.0 * var)
+
     def _new_middle(self, t: float) -> None:
         """Take the middle of the swing gathered since ``_mid_since`` (relative to the old middle) as
         the level whose crossings time the periods from ``t`` on, zero again once zero lies well
@@ -720,6 +743,7 @@ class StreamEstimator:
             mid = 0.5 * (low + high)
             self._mid = 0.0 if abs(mid) < 0.25 * (high - low) else mid
         self._vmin, self._vmax = math.inf, -math.inf
+        self._moments = [0.0, 0.0, 0.0]
         self._mid_since = t
 
     def _on_event(self, t_on: float) -> None:

@@ -96,6 +96,7 @@ QOS = {
 # Topic names (relative: a node's namespace puts them under one fin), defined with the bags' reader.
 from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contract)
     TOPIC_BATTERY,
+    TOPIC_BIAS,
     TOPIC_CLOCK,
     TOPIC_CMD,
     TOPIC_CMD_VEL,
@@ -103,6 +104,7 @@ from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contrac
     TOPIC_DIAGNOSTICS,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
+    TOPIC_IMU,
     TOPIC_LOADCELL,
     TOPIC_LOOP_STATUS,
     TOPIC_ODOM,
@@ -664,6 +666,27 @@ def speed_msg(msg_type: Any, speed_m_s: float, stamp_s: float) -> Any:
     msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_of(stamp_s)
     msg.header.frame_id = "base_link"
     msg.twist.linear.x = float(speed_m_s)
+    return msg
+
+
+def imu_msg(
+    yaw_rate_rad_s: float, heading_rad: float, heading_var: float, rate_sigma: float, stamp_s: float
+) -> Any:
+    """An IMU's reading (``sensor_msgs/Imu``, ``base_link``) at ``stamp_s``: its heading as the
+    orientation (yaw only) and its yaw rate, each with its variance; what it does not measure (roll,
+    pitch, their rates) marked unknown (1e6), its linear acceleration not given (``-1``, REP 145)."""
+    from sensor_msgs.msg import Imu
+
+    from ..control.odometry import UNKNOWN
+
+    msg = Imu()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_of(stamp_s)
+    msg.header.frame_id = "base_link"
+    msg.orientation.z, msg.orientation.w = math.sin(0.5 * heading_rad), math.cos(0.5 * heading_rad)
+    msg.orientation_covariance = [UNKNOWN, 0.0, 0.0, 0.0, UNKNOWN, 0.0, 0.0, 0.0, float(heading_var)]
+    msg.angular_velocity.z = float(yaw_rate_rad_s)
+    msg.angular_velocity_covariance = [UNKNOWN, 0.0, 0.0, 0.0, UNKNOWN, 0.0, 0.0, 0.0, rate_sigma**2]
+    msg.linear_acceleration_covariance[0] = -1.0
     return msg
 
 

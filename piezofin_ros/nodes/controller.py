@@ -29,7 +29,7 @@ from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from ..bags.blocks import Block
-from ..config import HARD_VOLTAGE_PP_MAX, setting
+from ..config import HARD_VOLTAGE_PP_MAX, HARD_VOLTAGE_WINDOW_V, setting
 from ..control.driveloop import DriveLoop
 from ..control.objective import OBJECTIVES
 from ..control.optimise import OperatingBox, Optimiser
@@ -41,8 +41,10 @@ from ..physics.amplifier import WATTS, AmplifierError, load_amplifier
 from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model
+from ..physics.planar import bias_window_v
 from ..physics.waveforms import ProtocolTiming
 from ._common import (
+    TOPIC_BIAS,
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_DRIVE,
@@ -156,6 +158,9 @@ ESTIMATES_STALE_S = 3.0
 #: rest: a fish learns its battery's fixed draw there (stop 45 saw a stack that drove 0.2 s after the
 #: estimator appeared learn none, and rank by the amplifier's model)
 ESTIMATOR_SETTLE_S = 1.0
+#: An offset on bias_demand older than this (node clock, s) is dropped: a yaw loop that fell silent
+#: leaves the fin straight.
+BIAS_FRESH_S = 1.0
 
 
 class Controller(Node):
@@ -185,6 +190,10 @@ class Controller(Node):
         if self.strategy.takes_demand:
             # the newest demand only, polled: a 3-4 kHz flood held the executor and the heartbeat with it
             self.inbox.latest(Float64, TOPIC_DEMAND, self._on_demand, scalar(0.0, 10.0, "N"))
+        # a yaw loop's offset (the speed loop's, or a fish stack's), V: added to the drive it sends
+        self._bias = (0.0, -math.inf)  # (the offset, when it came: node clock, s)
+        low, high = HARD_VOLTAGE_WINDOW_V
+        self.inbox.latest(Float64, TOPIC_BIAS, self._on_bias, scalar(low, high, "V"))
         if self.loop is not None:
             # the quiet identification trial, when the fish's stack says its speed may drop (never by a
             # timer that ages evidence out: a fish fell to 1.2-2.6 cm/s for 20-30 s every 320-470 s)
@@ -350,8 +359,19 @@ class Controller(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _send(self, f: float, v: float, on: float) -> None:
+        """One command: the drive's point and, while a yaw loop asks one (within the last
+        :data:`BIAS_FRESH_S`), its offset, within the room the sine leaves in the MFC's window (a rig
+        driver without an offset reads the first three values)."""
         v = min(max(v, 0.0), self.config.voltage_pp_max)  # belt and braces: the plan was checked at start
-        self._cmd_pub.publish(block_msg(Block.from_record({"frequency_hz": f, "voltage_pp_V": v, "on": on})))
+        record = {"frequency_hz": f, "voltage_pp_V": v, "on": on}
+        bias, at = self._bias
+        if on and bias != 0.0 and self._now() - at <= BIAS_FRESH_S:
+            low, high = bias_window_v(v)
+            record["bias_V"] = min(max(bias, low), high)
+        self._cmd_pub.publish(block_msg(Block.from_record(record)))
+
+    def _on_bias(self, bias_v: float) -> None:
+        self._bias = (bias_v, self._now())
 
     def _estimator_ready(self) -> bool:
         """True :data:`ESTIMATOR_SETTLE_S` after an estimator publishes ``estimate`` and a rig

@@ -58,6 +58,7 @@ from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.effects import ModelError
 from ..physics.fin import MEDIA, Fin, FinConfigError, in_medium, load_fin
 from ..physics.model import load_model
+from ..physics.planar import slender_planar
 from ..physics.swim import Battery, Body, SwimError, load_battery, load_body
 from ..physics.waveforms import ProtocolTiming
 from ..rig.fish import FreeSwimmer
@@ -75,6 +76,7 @@ from ._common import (
     TOPIC_CLOCK,
     TOPIC_CMD,
     TOPIC_DRIVE,
+    TOPIC_IMU,
     TOPIC_LOADCELL,
     TOPIC_SPEED,
     TOPIC_SUPPLY,
@@ -84,6 +86,7 @@ from ._common import (
     declare,
     endpoint,
     freeze_parameters,
+    imu_msg,
     msg_block,
     named_msg,
     run_node,
@@ -146,6 +149,12 @@ class FinSimConfig:
         "read on the battery topic (sensor_msgs/BatteryState); the drive stops when it is empty; empty: none",
     )
     speed_noise_m_s: float = setting(0.002, "the speed sensor's noise (a body only), m/s RMS", 0.0, 1.0)
+    gyro_noise_rad_s: float = setting(
+        0.002, "the IMU's yaw-rate noise (a body that turns: one fin), rad/s RMS per reading", 0.0, 1.0
+    )
+    gyro_bias_rad_s: float = setting(
+        0.0005, "the IMU's yaw-rate bias (its heading drifts by it), rad/s", -1.0, 1.0
+    )
 
 
 def _swimming(c: FinSimConfig) -> tuple[Body | None, Battery | None]:
@@ -184,6 +193,7 @@ class FinSim(LifecycleNode):
         self._wait_subscribers, self._wait_subscribers_s = c.wait_subscribers, c.wait_subscribers_s
         self._body, self._battery = _swimming(c)
         self._speed_noise = c.speed_noise_m_s
+        self._gyro = (c.gyro_noise_rad_s, c.gyro_bias_rad_s)
         self._swimmer: FreeSwimmer | None = None
         self._battery_said_t = -math.inf
         self.battery_empty = False
@@ -270,10 +280,22 @@ class FinSim(LifecycleNode):
             for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL, TOPIC_SUPPLY)
         }
         self._clock_pub = self.create_publisher(*endpoint(TOPIC_CLOCK)) if self._publish_clock else None
-        self._speed_pub = self._battery_pub = None
+        self._speed_pub = self._battery_pub = self._imu_pub = None
         if self._body is not None:
-            self._swimmer = FreeSwimmer(self._body, self._fin.L, self._battery, self._speed_noise, self._seed)
+            turns = self._body.fins == 1  # (one fin: its offset turns the body; two swim straight)
+            self._swimmer = FreeSwimmer(
+                self._body,
+                self._fin.L,
+                self._battery,
+                self._speed_noise,
+                self._seed,
+                planar=slender_planar(self._body, self._fin) if turns else None,
+                fin=self._fin if turns else None,
+                gyro_noise_rad_s=self._gyro[0],
+                gyro_bias_rad_s=self._gyro[1],
+            )
             self._speed_pub = self.create_lifecycle_publisher(*endpoint(TOPIC_SPEED))
+            self._imu_pub = self.create_lifecycle_publisher(*endpoint(TOPIC_IMU)) if turns else None
             if self._battery is not None:
                 self._battery_pub = self.create_lifecycle_publisher(*endpoint(TOPIC_BATTERY))
             self.get_logger().info(
@@ -314,10 +336,10 @@ class FinSim(LifecycleNode):
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
         for pub in self._pubs.values():
             self.destroy_lifecycle_publisher(pub)  # type: ignore[arg-type]
-        for pub in (self._speed_pub, self._battery_pub):
+        for pub in (self._speed_pub, self._battery_pub, self._imu_pub):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)  # type: ignore[arg-type]
-        self._speed_pub = self._battery_pub = None
+        self._speed_pub = self._battery_pub = self._imu_pub = None
         self._swimmer = None
         self._pubs = {}
         self._rig = None
@@ -608,11 +630,18 @@ class FinSim(LifecycleNode):
         assert rig is not None and fish is not None and self._speed_pub is not None
         supply = float(np.mean(b.supply_voltage * b.supply_current))
         fish.advance(
-            n / self._rig_config.sample_rate_hz, float(np.mean(b.thrust_true)), rig.drive.frequency_hz, supply
+            n / self._rig_config.sample_rate_hz,
+            float(np.mean(b.thrust_true)),
+            rig.drive.frequency_hz,
+            supply,
+            rig.drive.bias,
         )
         rig.swim_speed_m_s = fish.speed_m_s
         pub = self._speed_pub
         pub.publish(speed_msg(pub.msg_type, fish.speed_reading(), float(b.t[-1])))  # type: ignore[attr-defined]
+        if self._imu_pub is not None:
+            reading = imu_msg(*fish.imu_reading(), fish.gyro_noise_rad_s, float(b.t[-1]))
+            self._imu_pub.publish(reading)  # type: ignore[attr-defined]
         if self._battery_pub is None:
             return
         t = float(b.t[-1])

@@ -25,16 +25,22 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, String
 
-from ..config import setting
+from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.odometry import UNKNOWN, DeadReckoning
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
+from ..control.yawloop import YawLoop, YawLoopConfig
 from ..errors import PiezofinError
 from ..estimation.estimator import THRUST_MOST_N
+from ..physics.fin import load_fin
+from ..physics.model import load_model
+from ..physics.planar import slender_planar
 from ..physics.swim import SPEED_MOST_M_S, load_body
 from ._common import (
+    TOPIC_BIAS,
     TOPIC_CMD_VEL,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
+    TOPIC_IMU,
     TOPIC_LOOP_STATUS,
     TOPIC_ODOM,
     TOPIC_SPEED,
@@ -75,10 +81,11 @@ def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
     return forward, yaw
 
 
-def fin_thrust(msg: Any) -> float:
+def fin_thrust(msg: Any) -> tuple[float, float]:
     """The door's check of an ``estimate`` for the speed loop: its self-sensed thrust, else its
     Lighthill thrust (a block may hold only what the loop reads), within what a fin gives (NaN: not
-    estimated)."""
+    estimated); and the drive's peak-to-peak voltage (NaN where it does not hold one), within the
+    hard cap."""
     block = msg_block(msg)
     names = block.names
     thrust = block.scalar("thrust_self_n") if "thrust_self_n" in names else math.nan
@@ -88,7 +95,21 @@ def fin_thrust(msg: Any) -> float:
         raise MessageRefused(
             f"a thrust of {thrust!r} N is beyond what any fin gives (within +-{THRUST_MOST_N:g})"
         )
-    return thrust
+    vpp = block.scalar("voltage_pp") if "voltage_pp" in names else math.nan
+    if not (math.isnan(vpp) or 0.0 <= vpp <= HARD_VOLTAGE_PP_MAX):
+        raise MessageRefused(f"a drive of {vpp!r} Vpp is beyond the hard cap ({HARD_VOLTAGE_PP_MAX:g})")
+    return thrust, vpp
+
+
+def yaw_rate_reading(msg: Any) -> float:
+    """The door's check of an IMU's reading (``sensor_msgs/Imu``): its yaw rate, finite and within
+    what any fish turns."""
+    rate = float(msg.angular_velocity.z)
+    if not (math.isfinite(rate) and abs(rate) <= YAW_RATE_MOST_RAD_S):
+        raise MessageRefused(
+            f"angular_velocity.z = {rate!r} rad/s is no fish's turn (within +-{YAW_RATE_MOST_RAD_S:g})"
+        )
+    return rate
 
 
 @dataclass(frozen=True)
@@ -124,6 +145,12 @@ class SpeedLoopNodeConfig:
         0.0,
         10.0,
     )
+    fin: str = setting(
+        "M8528-P1", "the caudal fin (preset or YAML): its offset turns the fish (the yaw loop)"
+    )
+    model: str = setting(
+        "", "the fin's augmented model (config/models/; replaces fin): its fin turns the fish"
+    )
 
 
 class SpeedLoopNode(Node):
@@ -135,8 +162,13 @@ class SpeedLoopNode(Node):
         try:
             body = load_body(own.body)
             self.loop = SpeedLoop(body, declare(self, SpeedLoopConfig, "loop"))
+            fin = load_model(own.model).fin if own.model else load_fin(own.fin)
+            # one fin turns the fish by its offset (two swim straight: no yaw loop)
+            self.yaw = YawLoop(slender_planar(body, fin), fin, declare(self, YawLoopConfig, "yaw"))
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
+        self._turns = body.fins == 1
+        self._thrust_n = self._voltage_pp = math.nan  # (the latest estimate's: the yaw loop's plant)
         freeze_parameters(self, "speed_m_s", self._on_setpoint)
         self._pub = self.create_publisher(*endpoint(TOPIC_DEMAND))
         self._status = self.create_publisher(*endpoint(TOPIC_LOOP_STATUS))
@@ -146,6 +178,9 @@ class SpeedLoopNode(Node):
         self.inbox.polled(
             endpoint(TOPIC_ESTIMATE)[0], TOPIC_ESTIMATE, self._on_estimate, fin_thrust, depth=200, most=20
         )
+        # the IMU's yaw rate: the yaw loop's feedback; its offset goes to the controller's drive
+        self.inbox.latest(endpoint(TOPIC_IMU)[0], TOPIC_IMU, self._on_imu, yaw_rate_reading)
+        self._bias_pub = self.create_publisher(*endpoint(TOPIC_BIAS))
         # a fish stack's velocity command (teleop, nav2): its forward speed is the set-point
         self._cmd_vel_timeout_s = own.cmd_vel_timeout_s
         self._cmd_vel_t = math.nan  # (node clock, s) the latest cmd_vel; NaN: none yet, or timed out
@@ -214,13 +249,18 @@ class SpeedLoopNode(Node):
         """A velocity command: its forward speed becomes the set-point (what this fish cannot do, it
         says once: swim backwards, turn, beyond its fastest)."""
         forward, yaw_rate = command
-        self._cmd_vel_t = self._now()
+        now = self._now()
+        self._cmd_vel_t = now if now > 0.0 else math.nan  # (use_sim_time before /clock: no time yet)
         if forward < 0:
             self._say_once(
                 "backwards", f"cmd_vel asks {forward:.3g} m/s: this fish does not swim backwards (0)"
             )
-        if yaw_rate != 0:
-            self._say_once("turn", f"cmd_vel asks {yaw_rate:.3g} rad/s of yaw: this fish does not turn yet")
+        if yaw_rate != 0 and not self._turns:
+            self._say_once(
+                "turn", f"cmd_vel asks {yaw_rate:.3g} rad/s of yaw: a fish of two fins does not turn"
+            )
+        elif yaw_rate != self.yaw.setpoint_rad_s:
+            self.yaw.set_setpoint(yaw_rate)
         speed = max(forward, 0.0)
         top = self.loop.fastest_m_s()
         if speed > top:
@@ -258,6 +298,7 @@ class SpeedLoopNode(Node):
         )
         self._cmd_vel_t = math.nan
         self.loop.set_setpoint(0.0)
+        self.yaw.set_setpoint(0.0)
 
     def _on_speed(self, reading: tuple[float, float]) -> None:
         # (the loop runs on its node clock: a reading counts when it arrives, whatever its stamp)
@@ -271,16 +312,37 @@ class SpeedLoopNode(Node):
                 throttle_duration_sec=5.0,
             )
 
-    def _on_estimate(self, thrust_n: float) -> None:
+    def _on_estimate(self, estimate: tuple[float, float]) -> None:
         """The fin's thrust as the estimator gives it (self-sensed on a fish): what a speed reading is
-        judged against."""
-        self.loop.estimate(self._now(), thrust_n)
+        judged against, and with the drive's voltage the yaw loop's plant."""
+        self._thrust_n, self._voltage_pp = estimate
+        self.loop.estimate(self._now(), estimate[0])
+
+    def _on_imu(self, yaw_rate_rad_s: float) -> None:
+        self.yaw.measure(self._now(), yaw_rate_rad_s)
+
+    def _steer(self, t: float) -> None:
+        """The offset the yaw loop asks now, on ``bias_demand`` (V; 0 while the fish swims straight),
+        and once per edge of the window what turn it cannot give."""
+        if not self._turns:
+            return
+        vpp = self._voltage_pp if math.isfinite(self._voltage_pp) else 0.0
+        bias = self.yaw.update(t, self._thrust_n, self.loop.speed_m_s, vpp)
+        self._bias_pub.publish(Float64(data=bias))
+        if self.yaw.edge:
+            self._say_once(
+                f"edge {self.yaw.edge}",
+                f"cmd_vel asks {self.yaw.setpoint_rad_s:.3g} rad/s of yaw: beyond the turn to "
+                f"{self.yaw.edge} this fin gives at {vpp:.0f} Vpp (its offset at the window's edge, "
+                f"{bias:.0f} V)",
+            )
 
     def _tick(self) -> None:
         t = self._now()
         if t == 0.0:
             return  # use_sim_time and no /clock yet
         self._cmd_vel_expired(t)
+        self._steer(t)
         self._publish_odometry()
         demand = self.loop.update(t)
         for said in self.loop.widened:  # (a wrong prior acted on: said once, each time)

@@ -161,6 +161,22 @@ def bias_side_force_n(fin: Fin, thrust0_n: float, bias_v: float, speed_m_s: floa
     return (thrust0_n + q * fin.L * fin.b * fin_lift_slope(fin)) * math.sin(bias_tilt_rad(fin, bias_v))
 
 
+def bias_for_yaw_rate(
+    body: PlanarBody, fin: Fin, yaw_rate_rad_s: float, thrust0_n: float, speed_m_s: float
+) -> float:
+    """The offset that holds the steady yaw rate ``yaw_rate_rad_s`` at the thrust ``thrust0_n`` and
+    the speed ``speed_m_s``, V: :meth:`PlanarBody.steady_yaw_rate`, :func:`bias_side_force_n` and
+    :func:`bias_tilt_rad` inverted in closed form (the moment the yaw damping needs at that rate, its
+    side force at the lever arm, the tip's turn that gives it); NaN where no tilt gives that force."""
+    k = fin_yaw_damping(body, fin, speed_m_s)
+    side = body.yaw_damping_nm(yaw_rate_rad_s, k) / body.fin_lever_m
+    q = 0.5 * fin.rho_w * speed_m_s**2
+    per_sine = thrust0_n + q * fin.L * fin.b * fin_lift_slope(fin)
+    if per_sine <= 0 or abs(side) > per_sine:
+        return math.nan
+    return math.asin(side / per_sine) * fin.omega_n**2 / (abs(fin.phi_tip_slope) * fin.theta)
+
+
 def slender_planar(body: Body, fin: Fin, fin_spacing_m: float = 0.0, c_y: float = 1.0) -> PlanarBody:
     """A planar body for ``body`` as a slender ellipsoid its ``length_m`` long, ``height_m`` deep and
     ``width_m`` wide, its fin(s) at its tail:

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..physics.fin import Fin
 from ..physics.planar import PlanarBody, bias_side_force_n, bias_tilt_rad, fin_yaw_damping
-from ..physics.swim import Battery, Body
+from ..physics.swim import Battery, Body, SwimError
 
 #: Explicit steps per block of the planar body (module docstring).
 PLANAR_STEPS = 10
@@ -76,7 +76,7 @@ class FreeSwimmer:
         self._rng = np.random.default_rng(self.seed)
         self._gyro_rng = np.random.default_rng([self.seed, 1])
         if self.planar is not None and (self.fin is None or self.body.fins != 1):
-            raise ValueError(
+            raise SwimError(
                 f"{self.body.name}: a body that turns needs its one fin (it has {self.body.fins})"
             )
 

@@ -18,6 +18,7 @@ from piezofin_ros.physics.model import Model
 from piezofin_ros.physics.planar import (
     MFC_P1_WINDOW_V,
     PlanarBody,
+    bias_for_yaw_rate,
     bias_side_force_n,
     bias_tilt_rad,
     bias_window_v,
@@ -160,3 +161,22 @@ def test_the_slender_body_is_an_ellipsoid_of_water_strips() -> None:
     assert BODY.sway_added_mass_kg == pytest.approx(float(np.trapezoid(strip, x)), rel=1e-6)
     assert BODY.yaw_added_inertia_kg_m2 == pytest.approx(float(np.trapezoid(strip * x**2, x)), rel=1e-6)
     assert isinstance(BODY, PlanarBody)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    rate=st.floats(-0.05, 0.05),
+    thrust=st.floats(1e-4, 0.02),
+    speed=st.floats(0.0, 0.2),
+)
+def test_the_offset_for_a_yaw_rate_inverts_the_steady_turn(rate: float, thrust: float, speed: float) -> None:
+    """The yaw loop's feed-forward (``bias_for_yaw_rate``) is the steady turn's closed form inverted:
+    the offset it gives turns the fish at the rate asked; a rate no tilt reaches is NaN."""
+    fin = load_fin("M8528-P1")
+    body = slender_planar(load_body("mfc-fish"), fin)
+    bias = bias_for_yaw_rate(body, fin, rate, thrust, speed)
+    if math.isnan(bias):
+        return
+    moment = bias_side_force_n(fin, thrust, bias, speed) * body.fin_lever_m
+    assert body.steady_yaw_rate(moment, fin_yaw_damping(body, fin, speed)) == pytest.approx(rate, abs=1e-12)
+    assert math.isnan(bias_for_yaw_rate(body, fin, 10.0, thrust, speed))  # (beyond any tilt)
