@@ -44,8 +44,9 @@ velocity:
 Windows
 -------
 A drive period runs between two upward zero crossings of the voltage (with hysteresis against
-noise); where a DC offset holds the drive off zero (no crossing for 2.5 s), between upward
-crossings of its middle, followed period by period until zero lies inside the swing again.
+noise); where a DC offset holds the drive off zero (no crossing for 2.5 periods, or 2.5 s before the
+first), between upward crossings of its middle, followed period by period until zero lies inside the
+swing again.
 Consecutive periods of the same length and amplitude (within ``tolerance``) form a
 *segment* (a period that differs from the first one but not from the median of the last five
 continues it, so a ramp's tail or a slow drift does not split a trial); a burst of the paper's
@@ -546,6 +547,7 @@ class StreamEstimator:
         self._mid = 0.0  # V, the drive's middle (its offset): the last period's, or the last MID_S's
         self._mid_since = math.nan  # when the swing _vmin.._vmax began to be gathered
         self._mid_old = 0.0
+        self._period_s = math.nan  # the last period's length, s (how long a crossing may be awaited)
         self._moments = [0.0, 0.0, 0.0]  # the period so far: count, sum, sum of squares (relative to _mid)
         self._last_cross = math.nan
         self._segment: _Segment | None = None
@@ -686,6 +688,7 @@ class StreamEstimator:
                 continue
             tc = tt[k - 1] - vv[k - 1] * (tt[k] - tt[k - 1]) / (vv[k] - vv[k - 1])
             if math.isfinite(self._last_cross) and self._on:
+                self._period_s = float(tc) - self._last_cross
                 self._on_period(self._last_cross, float(tc), self._swing())
             self._last_cross = float(tc)
             if self._mid != 0.0:  # (offset: the middle followed period by period)
@@ -699,19 +702,22 @@ class StreamEstimator:
             self._vmin = min(self._vmin, float(rest.min()))
             self._vmax = max(self._vmax, float(rest.max()))
             self._gather(rest)
-        if self._on and float(tt[-1]) - self._mid_since > self.MID_S and self._vmax - self._vmin > 2.0 * h:
+        # (no crossing for 2.5 periods of the last, or MID_S before the first: the level left the swing)
+        wait = min(self.MID_S, 2.5 * self._period_s) if math.isfinite(self._period_s) else self.MID_S
+        if self._on and float(tt[-1]) - self._mid_since > wait and self._vmax - self._vmin > 2.0 * h:
             self._new_middle(float(tt[-1]))  # (no crossing while on: a drive held off zero)
         self._prev = (float(t[-1]), float(v[-1]))
         if self._on and float(t[-1]) - self._last_above > cfg.off_hold_s:
             self._on = False
             self._last_cross = math.nan
-            self._mid = 0.0
+            self._mid, self._period_s = 0.0, math.nan
             if self._segment is not None:
                 self._end_segment(self._last_above, by_off=True)
             self._off_since = self._last_above + cfg.post_delay_s
 
-    #: Where no crossing of the middle came for this long (s; beyond the slowest period of the
-    #: drive's band, 2 s), the middle is taken from the swing seen since.
+    #: Where no crossing of the middle came for this long before a first period (s; beyond the
+    #: slowest period of the drive's band, 2 s), or 2.5 periods after one, the middle is taken from
+    #: the swing seen since.
     MID_S = 2.5
 
     def _gather(self, v: FloatArray) -> None:

@@ -315,8 +315,10 @@ class SpeedLoopNode(Node):
     def _on_estimate(self, estimate: tuple[float, float]) -> None:
         """The fin's thrust as the estimator gives it (self-sensed on a fish): what a speed reading is
         judged against, and with the drive's voltage the yaw loop's plant."""
-        self._thrust_n, self._voltage_pp = estimate
-        self.loop.estimate(self._now(), estimate[0])
+        thrust, vpp = estimate  # (an estimate that cannot give one keeps the last: the turn holds)
+        if math.isfinite(thrust) and math.isfinite(vpp):
+            self._thrust_n, self._voltage_pp = thrust, vpp
+        self.loop.estimate(self._now(), thrust)
 
     def _on_imu(self, yaw_rate_rad_s: float) -> None:
         self.yaw.measure(self._now(), yaw_rate_rad_s)

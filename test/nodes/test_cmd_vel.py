@@ -143,7 +143,7 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
           for exe in ("thrust_estimator", "controller", "speed_loop")),
     ]  # fmt: skip
     rates: list[tuple[float, float]] = []  # (fish time, the IMU's yaw rate)
-    biases: list[float] = []
+    biases: list[tuple[float, float]] = []  # (fish time, the offset asked)
     speed, yaw = 0.05, 0.015
     try:
         with graph() as g:
@@ -157,7 +157,12 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
                 ),
                 QOS_SENSOR,
             )
-            node.create_subscription(Float64, "bias_demand", lambda m: biases.append(m.data), QOS_COMMAND)
+            node.create_subscription(
+                Float64,
+                "bias_demand",
+                lambda m: biases.append((rates[-1][0] if rates else 0.0, m.data)),
+                QOS_COMMAND,
+            )
             g.spin_until(lambda: pub.get_subscription_count() > 0 and rates, 120.0, "the fish's stack")
 
             def swim(forward: float, turn: float, fish_s: float) -> None:  # (20 Hz wall: 4 Hz of fish time)
@@ -169,7 +174,7 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
             swim(speed, 0.0, 120.0)  # up to speed, straight
             t_turn = rates[-1][0]
             swim(speed, yaw, 150.0)
-            turning = biases[-1]
+            turning = biases[-1][1]
             g.spin_for(3.0)  # cmd_vel silent: 15 s of fish time
     finally:
         outs = stop(*procs)
@@ -183,4 +188,9 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
     for k in range(6, 15):
         window = (t > t_turn + 10.0 * k) & (t <= t_turn + 10.0 * (k + 1))
         assert np.mean(r[window]) == pytest.approx(yaw, rel=0.1), (k, np.mean(r[window]))
-    assert turning > 100.0 and biases[-1] == 0.0, (turning, biases[-5:])
+    assert turning > 100.0 and biases[-1][1] == 0.0, (turning, biases[-5:])
+    held = np.array([b for at, b in biases if t_turn + 90.0 < at <= t_turn + 150.0])  # (while turning)
+    print(
+        f"turn: {np.mean(r[late]):.4f} rad/s in truth over the last 60 s ({yaw} asked), offset "
+        f"{np.percentile(held, 5):.0f}-{np.percentile(held, 95):.0f} V"
+    )

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import rclpy
 from piezofin_msgs.msg import Estimate as EstimateMsg
-from sensor_msgs.msg import BatteryState
+from sensor_msgs.msg import BatteryState, Imu
 from std_msgs.msg import Float64, Float64MultiArray
 
 from piezofin_ros.bags.blocks import (
@@ -90,6 +90,16 @@ def speed_readings() -> list[Any]:
     return [speed_msg(kind, x, stamp) for x in [*HOSTILE, math.nan] for stamp in (0.0, 1.0)]
 
 
+def imu_readings() -> list[Imu]:
+    """An IMU's hostile yaw rates (every hostile value and NaN)."""
+    out = []
+    for x in [*HOSTILE, math.nan]:
+        m = Imu()
+        m.angular_velocity.z = x
+        out.append(m)
+    return out
+
+
 def estimate_msgs() -> list[EstimateMsg]:
     """Hostile values in every field at once, and in one field of an otherwise plausible estimate."""
     names = Estimate.field_names()
@@ -124,9 +134,15 @@ ATTACKS = {
     "speed_loop": {
         "swim_speed": (data_type("swim_speed"), QOS_SENSOR, speed_readings()),
         "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
+        "imu": (Imu, QOS_SENSOR, imu_readings()),
     },
     "controller": {
         "thrust_demand": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
+        "bias_demand": (
+            Float64,
+            QOS_COMMAND,
+            [Float64(data=x) for x in [*HOSTILE, math.nan, -600.0, 1600.0]],
+        ),
         "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
     },
 }
