@@ -299,6 +299,7 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
     """Each node's parameters come from one config dataclass, and docs/reference.md lists them all."""
     from piezofin_ros.config import settings_of
     from piezofin_ros.control.speedloop import SpeedLoopConfig
+    from piezofin_ros.control.yawloop import YawLoopConfig
     from piezofin_ros.estimation.estimator import EstimatorConfig
     from piezofin_ros.nodes.controller import ControllerConfig
     from piezofin_ros.nodes.entry import EXECUTABLES
@@ -317,7 +318,7 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
         "controller": [ControllerConfig],
         "recorder": [RecorderConfig],
         "player": [PlayerConfig],
-        "speed_loop": [SpeedLoopNodeConfig, SpeedLoopConfig],
+        "speed_loop": [SpeedLoopNodeConfig, SpeedLoopConfig, YawLoopConfig],
     }
     # every node's settings, the node list being the package's (the hosts ``fin_sims``, ``bringup``
     # run those nodes, with their settings)
@@ -334,13 +335,16 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
                     PlayerConfig,
                     SpeedLoopNodeConfig,
                     SpeedLoopConfig,
+                    YawLoopConfig,
                 ):
                     assert f"`{f.name}`" in rows[node], f"docs/reference.md: {node} row lacks `{f.name}`"
     for node in nodes:  # nothing the nodes do not declare
         declared = {f.name for cls in nodes[node] for f, _, _ in settings_of(cls)}
         listed = set(re.findall(r"`([a-z_]+)`", rows[node].split("|")[2]))
         stray = (
-            listed - declared - {"rig", "limits", "estimator", "self", "vibrometer", "stop", "hold", "loop"}
+            listed
+            - declared
+            - {"rig", "limits", "estimator", "self", "vibrometer", "stop", "hold", "loop", "yaw"}
         )
         stray -= {"protocol", "continuous", "optimise", "thrust_estimator", "diagnose", "ros2", "launch"}
         assert not stray, f"docs/reference.md: {node} row lists {sorted(stray)}, not parameters"

@@ -62,6 +62,15 @@ from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 YAW_RATE_MOST_RAD_S = 100.0
 
 
+def _in_plane(xx: float, xy: float, yy: float, heading_var: float) -> list[float]:
+    """A 6x6 pose covariance (row-major) of a fish in the plane: x and y, and the heading (NaN: not
+    observed); z, roll and pitch unknown."""
+    out = [UNKNOWN if k % 7 == 0 else 0.0 for k in range(36)]
+    out[0], out[1], out[6], out[7] = xx, xy, xy, yy
+    out[35] = UNKNOWN if math.isnan(heading_var) else heading_var
+    return out
+
+
 def _along_x(variance: float) -> list[float]:
     """A 6x6 covariance (row-major) that knows x to ``variance`` and nothing of y, z, roll, pitch, yaw."""
     return [variance if k == 0 else UNKNOWN if k % 7 == 0 else 0.0 for k in range(36)]
@@ -101,15 +110,24 @@ def fin_thrust(msg: Any) -> tuple[float, float]:
     return thrust, vpp
 
 
-def yaw_rate_reading(msg: Any) -> float:
+def imu_reading(msg: Any) -> tuple[float, float, float]:
     """The door's check of an IMU's reading (``sensor_msgs/Imu``): its yaw rate, finite and within
-    what any fish turns."""
+    what any fish turns; its heading (the orientation's yaw; NaN where its quaternion is none) and
+    that heading's variance (NaN where it gives none)."""
     rate = float(msg.angular_velocity.z)
     if not (math.isfinite(rate) and abs(rate) <= YAW_RATE_MOST_RAD_S):
         raise MessageRefused(
             f"angular_velocity.z = {rate!r} rad/s is no fish's turn (within +-{YAW_RATE_MOST_RAD_S:g})"
         )
-    return rate
+    q = msg.orientation
+    norm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
+    heading = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    var = float(msg.orientation_covariance[8])
+    if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-3):
+        heading = math.nan
+    if not (math.isfinite(var) and var >= 0.0) or msg.orientation_covariance[0] == -1.0:
+        var = math.nan
+    return rate, heading, var
 
 
 @dataclass(frozen=True)
@@ -179,7 +197,7 @@ class SpeedLoopNode(Node):
             endpoint(TOPIC_ESTIMATE)[0], TOPIC_ESTIMATE, self._on_estimate, fin_thrust, depth=200, most=20
         )
         # the IMU's yaw rate: the yaw loop's feedback; its offset goes to the controller's drive
-        self.inbox.latest(endpoint(TOPIC_IMU)[0], TOPIC_IMU, self._on_imu, yaw_rate_reading)
+        self.inbox.latest(endpoint(TOPIC_IMU)[0], TOPIC_IMU, self._on_imu, imu_reading)
         self._bias_pub = self.create_publisher(*endpoint(TOPIC_BIAS))
         # a fish stack's velocity command (teleop, nav2): its forward speed is the set-point
         self._cmd_vel_timeout_s = own.cmd_vel_timeout_s
@@ -281,9 +299,10 @@ class SpeedLoopNode(Node):
         o, msg = self.odometry, Odometry()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
-        msg.pose.pose.position.x = o.x_m
-        msg.pose.pose.orientation.w = 1.0
-        msg.pose.covariance = _along_x(o.x_var_m2)
+        msg.pose.pose.position.x, msg.pose.pose.position.y = o.x_m, o.y_m
+        msg.pose.pose.orientation.z = math.sin(0.5 * o.heading_rad)
+        msg.pose.pose.orientation.w = math.cos(0.5 * o.heading_rad)
+        msg.pose.covariance = _in_plane(*o.position_covariance(), o.heading_var)
         msg.twist.twist.linear.x = o.speed_m_s
         msg.twist.covariance = _along_x(o.speed_var_m2_s2)
         self._odom.publish(msg)
@@ -320,8 +339,10 @@ class SpeedLoopNode(Node):
             self._thrust_n, self._voltage_pp = thrust, vpp
         self.loop.estimate(self._now(), thrust)
 
-    def _on_imu(self, yaw_rate_rad_s: float) -> None:
-        self.yaw.measure(self._now(), yaw_rate_rad_s)
+    def _on_imu(self, reading: tuple[float, float, float]) -> None:
+        rate, heading, var = reading
+        self.yaw.measure(self._now(), rate)
+        self.odometry.turn(heading, var)
 
     def _steer(self, t: float) -> None:
         """The offset the yaw loop asks now, on ``bias_demand`` (V; 0 while the fish swims straight),

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from piezofin_ros.control.odometry import DeadReckoning
+from piezofin_ros.control.odometry import UNKNOWN, DeadReckoning
 from piezofin_ros.errors import ControlError
 
 
@@ -40,3 +40,22 @@ def test_a_ramp_is_integrated_exactly_and_a_silence_counts_at_most_its_bound() -
 def test_an_impossible_sensor_is_one_clear_error(bad: dict[str, float]) -> None:
     with pytest.raises(ControlError, match="odometry"):
         DeadReckoning(**bad)
+
+
+def test_stretches_are_laid_along_the_imus_heading_and_its_error_goes_across_the_track() -> None:
+    """Issue 42: with an IMU's heading the fish's track bends; the heading's variance puts the
+    position off across the track by the distance swum times its standard deviation, rotated onto
+    the heading."""
+    odo = DeadReckoning(speed_sigma_m_s=0.0, speed_bias_m_s=0.0)
+    for k in range(21):  # 1 m along x
+        odo.add(0.5 * k, 0.1)
+    odo.turn(math.pi / 2, 1e-4)
+    for k in range(21, 41):  # 1 m along y
+        odo.add(0.5 * k, 0.1)
+    assert (odo.x_m, odo.y_m, odo.distance_m) == pytest.approx((1.0, 1.0, 2.0))
+    xx, xy, yy = odo.position_covariance()
+    assert xx == pytest.approx(2.0**2 * 1e-4) and yy == pytest.approx(0.0, abs=1e-18)
+    assert xy == pytest.approx(0.0, abs=1e-18)
+    odo.turn(math.nan, 1e-4)  # (a reading that is none: kept as it was)
+    assert odo.heading_rad == math.pi / 2
+    assert DeadReckoning().position_covariance()[2] == UNKNOWN  # (no IMU: across unknown)

@@ -130,6 +130,7 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
     offset on ``bias_demand``, the controller adds it to ``cmd``, fin_sim tilts the fin; in truth (the
     IMU's rate less its known bias) the yaw rate holds within 10 % of the command after settling, and
     the silence of ``cmd_vel`` takes the offset back to 0 V."""
+    from nav_msgs.msg import Odometry
     from sensor_msgs.msg import Imu
 
     ns, fish = "turn", ["--params-file", FISH_YAML, "-p", "use_sim_time:=true"]
@@ -143,20 +144,21 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
           for exe in ("thrust_estimator", "controller", "speed_loop")),
     ]  # fmt: skip
     rates: list[tuple[float, float]] = []  # (fish time, the IMU's yaw rate)
+    headings: list[float] = []  # the IMU's heading, rad
+    odoms: list[Odometry] = []
     biases: list[tuple[float, float]] = []  # (fish time, the offset asked)
     speed, yaw = 0.05, 0.015
     try:
         with graph() as g:
             node = g.add(rclpy.create_node("fish_stack", namespace=ns, context=g.context))
             pub = node.create_publisher(Twist, "cmd_vel", QOS_COMMAND)
-            node.create_subscription(
-                Imu,
-                "imu",
-                lambda m: rates.append(
-                    (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.angular_velocity.z)
-                ),
-                QOS_SENSOR,
-            )
+
+            def on_imu(m: Imu) -> None:
+                rates.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.angular_velocity.z))
+                headings.append(2.0 * math.atan2(m.orientation.z, m.orientation.w))
+
+            node.create_subscription(Imu, "imu", on_imu, QOS_SENSOR)
+            node.create_subscription(Odometry, "odom", odoms.append, QOS_COMMAND)
             node.create_subscription(
                 Float64,
                 "bias_demand",
@@ -175,6 +177,7 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
             t_turn = rates[-1][0]
             swim(speed, yaw, 150.0)
             turning = biases[-1][1]
+            odom = odoms[-1]
             g.spin_for(3.0)  # cmd_vel silent: 15 s of fish time
     finally:
         outs = stop(*procs)
@@ -189,6 +192,10 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
         window = (t > t_turn + 10.0 * k) & (t <= t_turn + 10.0 * (k + 1))
         assert np.mean(r[window]) == pytest.approx(yaw, rel=0.1), (k, np.mean(r[window]))
     assert turning > 100.0 and biases[-1][1] == 0.0, (turning, biases[-5:])
+    # odom laid its track along the IMU's heading: it bent to port
+    q = odom.pose.pose.orientation
+    assert 2.0 * math.atan2(q.z, q.w) == pytest.approx(headings[-1], abs=0.05)
+    assert odom.pose.pose.position.y > 1.0 and odom.pose.covariance[7] < 1e3
     held = np.array([b for at, b in biases if t_turn + 90.0 < at <= t_turn + 150.0])  # (while turning)
     print(
         f"turn: {np.mean(r[late]):.4f} rad/s in truth over the last 60 s ({yaw} asked), offset "
