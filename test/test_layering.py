@@ -308,6 +308,7 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
     from piezofin_ros.nodes.recorder import RecorderConfig
     from piezofin_ros.nodes.speed_loop import SpeedLoopNodeConfig
     from piezofin_ros.nodes.thrust_estimator import ThrustEstimatorConfig
+    from piezofin_ros.nodes.waypoints import WaypointsConfig
     from piezofin_ros.rig.simulated import DriveLimits, RigConfig
 
     reference = (PACKAGE.parent / "docs" / "reference.md").read_text()
@@ -319,6 +320,7 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
         "recorder": [RecorderConfig],
         "player": [PlayerConfig],
         "speed_loop": [SpeedLoopNodeConfig, SpeedLoopConfig, YawLoopConfig],
+        "waypoints": [WaypointsConfig],
     }
     # every node's settings, the node list being the package's (the hosts ``fin_sims``, ``bringup``
     # run those nodes, with their settings)
@@ -336,6 +338,7 @@ def test_every_node_parameter_is_declared_once_and_documented() -> None:
                     SpeedLoopNodeConfig,
                     SpeedLoopConfig,
                     YawLoopConfig,
+                    WaypointsConfig,
                 ):
                     assert f"`{f.name}`" in rows[node], f"docs/reference.md: {node} row lacks `{f.name}`"
     for node in nodes:  # nothing the nodes do not declare

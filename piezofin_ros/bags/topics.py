@@ -28,6 +28,8 @@ TOPIC_CMD_VEL = "cmd_vel"  # geometry_msgs/Twist (or TwistStamped): a fish stack
 TOPIC_ODOM = "odom"  # nav_msgs/Odometry: the speed loop's dead reckoning
 TOPIC_IMU = "imu"  # sensor_msgs/Imu: a fish's yaw rate and heading
 TOPIC_BIAS = "bias_demand"  # std_msgs/Float64: the drive's offset the yaw loop asks, V
+TOPIC_WAYPOINT_STATUS = "waypoints/status"  # std_msgs/String: the course's progress (JSON)
+TOPIC_WAYPOINT_MARKERS = "waypoints/markers"  # visualization_msgs/MarkerArray: the course and the fish
 TOPIC_CLOCK = "/clock"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 
@@ -80,7 +82,17 @@ TOPICS: dict[str, Topic] = {
         ),
         Topic(TOPIC_IMU, "sensor_msgs/msg/Imu", "sensor", "fin_sim with a body that turns, or a fish driver"),
         Topic(TOPIC_LOOP_STATUS, STRING, "status", "speed_loop"),
-        Topic(TOPIC_CMD_VEL, "geometry_msgs/msg/Twist", "command", "a fish stack", recorded=False),
+        Topic(
+            TOPIC_CMD_VEL, "geometry_msgs/msg/Twist", "command", "a fish stack (waypoints)", recorded=False
+        ),
+        Topic(TOPIC_WAYPOINT_STATUS, STRING, "status", "waypoints"),
+        Topic(
+            TOPIC_WAYPOINT_MARKERS,
+            "visualization_msgs/msg/MarkerArray",
+            "status",
+            "waypoints",
+            recorded=False,
+        ),
         Topic(TOPIC_ODOM, "nav_msgs/msg/Odometry", "command", "speed_loop", recorded=False),
         Topic(TOPIC_CLOCK, "rosgraph_msgs/msg/Clock", "clock", "fin_sim with publish_clock, player"),
         Topic(

@@ -50,6 +50,7 @@ EXECUTABLES: dict[str, tuple[str, str]] = {
     "recorder": ("recorder", "main"),
     "player": ("player", "main"),
     "speed_loop": ("speed_loop", "main"),
+    "waypoints": ("waypoints", "main"),
     "bringup": ("bringup", "main"),
 }
 

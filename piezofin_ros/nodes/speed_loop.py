@@ -202,6 +202,7 @@ class SpeedLoopNode(Node):
         # a fish stack's velocity command (teleop, nav2): its forward speed is the set-point
         self._cmd_vel_timeout_s = own.cmd_vel_timeout_s
         self._cmd_vel_t = math.nan  # (node clock, s) the latest cmd_vel; NaN: none yet, or timed out
+        self._cmd_vel_wall = -math.inf  # (time.monotonic) the latest cmd_vel
         self._cmd_vel_said: set[str] = set()
         self.inbox.latest(
             TwistStamped if own.cmd_vel_stamped else Twist, TOPIC_CMD_VEL, self._on_cmd_vel, velocity_command
@@ -269,6 +270,7 @@ class SpeedLoopNode(Node):
         forward, yaw_rate = command
         now = self._now()
         self._cmd_vel_t = now if now > 0.0 else math.nan  # (use_sim_time before /clock: no time yet)
+        self._cmd_vel_wall = time.monotonic()
         if forward < 0:
             self._say_once(
                 "backwards", f"cmd_vel asks {forward:.3g} m/s: this fish does not swim backwards (0)"
@@ -308,8 +310,14 @@ class SpeedLoopNode(Node):
         self._odom.publish(msg)
 
     def _cmd_vel_expired(self, t: float) -> None:
-        """No cmd_vel for ``cmd_vel_timeout_s`` after one came: stop swimming (set-point 0), said."""
-        if math.isnan(self._cmd_vel_t) or t - self._cmd_vel_t <= self._cmd_vel_timeout_s:
+        """No cmd_vel for ``cmd_vel_timeout_s`` after one came, of the node's clock and of wall time
+        alike (a simulation faster than real time): stop swimming (set-point 0), said."""
+        # (and as long of wall time: a teleop's 10 Hz by the wall is 1 Hz of a simulation at x10)
+        if (
+            math.isnan(self._cmd_vel_t)
+            or t - self._cmd_vel_t <= self._cmd_vel_timeout_s
+            or time.monotonic() - self._cmd_vel_wall <= self._cmd_vel_timeout_s
+        ):
             return
         self.get_logger().warning(
             f"no cmd_vel for {t - self._cmd_vel_t:.2f} s (> {self._cmd_vel_timeout_s:g} s): set-point 0, "

@@ -1,0 +1,127 @@
+"""Line-of-sight guidance: a course of waypoints to the speed and the yaw rate a fish is asked.
+
+The marine standard (Fossen, *Handbook of Marine Craft Hydrodynamics and Motion Control*, 2011,
+ch. 10.3): on the leg from waypoint ``p_k`` to ``p_k+1`` (its angle ``a_k``), the fish at ``(x, y)``
+lies ``s`` along the leg and ``e`` across it (to port positive).  It steers for a point a lookahead
+``D`` ahead on the leg: the heading asked is ``a_k - atan(e / D)``, and the yaw rate asked turns the
+heading error ``wrap(psi_d - psi)`` away at the gain ``k`` (1/s), within the yaw rate the fish can
+give each way.  A waypoint is reached within the acceptance radius, or once the fish is past it
+along its leg; then the next leg.  The course's last waypoint reached, it is done.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from ..errors import ControlError
+
+#: The farthest a course's point may lie from the odometry's origin, m (beyond: no fish's course).
+COURSE_MOST_M = 1e7
+
+
+class GuidanceError(ControlError):
+    """A course or a setting guidance cannot take: the text names the field."""
+
+
+def wrap(angle: float) -> float:
+    """``angle`` in ``(-pi, pi]``, rad."""
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
+@dataclass(frozen=True)
+class Leg:
+    """Where the fish is against its leg: along (m, from the leg's start), across (m, to port),
+    the heading asked (rad) and the distance to the course's end (m)."""
+
+    index: int
+    along_m: float
+    across_m: float
+    heading_rad: float
+    to_go_m: float
+
+
+@dataclass
+class LineOfSight:
+    """A course and how it is swum (module docstring); SI units, every field checked."""
+
+    waypoints: Sequence[tuple[float, float]]
+    lookahead_m: float = 1.5
+    acceptance_m: float = 2.0  # (about the fish's turning radius: the turn begins that far before)
+    gain_per_s: float = 0.1
+    port_radius_m: float = 2.5  # the tightest turn asked each way, m (module docstring)
+    starboard_radius_m: float = 20.0
+    leg: int = 1  # heading for waypoints[leg], from waypoints[leg - 1]
+    done: bool = False
+    _lengths: list[float] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        points = [tuple(p) for p in self.waypoints]
+        if len(points) < 2:
+            raise GuidanceError(f"waypoints: a course needs at least 2 points, got {len(points)}")
+        for k, p in enumerate(points):
+            if len(p) != 2 or not all(isinstance(c, (int, float)) and abs(c) <= COURSE_MOST_M for c in p):
+                raise GuidanceError(
+                    f"waypoints[{k}] = {p!r}: a point is two numbers (x, y) within +-{COURSE_MOST_M:g} m"
+                )
+        for k in range(1, len(points)):
+            if math.dist(points[k - 1], points[k]) < 1e-6:
+                raise GuidanceError(f"waypoints[{k}] = {points[k]!r} repeats the point before it: no leg")
+        for name in ("lookahead_m", "acceptance_m", "gain_per_s", "port_radius_m", "starboard_radius_m"):
+            x = getattr(self, name)
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
+                raise GuidanceError(f"{name} = {x!r} must be a finite number > 0")
+        self.waypoints = [(float(x), float(y)) for x, y in points]
+        self._lengths = [math.dist(self.waypoints[k - 1], self.waypoints[k]) for k in range(1, len(points))]
+
+    @property
+    def length_m(self) -> float:
+        """The course's length, m."""
+        return sum(self._lengths)
+
+    def off_course_m(self, x: float, y: float) -> float:
+        """How far the fish at ``(x, y)`` is from the course: the least distance to any of its legs,
+        m (the cross-track error a course is judged by; the leg it steers for may be the next one)."""
+        best = math.inf
+        for (x0, y0), (x1, y1), length in zip(
+            self.waypoints, self.waypoints[1:], self._lengths, strict=False
+        ):
+            u = ((x - x0) * (x1 - x0) + (y - y0) * (y1 - y0)) / length**2
+            u = min(max(u, 0.0), 1.0)
+            best = min(best, math.hypot(x - (x0 + u * (x1 - x0)), y - (y0 + u * (y1 - y0))))
+        return best
+
+    def where(self, x: float, y: float) -> Leg:
+        """The fish at ``(x, y)`` against its present leg."""
+        (x0, y0), (x1, y1) = self.waypoints[self.leg - 1], self.waypoints[self.leg]
+        a = math.atan2(y1 - y0, x1 - x0)
+        dx, dy = x - x0, y - y0
+        along = dx * math.cos(a) + dy * math.sin(a)
+        across = -dx * math.sin(a) + dy * math.cos(a)
+        rest = sum(self._lengths[self.leg :])
+        to_go = max(self._lengths[self.leg - 1] - along, 0.0) + rest
+        return Leg(self.leg, along, across, wrap(a - math.atan2(across, self.lookahead_m)), to_go)
+
+    def update(self, x: float, y: float, heading_rad: float, speed_m_s: float = 0.0) -> tuple[float, Leg]:
+        """The yaw rate to ask (rad/s, to port) for the fish at ``(x, y)`` heading ``heading_rad`` at
+        ``speed_m_s``, and where it is; a waypoint reached moves to the next leg (:attr:`done` after
+        the last)."""
+        if not all(math.isfinite(v) for v in (x, y, heading_rad, speed_m_s)):
+            raise GuidanceError(f"the fish at ({x!r}, {y!r}) heading {heading_rad!r}: not a pose")
+        accept = max(self.acceptance_m, self.port_radius_m)
+        while not self.done:
+            here = self.where(x, y)
+            past = here.along_m >= self._lengths[self.leg - 1]
+            if not (past or math.dist((x, y), self.waypoints[self.leg]) <= accept):
+                break
+            if self.leg == len(self.waypoints) - 1:
+                self.done = True
+            else:
+                self.leg += 1
+        here = self.where(x, y)
+        if self.done:
+            return 0.0, here
+        rate = self.gain_per_s * wrap(here.heading_rad - heading_rad)
+        u = max(abs(speed_m_s), 0.01)  # (from rest: as at 1 cm/s)
+        return min(max(rate, -u / self.starboard_radius_m), u / self.port_radius_m), here

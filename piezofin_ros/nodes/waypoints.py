@@ -1,0 +1,214 @@
+"""``waypoints``: a course of points swum by line-of-sight guidance (the fish stack's example).
+
+Subscribes ``odom`` (nav_msgs/Odometry: where the fish is, the speed loop's dead reckoning) and
+publishes ``cmd_vel`` (geometry_msgs/Twist: ``speed_m_s`` forward, the yaw rate line-of-sight
+guidance asks, :class:`~piezofin_ros.control.guidance.LineOfSight`) at ``rate_hz`` on the node's clock,
+what it is doing on ``waypoints/status`` (std_msgs/String, JSON: the leg, along and across it, off the
+course, the distance to go, done) and the course and the fish as ``visualization_msgs/MarkerArray`` on
+``waypoints/markers`` for RViz and Foxglove (in ``frame_id``, ``odom``).  The course is the parameter
+``waypoints``: ``[x0, y0, x1, y1, ...]`` in metres, fixed at start.  Once the last point is reached it
+asks the fish to stop (one ``cmd_vel`` of zero) and falls silent; a fish stack's ``cmd_vel`` timeout
+stops it as well if this node ends.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+from geometry_msgs.msg import Point, Twist
+from nav_msgs.msg import Odometry
+from rclpy.context import Context
+from rclpy.node import Node
+from std_msgs.msg import String
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..config import setting
+from ..control.guidance import LineOfSight
+from ..errors import PiezofinError
+from ._common import (
+    TOPIC_CMD_VEL,
+    TOPIC_ODOM,
+    TOPIC_WAYPOINT_MARKERS,
+    TOPIC_WAYPOINT_STATUS,
+    Inbox,
+    MessageRefused,
+    StartupError,
+    declare,
+    endpoint,
+    run_node,
+)
+from ._diagnostics import OK, STALE, Diagnostics, Report
+
+
+@dataclass(frozen=True)
+class WaypointsConfig:
+    """``waypoints``'s parameters."""
+
+    waypoints: tuple[float, ...] = setting(
+        (), "the course: x0, y0, x1, y1, ... in metres in the odom frame (at least two points)", items=float
+    )
+    speed_m_s: float = setting(0.05, "the speed asked on the course, m/s", 0.0, 10.0)
+    lookahead_m: float = setting(
+        1.5, "line of sight: the point steered for, this far ahead on the leg, m", 0.01, 1e4
+    )
+    acceptance_m: float = setting(
+        2.0, "a waypoint is reached within this distance (about the turning radius), m", 0.01, 1e4
+    )
+    gain_per_s: float = setting(0.1, "the yaw rate asked per radian of heading error, 1/s", 1e-4, 100.0)
+    port_radius_m: float = setting(
+        2.5,
+        "the tightest turn to port asked, m (the paper's twin turns on 1.8 m at its offset's edge)",
+        0.01,
+        1e4,
+    )
+    starboard_radius_m: float = setting(
+        20.0,
+        "the tightest turn to starboard asked, m (the P1 window leaves the offset little room)",
+        0.01,
+        1e4,
+    )
+    rate_hz: float = setting(10.0, "how often cmd_vel is sent, Hz (node clock)", 0.5, 100.0)
+    frame_id: str = setting("odom", "the frame of the course and the markers")
+
+
+def pose_of(msg: Any) -> tuple[float, float, float, float]:
+    """The door's check of an ``odom``: (x, y, heading, speed) in metres, radians and m/s, each
+    finite."""
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    heading = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    pose = (float(p.x), float(p.y), heading, float(msg.twist.twist.linear.x))
+    if not all(math.isfinite(v) and abs(v) < 1e7 for v in pose):
+        raise MessageRefused(f"a pose of {pose!r} is no fish's (x, y within 1e7 m, a finite heading)")
+    return pose
+
+
+class WaypointsNode(Node):
+    """Line-of-sight guidance on the live topics."""
+
+    def __init__(self, *, context: Context | None = None, node_name: str = "waypoints", **kwargs: object):
+        super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
+        c = declare(self, WaypointsConfig)
+        flat = c.waypoints
+        if len(flat) % 2:
+            raise StartupError(
+                f"parameter waypoints: {len(flat)} numbers: x and y of each point (an even count)"
+            )
+        try:
+            self.course = LineOfSight(
+                [(flat[k], flat[k + 1]) for k in range(0, len(flat), 2)],
+                c.lookahead_m,
+                c.acceptance_m,
+                c.gain_per_s,
+                c.port_radius_m,
+                c.starboard_radius_m,
+            )
+        except PiezofinError as exc:
+            raise StartupError(f"parameter {exc}") from None
+        self.config = c
+        self.pose: tuple[float, float, float, float] | None = None  # (x, y, heading, speed)
+        self.off_course_m: list[float] = []
+        self._cmd = self.create_publisher(*endpoint(TOPIC_CMD_VEL))
+        self._status = self.create_publisher(*endpoint(TOPIC_WAYPOINT_STATUS))
+        self._markers = self.create_publisher(*endpoint(TOPIC_WAYPOINT_MARKERS))
+        self.inbox = Inbox(self)
+        self.inbox.latest(Odometry, TOPIC_ODOM, self._on_odom, pose_of)
+        self._stopped = False
+        self._ticks = 0
+        self.create_timer(1.0 / c.rate_hz, self._tick)
+        self.diagnostics = Diagnostics(self, f"{len(self.course.waypoints)} waypoints")
+        self.diagnostics.add("course", self._diagnose)
+        self.get_logger().info(
+            f"a course of {len(self.course.waypoints)} points, {self.course.length_m:.3g} m, at "
+            f"{c.speed_m_s:g} m/s: cmd_vel on {self.resolve_topic_name(TOPIC_CMD_VEL)}"
+        )
+
+    def _on_odom(self, pose: tuple[float, float, float, float]) -> None:
+        self.pose = pose
+
+    def _diagnose(self) -> Report:
+        if self.pose is None:
+            return Report(STALE, "no odom yet: nothing asked", {})
+        leg = self.course.where(*self.pose[:2])
+        said = "course done" if self.course.done else f"leg {leg.index}, {leg.to_go_m:.3g} m to go"
+        return Report(OK, said, {"leg": leg.index, "to_go_m": leg.to_go_m, "across_m": leg.across_m})
+
+    def _tick(self) -> None:
+        if self.pose is None or self._stopped:
+            return
+        x, y, heading, speed = self.pose
+        rate, leg = self.course.update(x, y, heading, speed)
+        off = self.course.off_course_m(x, y)
+        self.off_course_m.append(off)
+        twist = Twist()
+        if self.course.done:
+            self._stopped = True  # (one zero, then silence: the speed loop's timeout holds the stop)
+            self.get_logger().info(
+                f"course done: {self.course.length_m:.3g} m, {rms(self.off_course_m):.3g} m RMS off it"
+            )
+        else:
+            twist.linear.x, twist.angular.z = self.config.speed_m_s, rate
+        self._cmd.publish(twist)
+        status = {
+            "leg": leg.index,
+            "legs": len(self.course.waypoints) - 1,
+            "along_m": leg.along_m,
+            "across_m": leg.across_m,
+            "off_course_m": off,
+            "off_course_rms_m": rms(self.off_course_m),
+            "to_go_m": leg.to_go_m,
+            "progress": 1.0 - leg.to_go_m / self.course.length_m,
+            "yaw_rate_rad_s": rate,
+            "done": self.course.done,
+        }
+        self._status.publish(String(data=json.dumps(status)))
+        if self._ticks % max(round(self.config.rate_hz), 1) == 0 or self.course.done:
+            self._markers.publish(self._marker_array())
+        self._ticks += 1
+        self.diagnostics.update()
+
+    def _marker_array(self) -> MarkerArray:
+        """The course (a line through its points), its points (spheres) and the fish (an arrow)."""
+        stamp = self.get_clock().now().to_msg()
+        out = MarkerArray()
+        for k, kind in enumerate((Marker.LINE_STRIP, Marker.SPHERE_LIST, Marker.ARROW)):
+            m = Marker()
+            m.header.frame_id, m.header.stamp = self.config.frame_id, stamp
+            m.ns, m.id, m.type, m.action = "course", k, kind, Marker.ADD
+            m.pose.orientation.w = 1.0
+            m.color.a = 1.0
+            if kind == Marker.ARROW:
+                assert self.pose is not None
+                x, y, heading, _ = self.pose
+                m.ns = "fish"
+                m.pose.position.x, m.pose.position.y = x, y
+                m.pose.orientation.z, m.pose.orientation.w = math.sin(0.5 * heading), math.cos(0.5 * heading)
+                m.scale.x, m.scale.y, m.scale.z = 0.25, 0.06, 0.1  # (mfc-fish: 25 cm long)
+                m.color.r = 1.0
+            else:
+                m.points = [Point(x=float(px), y=float(py)) for px, py in self.course.waypoints]
+                m.scale.x = 0.05 if kind == Marker.LINE_STRIP else 0.3
+                m.scale.y = m.scale.z = 0.3
+                m.color.b = 1.0 if kind == Marker.LINE_STRIP else 0.0
+                m.color.g = 0.0 if kind == Marker.LINE_STRIP else 1.0
+            out.markers.append(m)
+        return out
+
+    def destroy_node(self) -> None:
+        self.inbox.close()
+        super().destroy_node()
+
+
+def rms(values: list[float]) -> float:
+    return math.sqrt(sum(v * v for v in values) / len(values)) if values else math.nan
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda ctx: WaypointsNode(context=ctx), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
