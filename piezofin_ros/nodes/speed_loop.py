@@ -58,6 +58,8 @@ from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 
 # (cmd_vel, a fish stack's velocity command, and odom, where the fish is: in the topic table,
 # bags/topics.py, relative to the fish's namespace: /fish/cmd_vel, /fish/odom)
+#: The highest drive frequency an estimate may hold, Hz (a drive's band ends within it: DriveLimits).
+FREQUENCY_MOST_HZ = 1000.0
 #: The fastest yaw rate any fish's command may ask, rad/s (either way): beyond, it is no command.
 YAW_RATE_MOST_RAD_S = 100.0
 
@@ -90,11 +92,11 @@ def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
     return forward, yaw
 
 
-def fin_thrust(msg: Any) -> tuple[float, float]:
+def fin_thrust(msg: Any) -> tuple[float, float, float]:
     """The door's check of an ``estimate`` for the speed loop: its self-sensed thrust, else its
     Lighthill thrust (a block may hold only what the loop reads), within what a fin gives (NaN: not
-    estimated); and the drive's peak-to-peak voltage (NaN where it does not hold one), within the
-    hard cap."""
+    estimated); and the drive's peak-to-peak voltage and frequency (NaN where it does not hold them),
+    within the hard cap and what a fin is driven at."""
     block = msg_block(msg)
     names = block.names
     thrust = block.scalar("thrust_self_n") if "thrust_self_n" in names else math.nan
@@ -107,7 +109,10 @@ def fin_thrust(msg: Any) -> tuple[float, float]:
     vpp = block.scalar("voltage_pp") if "voltage_pp" in names else math.nan
     if not (math.isnan(vpp) or 0.0 <= vpp <= HARD_VOLTAGE_PP_MAX):
         raise MessageRefused(f"a drive of {vpp!r} Vpp is beyond the hard cap ({HARD_VOLTAGE_PP_MAX:g})")
-    return thrust, vpp
+    f = block.scalar("frequency_hz") if "frequency_hz" in names else math.nan
+    if not (math.isnan(f) or 0.0 < f <= FREQUENCY_MOST_HZ):
+        raise MessageRefused(f"a drive at {f!r} Hz is no fin's (within (0, {FREQUENCY_MOST_HZ:g}] Hz)")
+    return thrust, vpp, f
 
 
 def imu_reading(msg: Any) -> tuple[float, float, float]:
@@ -186,7 +191,8 @@ class SpeedLoopNode(Node):
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         self._turns = body.fins == 1
-        self._thrust_n = self._voltage_pp = math.nan  # (the latest estimate's: the yaw loop's plant)
+        # (the latest estimate's thrust, voltage and frequency: the yaw loop's plant)
+        self._thrust_n = self._voltage_pp = self._frequency_hz = math.nan
         freeze_parameters(self, "speed_m_s", self._on_setpoint)
         self._pub = self.create_publisher(*endpoint(TOPIC_DEMAND))
         self._status = self.create_publisher(*endpoint(TOPIC_LOOP_STATUS))
@@ -339,12 +345,12 @@ class SpeedLoopNode(Node):
                 throttle_duration_sec=5.0,
             )
 
-    def _on_estimate(self, estimate: tuple[float, float]) -> None:
+    def _on_estimate(self, estimate: tuple[float, float, float]) -> None:
         """The fin's thrust as the estimator gives it (self-sensed on a fish): what a speed reading is
-        judged against, and with the drive's voltage the yaw loop's plant."""
-        thrust, vpp = estimate  # (an estimate that cannot give one keeps the last: the turn holds)
-        if math.isfinite(thrust) and math.isfinite(vpp):
-            self._thrust_n, self._voltage_pp = thrust, vpp
+        judged against, and with the drive's voltage and frequency the yaw loop's plant."""
+        thrust, vpp, f = estimate  # (an estimate that cannot give one keeps the last: the turn holds)
+        if math.isfinite(thrust) and math.isfinite(vpp) and math.isfinite(f):
+            self._thrust_n, self._voltage_pp, self._frequency_hz = thrust, vpp, f
         self.loop.estimate(self._now(), thrust)
 
     def _on_imu(self, reading: tuple[float, float, float]) -> None:
@@ -358,7 +364,7 @@ class SpeedLoopNode(Node):
         if not self._turns:
             return
         vpp = self._voltage_pp if math.isfinite(self._voltage_pp) else 0.0
-        bias = self.yaw.update(t, self._thrust_n, self.loop.speed_m_s, vpp)
+        bias = self.yaw.update(t, self._thrust_n, self.loop.speed_m_s, vpp, self._frequency_hz)
         self._bias_pub.publish(Float64(data=bias))
         if self.yaw.edge:
             self._say_once(

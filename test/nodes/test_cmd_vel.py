@@ -177,7 +177,7 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
             t_turn = rates[-1][0]
             swim(speed, yaw, 150.0)
             turning = biases[-1][1]
-            odom = odoms[-1]
+            odom, heading = odoms[-1], headings[-1]  # (at once: the fish turns on in the silence)
             g.spin_for(3.0)  # cmd_vel silent: 15 s of fish time
     finally:
         outs = stop(*procs)
@@ -194,7 +194,7 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
     assert turning > 100.0 and biases[-1][1] == 0.0, (turning, biases[-5:])
     # odom laid its track along the IMU's heading: it bent to port
     q = odom.pose.pose.orientation
-    assert 2.0 * math.atan2(q.z, q.w) == pytest.approx(headings[-1], abs=0.05)
+    assert 2.0 * math.atan2(q.z, q.w) == pytest.approx(heading, abs=0.05)
     assert odom.pose.pose.position.y > 1.0 and odom.pose.covariance[7] < 1e3
     held = np.array([b for at, b in biases if t_turn + 90.0 < at <= t_turn + 150.0])  # (while turning)
     print(

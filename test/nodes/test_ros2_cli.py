@@ -252,7 +252,10 @@ def test_launch_without_the_simulator_and_with_a_layered_params_file(
     changes.write_text("/**/controller:\n  ros__parameters:\n    frequencies: [5.0, 6.0]\n")
     launch = Launch(ros_env, tmp_path, "sim:=false", f"params_file:={changes}")
     try:
-        launch.wait_for("recording 12 topics", 60.0)  # a fin's eleven (supply, battery too) and /clock
+        from piezofin_ros.nodes.recorder import GLOBAL_TOPICS, SUITE_TOPICS
+
+        # a fin's topics as the table records them (supply, battery, imu too) and /clock
+        launch.wait_for(f"recording {len(SUITE_TOPICS) + len(GLOBAL_TOPICS)} topics", 60.0)
         # the controller is up, with its voltages [400, 800] from bringup.yaml and frequencies from mine
         launch.wait_for("4 protocol trials", 60.0)
         nodes = node_list(ros_env, {"/fin/thrust_estimator", "/fin/controller", "/recorder"})

@@ -260,7 +260,11 @@ def test_an_attacker_in_another_process_cannot_take_the_offset_out_of_the_window
         stop(proc)
     out = log.read_text()
     assert alive and "Traceback" not in out, out[-3000:]
-    assert "rejected: non-finite" in out and "out of the window" in out and "must hold 3 to 4 values" in out
+    # each kind said (a burst is said once a second with the count of the rest: which reason is said
+    # first depends on the timing) and counted
+    assert "rejected:" in out and "clamped:" in out, out[-3000:]
+    counts = re.search(r"accepted (\d+), clamped (\d+), rejected (\d+)", out)
+    assert counts and int(counts[2]) > 40 and int(counts[3]) > 40, out[-3000:]
     t = np.concatenate([b["t_s"] for b in drive])
     v = np.concatenate([b["voltage_V"] for b in drive])
     assert np.all(np.isfinite(v)) and np.all(np.diff(t) > 0)
