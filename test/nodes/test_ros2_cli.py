@@ -125,6 +125,13 @@ def fish_time(env: dict[str, str]) -> float:
     return int(sec) + int(nsec) * 1e-9
 
 
+def echoed_value(env: dict[str, str], topic: str) -> float:
+    """The number ``ros2 topic echo --once TOPIC --field data`` prints (NaN: none)."""
+    out = ros2(env, "topic", "echo", "--once", topic, "--field", "data", timeout=60.0).stdout
+    numbers = re.findall(r"^\s*(-?[0-9][0-9.eE+-]*)\s*$", out, re.M)
+    return float(numbers[-1]) if numbers else float("nan")
+
+
 def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Path) -> None:
     """Issue 27's example, as a user runs it: `ros2 launch piezofin_ros fish.launch.py`, each node in
     its own process; the set-point set live with `ros2 param set` (a speed that is no speed and any
@@ -175,9 +182,30 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
         deadline = time.monotonic() + 300.0  # (x10 alone: 50 s of wall time; a loaded machine is slower)
         while fish_time(ros_env) < t_set + HOLD_S and time.monotonic() < deadline:
             time.sleep(3.0)
+        t_held = fish_time(ros_env)  # (the set-point held until here; the teleop comes after)
+        # a teleop as a user types it (issue 42): the fish turns while it comes (its yaw loop asks an
+        # offset), and its silence takes the offset back to 0 V (cmd_vel's timeout: 0.5 s of fish and
+        # of wall time, so that 10 Hz by the wall holds a fish simulated at x10)
+        teleop = subprocess.Popen(
+            ["ros2", "topic", "pub", "-r", "10", "/fish/cmd_vel", "geometry_msgs/msg/Twist",
+             "{linear: {x: 0.06}, angular: {z: 0.01}}"],
+            env=ros_env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
+        try:
+            deadline = time.monotonic() + 60.0
+            turning = 0.0
+            while turning <= 0.0 and time.monotonic() < deadline:
+                time.sleep(2.0)
+                turning = echoed_value(ros_env, "/fish/bias_demand")
+            assert turning > 0.0, "the teleop's turn asked no offset"
+        finally:
+            os.killpg(teleop.pid, signal.SIGINT)
+            teleop.wait(timeout=30)
+        time.sleep(3.0)  # (30 s of fish time: the timeout, and the offset's slew to 0 V)
+        assert echoed_value(ros_env, "/fish/bias_demand") == 0.0
+        launch.wait_for("no cmd_vel for", 10.0)
         # an unreachable set-point: taken, said with the fastest speed, and never more than the 8 mN
         # the loop may ask (config/fish.yaml), whatever the speed error (the bag's demands, below)
-        t_far = fish_time(ros_env)
         far = ros2(ros_env, "param", "set", "/fish/speed_loop", "speed_m_s", "5.0", "--spin-time", "3")
         assert "Set parameter successful" in far.stdout, far.stdout + far.stderr
         launch.wait_for("set-point 5 m/s is beyond the 8 mN per fin the loop may ask for", 30.0)
@@ -204,10 +232,10 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
     assert max(speeds) > 0.005, max(speeds)  # it swam
     assert max(demands) <= 0.008 and max(demands) == pytest.approx(0.008), max(demands)  # asked, capped
     # and holds the new set-point: the speed sensor's mean over the last minute of fish time before
-    # the unreachable one
+    # the teleop
     t, u = np.array(speed_times), np.array(speeds)
-    assert t_far >= t_set + HOLD_S, f"only {t_far - t_set:.0f} s of fish time after the step"
-    last = (t >= t_far - LAST_S) & (t <= t_far)
+    assert t_held >= t_set + HOLD_S, f"only {t_held - t_set:.0f} s of fish time after the step"
+    last = (t >= t_held - LAST_S) & (t <= t_held)
     assert abs(float(np.mean(u[last])) / 0.06 - 1.0) < 0.05, float(np.mean(u[last]))
 
 
