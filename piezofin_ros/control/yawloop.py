@@ -67,9 +67,12 @@ class YawLoopConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             x = getattr(self, f.name)
-            least_ok = x >= 0 if f.name == "min_speed_m_s" else x > 0
-            if not (isinstance(x, (int, float)) and math.isfinite(x) and least_ok):
-                raise ControlError(f"yaw loop: {f.name} = {x!r} must be a finite number > 0")
+            zero_ok = f.name == "min_speed_m_s"
+            number = isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            if not (number and (x >= 0 if zero_ok else x > 0)):
+                raise ControlError(
+                    f"yaw loop: {f.name} = {x!r} must be a finite number {'>=' if zero_ok else '>'} 0"
+                )
 
 
 @dataclass
