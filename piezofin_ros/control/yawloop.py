@@ -100,6 +100,11 @@ class YawLoop:
             self.integral_v = 0.0
         self.setpoint_rad_s = float(rate_rad_s)
 
+    def stop(self) -> None:
+        """No turn asked and no offset from now (a fish stack fell silent): the drive's own slew takes
+        it to 0 V; nothing is left to wind."""
+        self.setpoint_rad_s, self.integral_v, self.bias_v, self.edge = 0.0, 0.0, 0.0, ""
+
     def measure(self, t: float, rate_rad_s: float) -> None:
         """An IMU's yaw rate at ``t``: low-passed (``rate_filter_s``) into :attr:`rate_rad_s`."""
         fresh = t - self._t_rate <= self.config.max_gap_s and math.isfinite(self.rate_rad_s)

@@ -331,7 +331,7 @@ class SpeedLoopNode(Node):
         )
         self._cmd_vel_t = math.nan
         self.loop.set_setpoint(0.0)
-        self.yaw.set_setpoint(0.0)
+        self.yaw.stop()  # (the offset at once: the drive's slew ramps it, as it ramps a stop)
 
     def _on_speed(self, reading: tuple[float, float]) -> None:
         # (the loop runs on its node clock: a reading counts when it arrives, whatever its stamp)

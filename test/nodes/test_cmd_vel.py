@@ -178,7 +178,10 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
             swim(speed, yaw, 150.0)
             turning = biases[-1][1]
             odom, heading = odoms[-1], headings[-1]  # (at once: the fish turns on in the silence)
-            g.spin_for(3.0)  # cmd_vel silent: 15 s of fish time
+            # cmd_vel silent: the offset back to 0 V at once after the timeout (0.5 s of fish and wall time)
+            silent = time.monotonic()
+            g.spin_until(lambda: biases[-1][1] == 0.0, 20.0, "the offset at 0 V after cmd_vel's silence")
+            zeroed = time.monotonic() - silent
     finally:
         outs = stop(*procs)
     out = "".join(outs) + "".join(p.read_text() for p in logs.values())
@@ -191,7 +194,7 @@ def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
     for k in range(6, 15):
         window = (t > t_turn + 10.0 * k) & (t <= t_turn + 10.0 * (k + 1))
         assert np.mean(r[window]) == pytest.approx(yaw, rel=0.1), (k, np.mean(r[window]))
-    assert turning > 100.0 and biases[-1][1] == 0.0, (turning, biases[-5:])
+    assert turning > 100.0 and biases[-1][1] == 0.0 and zeroed < 2.0, (turning, zeroed, biases[-5:])
     # odom laid its track along the IMU's heading: it bent to port
     q = odom.pose.pose.orientation
     assert 2.0 * math.atan2(q.z, q.w) == pytest.approx(heading, abs=0.05)
