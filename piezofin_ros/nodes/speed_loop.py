@@ -8,6 +8,11 @@ settable live (``ros2 param set /fish/speed_loop speed_m_s 0.06``), or a fish st
 when none comes for ``cmd_vel_timeout_s`` (0.5 s), as ROS base controllers stop; everything else is
 fixed at start.  The loop itself is :class:`~piezofin_ros.control.speedloop.SpeedLoop`: feed-forward through
 the body's drag law, feedback on the measured speed, the demand never above ``loop.max_demand_n``.
+
+On a body with one fin, ``cmd_vel``'s ``angular.z`` (rad/s, to port) is the set-point of the yaw loop
+(:class:`~piezofin_ros.control.yawloop.YawLoop`), fed back by ``imu`` (sensor_msgs/Imu), which asks the
+drive's offset on ``bias_demand`` (std_msgs/Float64, V) at ``rate_hz``; the controller adds it to
+``cmd``.  ``odom`` (nav_msgs/Odometry) lays the speed sensor's track along the IMU's heading.
 """
 
 from __future__ import annotations
