@@ -253,6 +253,13 @@ def test_an_attacker_in_another_process_cannot_take_the_offset_out_of_the_window
                 for m in hostile:
                     cmd.publish(m)
                 g.spin_for(0.05)
+            # then a driver's valid offsets, each way, held by a heartbeat: taken (the attack's offs
+            # between them above kept the drive from ramping up on a loaded machine)
+            for bias in (400.0, -100.0):
+                cmd.publish(Float64MultiArray(data=[5.0, 0.0, 0.0]))  # (re-arms a tripped watchdog)
+                for _ in range(30):
+                    cmd.publish(Float64MultiArray(data=[5.0, 600.0, 1.0, bias]))
+                    g.spin_for(0.05)
             cmd.publish(Float64MultiArray(data=[5.0, 0.0, 0.0]))
             g.spin_for(1.0)
             alive = proc.poll() is None
