@@ -671,6 +671,11 @@ def speed_msg(msg_type: Any, speed_m_s: float, stamp_s: float) -> Any:
     return msg
 
 
+def heading_of(q: Any) -> float:
+    """The yaw of a ``geometry_msgs/Quaternion``, rad (the heading of a fish in the plane)."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
 def imu_msg(
     yaw_rate_rad_s: float, heading_rad: float, heading_var: float, rate_sigma: float, stamp_s: float
 ) -> Any:

@@ -55,6 +55,7 @@ from ._common import (
     declare,
     endpoint,
     freeze_parameters,
+    heading_of,
     msg_block,
     run_node,
     speed_reading,
@@ -131,7 +132,7 @@ def imu_reading(msg: Any) -> tuple[float, float, float]:
         )
     q = msg.orientation
     norm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
-    heading = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    heading = heading_of(q)
     var = float(msg.orientation_covariance[8])
     if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-3):
         heading = math.nan

@@ -39,6 +39,7 @@ from ._common import (
     StartupError,
     declare,
     endpoint,
+    heading_of,
     run_node,
 )
 from ._diagnostics import OK, STALE, Diagnostics, Report
@@ -79,7 +80,7 @@ def pose_of(msg: Any) -> tuple[float, float, float, float]:
     """The door's check of an ``odom``: (x, y, heading, speed) in metres, radians and m/s, each
     finite."""
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    heading = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    heading = heading_of(q)
     pose = (float(p.x), float(p.y), heading, float(msg.twist.twist.linear.x))
     if not all(math.isfinite(v) and abs(v) < 1e7 for v in pose):
         raise MessageRefused(f"a pose of {pose!r} is no fish's (x, y within 1e7 m, a finite heading)")

@@ -41,6 +41,7 @@ from ..physics.amplifier import PAPER_BENCH, Amplifier
 from ..physics.effects import clip_ratio
 from ..physics.fin import Fin
 from ..physics.knobs import Knobs
+from ..physics.planar import bias_window_v
 from ..physics.timedomain import default_step, integrate_nodes
 from ..physics.waveforms import ProtocolTiming
 
@@ -208,8 +209,7 @@ def check_command(
 def bias_window(voltage_pp: float, limits: DriveLimits) -> tuple[float, float]:
     """The offsets a drive of ``voltage_pp`` may carry within the limits' window, V (never empty for a
     voltage within ``voltage_pp_max``: the window holds it with no offset)."""
-    half = 0.5 * voltage_pp
-    return limits.voltage_min_v + half, limits.voltage_max_v - half
+    return bias_window_v(voltage_pp, (limits.voltage_min_v, limits.voltage_max_v))
 
 
 @dataclass
