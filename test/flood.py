@@ -2,7 +2,10 @@
 at RATE messages a second (paced; as fast as it can when it cannot keep up) for SECONDS, then prints
 how many it sent.  KIND: ``speed`` (std_msgs/Float64 of plausible speeds), ``demand`` (Float64 of
 plausible thrust demands), ``supply``, ``drive``, ``tip`` or ``loadcell`` (blocks of plausible
-samples at times of their own), ``estimate`` (plausible estimates), ``cmd`` (0 V commands).
+samples at times of their own), ``estimate`` (plausible estimates), ``cmd`` (0 V commands), ``twist``
+(geometry_msgs/Twist: a teleop's speeds straight ahead, every eighth no speed at all: NaN, inf,
++-1e9, 1e308), ``bias`` (Float64 offsets of 0 V: a fish swimming straight) or ``imu``
+(sensor_msgs/Imu: a gyro at rest).
 
 Not a test module: the flood tests start it as an attacker would be, in a process of its own.
 """
@@ -35,6 +38,28 @@ def messages(kind: str) -> list:
 
         names = Estimate.field_names()
         return [record_msg(EstimateMsg, dict.fromkeys(names, float(x)), 1.0) for x in rng.uniform(0, 1e-3, 8)]
+    if kind == "twist":
+        from geometry_msgs.msg import Twist
+
+        speeds = rng.uniform(0.0, 0.1, 64)
+        speeds[::8] = [np.nan, np.inf, -np.inf, 1e9, -1e9, 1e308, np.nan, np.inf]
+        out = []
+        for k, x in enumerate(speeds):
+            msg = Twist()
+            msg.linear.x = float(x)
+            msg.angular.z = (
+                float(x) if k % 8 == 0 else 0.0
+            )  # (straight: the offset's window is test_safety's)
+            out.append(msg)
+        return out
+    if kind == "bias":
+        return [Float64(data=0.0)]
+    if kind == "imu":
+        from sensor_msgs.msg import Imu
+
+        msg = Imu()
+        msg.orientation.w = 1.0
+        return [msg]
     if kind == "cmd":
         return [block_msg(Block.from_record({"frequency_hz": 5.0, "voltage_pp_V": 0.0, "on": 0.0}))]
     t = 1e6 + np.arange(20) * 1e-3  # (times of its own, far from the fin's)

@@ -207,6 +207,14 @@ class Launch:
         return self.output()
 
 
+def errors_in(out: str) -> list[str]:
+    """The ``[ERROR]`` lines of a launch's output but launch's own escalation ("failed to terminate '5'
+    seconds after receiving 'SIGINT', escalating to 'SIGTERM'"): a node slower than 5 s to stop on a
+    loaded machine (CI's whole run, beside two other workers), which launch then stops with SIGTERM,
+    as the node handles it.  A test that allows it still asserts that every process finished cleanly."""
+    return [x for x in out.splitlines() if "[ERROR]" in x and "failed to terminate" not in x]
+
+
 def ros2(
     env: dict[str, str], *args: str, timeout: float = 60.0, cwd: Path | None = None
 ) -> subprocess.CompletedProcess[str]:

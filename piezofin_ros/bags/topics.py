@@ -30,6 +30,7 @@ TOPIC_IMU = "imu"  # sensor_msgs/Imu: a fish's yaw rate and heading
 TOPIC_BIAS = "bias_demand"  # std_msgs/Float64: the drive's offset the yaw loop asks, V
 TOPIC_WAYPOINT_STATUS = "waypoints/status"  # std_msgs/String: the course's progress (JSON)
 TOPIC_WAYPOINT_MARKERS = "waypoints/markers"  # visualization_msgs/MarkerArray: the course and the fish
+TOPIC_WAYPOINT_PATH = "waypoints/path"  # nav_msgs/Path: a course from a fish stack's planner
 TOPIC_CLOCK = "/clock"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 
@@ -86,6 +87,7 @@ TOPICS: dict[str, Topic] = {
             TOPIC_CMD_VEL, "geometry_msgs/msg/Twist", "command", "a fish stack (waypoints)", recorded=False
         ),
         Topic(TOPIC_WAYPOINT_STATUS, STRING, "status", "waypoints"),
+        Topic(TOPIC_WAYPOINT_PATH, "nav_msgs/msg/Path", "command", "a fish stack's planner, or a person"),
         Topic(
             TOPIC_WAYPOINT_MARKERS,
             "visualization_msgs/msg/MarkerArray",

@@ -113,6 +113,7 @@ from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contrac
     TOPIC_SUPPLY,
     TOPIC_TIP,
     TOPIC_WAYPOINT_MARKERS,
+    TOPIC_WAYPOINT_PATH,
     TOPIC_WAYPOINT_STATUS,
     TOPICS,
     table_topic,

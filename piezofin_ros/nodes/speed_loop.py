@@ -308,8 +308,8 @@ class SpeedLoopNode(Node):
             self.get_logger().warning(text)
 
     def _publish_odometry(self) -> None:
-        """``odom`` (nav_msgs/Odometry): ``odom`` to ``base_link``, the fish on its heading (x), its
-        covariance filled; what it does not observe (across, the heading: it swims straight) unknown."""
+        """``odom`` (nav_msgs/Odometry): ``odom`` to ``base_link``, the track laid along the IMU's
+        heading (along x without one), its covariance filled; what it does not observe unknown."""
         o, msg = self.odometry, Odometry()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id, msg.child_frame_id = "odom", "base_link"

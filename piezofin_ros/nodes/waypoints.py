@@ -6,9 +6,12 @@ guidance asks, :class:`~piezofin_ros.control.guidance.LineOfSight`) at ``rate_hz
 what it is doing on ``waypoints/status`` (std_msgs/String, JSON: the leg, along and across it, off the
 course, the distance to go, done) and the course and the fish as ``visualization_msgs/MarkerArray`` on
 ``waypoints/markers`` for RViz and Foxglove (in ``frame_id``, ``odom``).  The course is the parameter
-``waypoints``: ``[x0, y0, x1, y1, ...]`` in metres, fixed at start.  Once the last point is reached it
-asks the fish to stop (one ``cmd_vel`` of zero) and falls silent; a fish stack's ``cmd_vel`` timeout
-stops it as well if this node ends.
+``waypoints``: ``[x0, y0, x1, y1, ...]`` in metres, or a ``nav_msgs/Path`` on ``waypoints/path`` (a
+fish stack's planner, or ``ros2 topic pub --once``), which replaces the course being swum from its
+first point; a path in another frame, with a pose that is not finite, fewer than two points or more
+than :data:`MOST_POINTS` is refused at the door, naming why, and the course goes on.  With neither
+it waits, silent.  Once the last point is reached it asks the fish to stop (one ``cmd_vel`` of zero)
+and falls silent; a fish stack's ``cmd_vel`` timeout stops it as well if this node ends.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from geometry_msgs.msg import Point, Twist
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import Odometry, Path
 from rclpy.context import Context
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -33,6 +36,7 @@ from ._common import (
     TOPIC_CMD_VEL,
     TOPIC_ODOM,
     TOPIC_WAYPOINT_MARKERS,
+    TOPIC_WAYPOINT_PATH,
     TOPIC_WAYPOINT_STATUS,
     Inbox,
     MessageRefused,
@@ -50,7 +54,10 @@ class WaypointsConfig:
     """``waypoints``'s parameters."""
 
     waypoints: tuple[float, ...] = setting(
-        (), "the course: x0, y0, x1, y1, ... in metres in the odom frame (at least two points)", items=float
+        (),
+        "the course: x0, y0, x1, y1, ... in metres in the odom frame (at least two points; none: the "
+        "first nav_msgs/Path on waypoints/path)",
+        items=float,
     )
     speed_m_s: float = setting(0.05, "the speed asked on the course, m/s", 0.0, 10.0)
     lookahead_m: float = setting(
@@ -76,6 +83,30 @@ class WaypointsConfig:
     frame_id: str = setting("odom", "the frame of the course and the markers")
 
 
+#: The most points a course may have (a path of more is refused): a planner's path is tens to
+#: thousands of poses; each tick measures the fish against every leg
+MOST_POINTS = 10_000
+
+
+def points_of_path(msg: Any, frame_id: str) -> list[tuple[float, float]]:
+    """The door's check of a ``nav_msgs/Path``: its poses' (x, y), in ``frame_id`` (a path stamped in
+    no frame is taken as in it), 2 to :data:`MOST_POINTS` of them, each finite; consecutive repeats
+    (a planner's path may hold the same pose twice) are dropped."""
+    frame = str(msg.header.frame_id)
+    if frame not in ("", frame_id) or any(p.header.frame_id not in ("", frame_id) for p in msg.poses):
+        raise MessageRefused(f"a path in frame {frame!r}: the course is in {frame_id!r} (no transforms here)")
+    if not 2 <= len(msg.poses) <= MOST_POINTS:
+        raise MessageRefused(f"a path of {len(msg.poses)} poses: a course is 2 to {MOST_POINTS} points")
+    points: list[tuple[float, float]] = []
+    for k, pose in enumerate(msg.poses):
+        x, y = float(pose.pose.position.x), float(pose.pose.position.y)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise MessageRefused(f"a path whose pose {k} is at ({x!r}, {y!r}): no point")
+        if not points or (x, y) != points[-1]:
+            points.append((x, y))
+    return points
+
+
 def pose_of(msg: Any) -> tuple[float, float, float, float]:
     """The door's check of an ``odom``: (x, y, heading, speed) in metres, radians and m/s, each
     finite."""
@@ -93,23 +124,18 @@ class WaypointsNode(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "waypoints", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         c = declare(self, WaypointsConfig)
+        self.config = c
         flat = c.waypoints
         if len(flat) % 2:
             raise StartupError(
                 f"parameter waypoints: {len(flat)} numbers: x and y of each point (an even count)"
             )
-        try:
-            self.course = LineOfSight(
-                [(flat[k], flat[k + 1]) for k in range(0, len(flat), 2)],
-                c.lookahead_m,
-                c.acceptance_m,
-                c.gain_per_s,
-                c.port_radius_m,
-                c.starboard_radius_m,
-            )
-        except PiezofinError as exc:
-            raise StartupError(f"parameter {exc}") from None
-        self.config = c
+        self.course: LineOfSight | None = None
+        if flat:
+            try:
+                self.course = self._course([(flat[k], flat[k + 1]) for k in range(0, len(flat), 2)])
+            except PiezofinError as exc:
+                raise StartupError(f"parameter {exc}") from None
         self.pose: tuple[float, float, float, float] | None = None  # (x, y, heading, speed)
         self.off_course_m: list[float] = []
         self._cmd = self.create_publisher(*endpoint(TOPIC_CMD_VEL))
@@ -117,20 +143,50 @@ class WaypointsNode(Node):
         self._markers = self.create_publisher(*endpoint(TOPIC_WAYPOINT_MARKERS))
         self.inbox = Inbox(self)
         self.inbox.latest(Odometry, TOPIC_ODOM, self._on_odom, pose_of)
+        self.inbox.latest(Path, TOPIC_WAYPOINT_PATH, self._on_path, self._path_course)
         self._stopped = False
         self._ticks = 0
         self.create_timer(1.0 / c.rate_hz, self._tick)
-        self.diagnostics = Diagnostics(self, f"{len(self.course.waypoints)} waypoints")
+        self.diagnostics = Diagnostics(self, "the course")
         self.diagnostics.add("course", self._diagnose)
+        if self.course is not None:
+            self._say_course("")
+        else:
+            self.get_logger().info(
+                f"no waypoints: waiting for a nav_msgs/Path on {self.resolve_topic_name(TOPIC_WAYPOINT_PATH)}"
+            )
+
+    def _course(self, points: list[tuple[float, float]]) -> LineOfSight:
+        c = self.config
+        return LineOfSight(
+            points, c.lookahead_m, c.acceptance_m, c.gain_per_s, c.port_radius_m, c.starboard_radius_m
+        )
+
+    def _path_course(self, msg: Any) -> LineOfSight:
+        """The door's check of a path: the course it gives (refused, naming why, if none)."""
+        try:
+            return self._course(points_of_path(msg, self.config.frame_id))
+        except PiezofinError as exc:
+            raise MessageRefused(f"a path that is no course: {exc}") from None
+
+    def _say_course(self, source: str) -> None:
+        assert self.course is not None
         self.get_logger().info(
-            f"a course of {len(self.course.waypoints)} points, {self.course.length_m:.3g} m, at "
-            f"{c.speed_m_s:g} m/s: cmd_vel on {self.resolve_topic_name(TOPIC_CMD_VEL)}"
+            f"a course of {len(self.course.waypoints)} points{source}, {self.course.length_m:.3g} m, at "
+            f"{self.config.speed_m_s:g} m/s: cmd_vel on {self.resolve_topic_name(TOPIC_CMD_VEL)}"
         )
 
     def _on_odom(self, pose: tuple[float, float, float, float]) -> None:
         self.pose = pose
 
+    def _on_path(self, course: LineOfSight) -> None:
+        """A new course replaces the one being swum, from its first leg (a course done is swum again)."""
+        self.course, self._stopped, self.off_course_m = course, False, []
+        self._say_course(f" from {self.resolve_topic_name(TOPIC_WAYPOINT_PATH)}")
+
     def _diagnose(self) -> Report:
+        if self.course is None:
+            return Report(STALE, "no course yet: waiting for waypoints or a path", {})
         if self.pose is None:
             return Report(STALE, "no odom yet: nothing asked", {})
         leg = self.course.where(*self.pose[:2])
@@ -138,7 +194,7 @@ class WaypointsNode(Node):
         return Report(OK, said, {"leg": leg.index, "to_go_m": leg.to_go_m, "across_m": leg.across_m})
 
     def _tick(self) -> None:
-        if self.pose is None or self._stopped:
+        if self.pose is None or self._stopped or self.course is None:
             return
         x, y, heading, speed = self.pose
         rate, leg = self.course.update(x, y, heading, speed)
@@ -173,6 +229,7 @@ class WaypointsNode(Node):
 
     def _marker_array(self) -> MarkerArray:
         """The course (a line through its points), its points (spheres) and the fish (an arrow)."""
+        assert self.course is not None
         stamp = self.get_clock().now().to_msg()
         out = MarkerArray()
         for k, kind in enumerate((Marker.LINE_STRIP, Marker.SPHERE_LIST, Marker.ARROW)):
