@@ -12,7 +12,7 @@ the stack is not told (a fin with effects outside the correction, another body, 
 speed sensor), the M8528-P1 twin, ``mfc-fish`` and ``fish-switching`` told instead.
 
 It steers by its fin's offset: line-of-sight guidance (:mod:`piezofin_ros.control.guidance`, its
-defaults: 1.5 m lookahead, the tightest turns 2.5 m to port and 20 m to starboard) asks a yaw rate,
+defaults: 2.5 m lookahead, the tightest turns 2.5 m to port and 20 m to starboard) asks a yaw rate,
 the yaw loop (:mod:`piezofin_ros.control.yawloop`, told the stack's fin and body) the offset, the
 planar body turns (:func:`piezofin_ros.bench.course.swim_course`).  The square is swum to port
 (anticlockwise), the way a P1 fin turns fast; its side is ``--side`` metres, about ten turning
@@ -106,7 +106,7 @@ def drive_of(name: str, told: Fish, truth: Fish) -> tuple[Drive, str]:
         model=told.model,
         objective=objective,
     )
-    return OptimisingDrive(opt), "chosen"
+    return OptimisingDrive(opt), "its own"
 
 
 def run(task: tuple[str, str, float]) -> dict[str, Any]:

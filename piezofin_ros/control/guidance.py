@@ -47,7 +47,10 @@ class LineOfSight:
     """A course and how it is swum (module docstring); SI units, every field checked."""
 
     waypoints: Sequence[tuple[float, float]]
-    lookahead_m: float = 1.5
+    #: (the tightest turn to port asked: at 1.5 m the twins of M8514-P1 and M8507-P1, swimming at 5.3
+    #: and 3.7 cm/s, overshot each corner and swam a 20 m square 1.28 and 1.96 m off RMS; 0.26 and
+    #: 0.28 m at 2.5, benchmarks/bench_course.py; a fish at 12-18 cm/s went from 0.24-0.29 to 0.28-0.33)
+    lookahead_m: float = 2.5
     acceptance_m: float = 2.0  # (about the fish's turning radius: the turn begins that far before)
     gain_per_s: float = 0.1
     port_radius_m: float = 2.5  # the tightest turn asked each way, m (module docstring)

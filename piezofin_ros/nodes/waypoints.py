@@ -61,7 +61,11 @@ class WaypointsConfig:
     )
     speed_m_s: float = setting(0.05, "the speed asked on the course, m/s", 0.0, 10.0)
     lookahead_m: float = setting(
-        1.5, "line of sight: the point steered for, this far ahead on the leg, m", 0.01, 1e4
+        2.5,
+        "line of sight: the point steered for, this far ahead on the leg, m (about the tightest turn "
+        "asked: shorter, slow fish overshot each corner)",
+        0.01,
+        1e4,
     )
     acceptance_m: float = setting(
         2.0, "a waypoint is reached within this distance (about the turning radius), m", 0.01, 1e4

@@ -57,17 +57,19 @@ def test_the_line_of_sight_is_the_legs_angle_less_the_offset_over_the_lookahead(
     assert wrap(3 * math.pi) == pytest.approx(math.pi) and los.off_course_m(5.0, -1.0) == pytest.approx(1.0)
 
 
+@pytest.mark.slow  # (7 s)
 def test_a_fish_steered_by_its_offset_swims_a_square_within_a_body_length() -> None:
     """The issue's goal on a 20 m square (about ten turning radii; a smaller one cannot be held: a
     corner cut on a 2.5 m circle lies 1 m off): the fish swims it, steered by its fin's offset alone,
-    off the course by less than its 25 cm length RMS, at the fin's resonance (the least energy per
-    metre of benchmarks/bench_course.py's drives)."""
+    off the course by less than its 25 cm length RMS, at the paper's point (5.5 Hz, 800 Vpp: 5.5 cm/s;
+    0.19 m RMS, and 1.28 J/m of the amplifier's draw, as benchmarks/bench_course.py's fixed drives
+    measure it)."""
     fin, body = load_fin("M8528-P1"), load_body("mfc-fish")
-    amplifier, drive = load_amplifier("fish-switching"), FixedDrive(10.0, 400.0)
+    amplifier, drive = load_amplifier("fish-switching"), FixedDrive(5.5, 800.0)
     run = swim_course(Model(fin), body, amplifier, LineOfSight(square(20.0)), drive)
     assert run.done and run.distance_m == pytest.approx(80.0, rel=0.1)
     assert run.off_course_rms_m <= body.length_m, run.off_course_rms_m
-    assert 0.4 < run.joules_per_m < 0.8, run.joules_per_m
+    assert 1.0 < run.joules_per_m < 1.6, run.joules_per_m
 
 
 @pytest.mark.slow
@@ -76,13 +78,12 @@ def test_the_optimiser_ranking_by_range_swims_the_square_as_cheaply_as_the_best_
     controller, on the drive's voltage and current alone and ranking by speed per watt with the
     battery's fixed draw (the cost of transport), swims the 20 m square within a body length at a
     battery energy per metre within 5 % of the best fixed drive in truth (an oracle's point, chosen
-    on the fish in truth swimming straight).  Ranked by the paper's thrust per watt instead, it swims
-    slower and pays more per metre: the objective is what chooses."""
-    from benchmarks.bench_course import BEST, RANGE, TPW, run
+    on the fish in truth swimming straight; measured: +0.8 %), its exploration included."""
+    from benchmarks.bench_course import BEST, RANGE, run
 
-    ours, tpw, best = (run(("M8528-P1", d, 20.0))["run"] for d in (RANGE, TPW, BEST))
-    for r in (ours, tpw, best):
+    ours, best = (run(("M8528-P1", d, 20.0))["run"] for d in (RANGE, BEST))
+    for r in (ours, best):
         assert r.done and r.off_course_rms_m <= 0.25, (r.done, r.off_course_rms_m)
     cost = (ours.joules_per_m_all, best.joules_per_m_all)
     assert cost[0] <= 1.05 * cost[1], cost
-    assert tpw.joules_per_m_all > ours.joules_per_m_all and tpw.range_m < ours.range_m
+    assert ours.range_m >= 0.95 * best.range_m, (ours.range_m, best.range_m)
