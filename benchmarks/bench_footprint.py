@@ -2,12 +2,13 @@
 
     python benchmarks/bench_footprint.py [--seconds 60] [--source self]
 
-``fin_sim`` streams the fish of ``config/fish.yaml`` at 1 kHz in real time (its 50-sample blocks, 20
-per second per topic, with the body's speed sensor, IMU and battery) in its own process;
-``thrust_estimator``, ``controller`` (``mode:=optimise`` on the drive's voltage and current and the
-battery) and ``speed_loop`` (10 Hz: the speed loop, the yaw loop and the odometry) run with the
-same parameter file as ``ros2 run`` starts them, each in its own process, and ``waypoints`` steers
-them along a course (``cmd_vel`` from ``odom``, 10 Hz, with its markers).  The baseline, in the
+``fin_sim`` streams at 1 kHz in real time (its 50-sample blocks, 20 per second per topic) in its
+own process; ``thrust_estimator``, ``controller`` (``mode:=optimise``) and ``speed_loop`` (a
+set-point, 10 Hz) run as ``ros2 run`` starts them, each in its own process.  ``--fish``: the fish
+of ``config/fish.yaml`` instead (the body's speed sensor, IMU and battery; the controller
+optimising on the twin's model and the measured supply watt; the speed loop with its yaw loop and
+odometry) with ``waypoints`` steering it along a course (``cmd_vel`` from ``odom``, 10 Hz, with its
+markers).  The baseline, in the
 same run: the least a competent user would write, an rclpy node that subscribes the same drive
 topic and does nothing with it.  Measured from
 ``/proc``: CPU time over ``--seconds`` after a warm-up, the resident set at the end and its peak.
@@ -101,10 +102,13 @@ FISH_NODES = ("thrust_estimator", "controller", "speed_loop", "waypoints")
 BASELINE_ROW = "bare rclpy subscriber (baseline)"
 
 
-def measure(seconds: float = 60.0, warmup_s: float = 15.0, source: str = "self") -> list[Footprint]:
-    """The footprints of the fish's nodes and of the baseline, measured together in one run."""
+def measure(
+    seconds: float = 60.0, warmup_s: float = 15.0, source: str = "self", fish: bool = False
+) -> list[Footprint]:
+    """The footprints of the nodes and of the baseline, measured together in one run (``fish``: the
+    fish of ``config/fish.yaml``, steered by ``waypoints``)."""
     ns = f"/footprint{os.getpid()}"
-    ros = ["--ros-args", "-r", f"__ns:={ns}", "--params-file", str(FISH_YAML)]
+    ros = ["--ros-args", "-r", f"__ns:={ns}", *(("--params-file", str(FISH_YAML)) if fish else ())]
     sim = start([str(BIN / "fin_sim"), *ros, "-p", "realtime_factor:=1.0"])
     nodes = {
         "thrust_estimator": start([str(BIN / "thrust_estimator"), *ros]),
@@ -120,12 +124,12 @@ def measure(seconds: float = 60.0, warmup_s: float = 15.0, source: str = "self")
                 "demand_n:=0.002",
             ]
         ),
-        "speed_loop": start([str(BIN / "speed_loop"), *ros]),
-        "waypoints": start(
-            [str(BIN / "waypoints"), *ros, "-p", "waypoints:=[0.0, 0.0, 100.0, 0.0, 100.0, 100.0]"]
-        ),
+        "speed_loop": start([str(BIN / "speed_loop"), *ros, *(() if fish else ("-p", "speed_m_s:=0.05"))]),
         BASELINE_ROW: start([sys.executable, "-c", BASELINE.format(ns=ns)]),
     }
+    if fish:
+        course = "waypoints:=[0.0, 0.0, 100.0, 0.0, 100.0, 100.0]"
+        nodes["waypoints"] = start([str(BIN / "waypoints"), *ros, "-p", course])
     try:
         time.sleep(warmup_s)
         dead = [name for name, p in nodes.items() if p.poll() is not None]
@@ -148,9 +152,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="measured interval after the warm-up, s")
     ap.add_argument("--source", default="self", choices=("self", "vibrometer"), help="controller's source")
+    ap.add_argument("--fish", action="store_true", help="the fish of config/fish.yaml, steered by waypoints")
     args = ap.parse_args()
     print(f"fin_sim at 1 kHz in real time; measuring {args.seconds:g} s after a 15 s warm-up ...", flush=True)
-    rows = measure(args.seconds, source=args.source)
+    rows = measure(args.seconds, source=args.source, fish=args.fish)
     print("| process | CPU (one core) | resident | peak resident |")
     print("|---|---|---|---|")
     for r in rows:

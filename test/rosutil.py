@@ -268,14 +268,16 @@ def clean_env(**extra: str) -> dict[str, str]:
 
 def start(exe: str, *ros_args: str, log: Path | None = None, **popen: Any) -> subprocess.Popen[str]:
     """An executable of the package with ``--ros-args``, as ``ros2 run`` starts it (stdout+stderr piped,
-    or written to ``log`` where the test reads them while it runs)."""
+    or written to ``log`` where the test reads them while it runs); in this process's clean
+    environment, or ``env`` (another test's ``ros_env``: its DDS domain)."""
+    env = popen.pop("env", None)
     return subprocess.Popen(
         [str(BIN / exe), "--ros-args", *ros_args],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE if log is None else open(log, "w"),
         stderr=subprocess.STDOUT,
         text=True,
-        env=clean_env(),
+        env=clean_env() if env is None else env,
         **popen,
     )
 

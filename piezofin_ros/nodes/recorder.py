@@ -192,7 +192,6 @@ class Recorder(Node):
         self._thinned: collections.Counter[str] = collections.Counter()  # looks past THIN_LOOKS in a row
         self._thinned_said: dict[str, int] = {}
         self._status_pub = self.create_publisher(String, "~/status", QOS_STATUS)
-        self._status_sent = ""
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.exit_code: int | None = None  # set when recording had to stop (run_node exits with it)
         wanted = self._wanted(topics, namespaces)
@@ -373,10 +372,9 @@ class Recorder(Node):
                     f"{topic} comes faster than {rate:.0f} messages a second (a flood?): kept that many a "
                     f"second, the rest was dropped ({full * POLL_S:.1f} s of it so far)"
                 )
-        status = json.dumps(self.status(), sort_keys=True)
-        if status != self._status_sent:
-            self._status_pub.publish(String(data=status))
-            self._status_sent = status
+        # (every look, changed or not: a `ros2 topic echo --once` that joins before its node has
+        # discovered this publisher asks a volatile profile, and would wait for the next change)
+        self._status_pub.publish(String(data=json.dumps(self.status(), sort_keys=True)))
 
     def status(self) -> dict[str, Any]:
         """The bag, its messages, and the samples it lost (per topic) with the holes they were in."""
