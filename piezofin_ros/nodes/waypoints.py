@@ -8,7 +8,7 @@ course, the distance to go, done) and the course and the fish as ``visualization
 ``waypoints/markers`` for RViz and Foxglove (in ``frame_id``, ``odom``).  The course is the parameter
 ``waypoints``: ``[x0, y0, x1, y1, ...]`` in metres, or a ``nav_msgs/Path`` on ``waypoints/path`` (a
 fish stack's planner, or ``ros2 topic pub --once``), which replaces the course being swum from its
-first point; a path in another frame, with a pose that is not finite, fewer than two points or more
+first point (the same course sent again keeps its progress); a path in another frame, with a pose that is not finite, fewer than two points or more
 than :data:`MOST_POINTS` is refused at the door, naming why, and the course goes on.  With neither
 it waits, silent.  Once the last point is reached it asks the fish to stop (one ``cmd_vel`` of zero)
 and falls silent; a fish stack's ``cmd_vel`` timeout stops it as well if this node ends.
@@ -96,9 +96,10 @@ def points_of_path(msg: Any, frame_id: str) -> list[tuple[float, float]]:
     """The door's check of a ``nav_msgs/Path``: its poses' (x, y), in ``frame_id`` (a path stamped in
     no frame is taken as in it), 2 to :data:`MOST_POINTS` of them, each finite; consecutive repeats
     (a planner's path may hold the same pose twice) are dropped."""
-    frame = str(msg.header.frame_id)
-    if frame not in ("", frame_id) or any(p.header.frame_id not in ("", frame_id) for p in msg.poses):
-        raise MessageRefused(f"a path in frame {frame!r}: the course is in {frame_id!r} (no transforms here)")
+    frames = [str(msg.header.frame_id), *(str(p.header.frame_id) for p in msg.poses)]
+    other = next((f for f in frames if f not in ("", frame_id)), None)
+    if other is not None:
+        raise MessageRefused(f"a path in frame {other!r}: the course is in {frame_id!r} (no transforms here)")
     if not 2 <= len(msg.poses) <= MOST_POINTS:
         raise MessageRefused(f"a path of {len(msg.poses)} poses: a course is 2 to {MOST_POINTS} points")
     points: list[tuple[float, float]] = []
@@ -184,7 +185,11 @@ class WaypointsNode(Node):
         self.pose = pose
 
     def _on_path(self, course: LineOfSight) -> None:
-        """A new course replaces the one being swum, from its first leg (a course done is swum again)."""
+        """A new course replaces the one being swum, from its first leg (a course done is swum again);
+        the course being swum, sent again (a planner publishes its plan again and again), changes
+        nothing: from its first leg, a fish on a square's third leg had turned back to the first."""
+        if self.course is not None and list(course.waypoints) == list(self.course.waypoints):
+            return
         self.course, self._stopped, self.off_course_m = course, False, []
         self._say_course(f" from {self.resolve_topic_name(TOPIC_WAYPOINT_PATH)}")
 

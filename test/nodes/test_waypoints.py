@@ -121,7 +121,7 @@ def test_a_path_from_another_process_sets_the_course_and_hostile_ones_are_refuse
     ``ros2 topic pub --once`` line, as typed, gives it the course (two legs); each kind of path that
     is no course (empty, one point, a repeat, NaN, inf, beyond any course, another frame, too many
     poses) sent from another process is refused naming why, the course it swims kept and the node
-    alive; a later path replaces the course."""
+    alive; the same path sent again keeps the fish's progress, and another one replaces the course."""
     log = tmp_path / "waypoints.log"
     proc = start("waypoints", "-r", "__ns:=/fish", log=log, env=ros_env)
     statuses: list[dict] = []
@@ -148,13 +148,18 @@ def test_a_path_from_another_process_sets_the_course_and_hostile_ones_are_refuse
             g.spin_for(1.5)
             assert proc.poll() is None and statuses[-1]["legs"] == 2, statuses[-1]  # (the course kept)
             assert statuses[-1]["across_m"] == pytest.approx(0.0, abs=1e-9), statuses[-1]
+            here.pose.pose.position.x, here.pose.pose.position.y = 12.0, 5.0  # (on the second leg)
+            g.spin_until(lambda: statuses[-1]["leg"] == 2, 30.0, "the second leg")
+            typed = ros2(ros_env, *PATH_TYPED[1:], timeout=60.0)  # (a planner sends its plan again)
+            g.spin_for(1.0)
+            assert statuses[-1]["leg"] == 2, statuses[-1]  # (the same course: its progress kept)
             paths.publish(a_path([(0.0, 0.0), (1.0, 0.0), (1.0, 4.0), (0.0, 4.0)]))
             g.spin_until(lambda: statuses[-1]["legs"] == 3, 30.0, "the new course")
     finally:
         stop(proc)
     said = log.read_text()
     assert "Traceback" not in said, said[-3000:]
-    assert "a course of 3 points from /fish/waypoints/path, 24 m" in said, said[-3000:]
+    assert said.count("a course of 3 points from /fish/waypoints/path, 24 m") == 1, said[-3000:]
     assert "a course of 4 points from /fish/waypoints/path" in said, said[-3000:]
     # (each refusal counted; said at most once a second, with the count and the latest reason)
     refusals = re.findall(r"refused (\d+) message\(s\) on /fish/waypoints/path; the latest: (.*)", said)
