@@ -8,8 +8,9 @@ course, the distance to go, done) and the course and the fish as ``visualization
 ``waypoints/markers`` for RViz and Foxglove (in ``frame_id``, ``odom``).  The course is the parameter
 ``waypoints``: ``[x0, y0, x1, y1, ...]`` in metres, or a ``nav_msgs/Path`` on ``waypoints/path`` (a
 fish stack's planner, or ``ros2 topic pub --once``), which replaces the course being swum from its
-first point (the same course sent again keeps its progress); a path in another frame, with a pose that is not finite, fewer than two points or more
-than :data:`MOST_POINTS` is refused at the door, naming why, and the course goes on.  With neither
+first point (the same course sent again keeps its progress); a path in another frame, with a pose
+that is not finite, fewer than two points or more than :data:`MOST_POINTS` is refused at the door,
+naming why, and the course goes on.  With neither
 it waits, silent.  Once the last point is reached it asks the fish to stop (one ``cmd_vel`` of zero)
 and falls silent; a fish stack's ``cmd_vel`` timeout stops it as well if this node ends.
 """
