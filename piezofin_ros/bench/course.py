@@ -39,9 +39,9 @@ BLOCK_S = 0.05
 
 @dataclass(frozen=True)
 class CourseRun:
-    """A course swum (SI): ``path`` is ``(t, x, y)`` every 0.1 s; ``supply_j`` the amplifier's draw,
-    ``hotel_w`` the fish's fixed draw besides it (its electronics), ``battery`` the pack that pays
-    both (None: no range)."""
+    """A course swum (SI): ``path`` is ``(t, x, y)`` every 0.1 s; ``supply_j`` the amplifier's draw;
+    ``battery`` the pack that pays it and the fish's fixed draw besides (its ``hotel_w``; None: no
+    fixed draw counted, no range)."""
 
     done: bool
     time_s: float
@@ -50,9 +50,7 @@ class CourseRun:
     off_course_max_m: float
     supply_j: float
     path: np.ndarray
-    hotel_w: float = 0.0
     battery: Battery | None = None
-    events: tuple[str, ...] = ()
 
     @property
     def joules_per_m(self) -> float:
@@ -64,7 +62,8 @@ class CourseRun:
         """The battery's energy per metre, the fixed draw counted (the cost of transport), J/m."""
         if not self.distance_m > 0:
             return math.nan
-        return (self.supply_j + self.hotel_w * self.time_s) / self.distance_m
+        hotel_w = self.battery.hotel_w if self.battery is not None else 0.0
+        return (self.supply_j + hotel_w * self.time_s) / self.distance_m
 
     @property
     def speed_m_s(self) -> float:
@@ -140,7 +139,6 @@ def swim_course(
         if course.done:
             break
     errors = np.asarray(off)
-    events = tuple(drive.loop.events) if isinstance(drive, OptimisingDrive) else ()
     return CourseRun(
         course.done,
         t,
@@ -149,9 +147,7 @@ def swim_course(
         float(errors.max()),
         supply_j,
         np.asarray(path),
-        battery.hotel_w if battery is not None else 0.0,
         battery,
-        events,
     )
 
 
