@@ -96,10 +96,12 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     """Under pytest-xdist, each test (its fixtures' setup and teardown too) takes the machine lock.
     Each test's CPU time (its processes' too) goes to its report: the terminal summary's table."""
     item.user_properties.append(("cpu_start_s", _cpu_s()))
-    if not os.environ.get("PYTEST_XDIST_WORKER") or os.environ.get("PIEZOFIN_EXCLUSIVE_TOGETHER"):
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
         yield
         return
-    with _machine(exclusive=item.get_closest_marker("exclusive") is not None):
+    # (phase 2 runs the exclusive tests two at a time: there, only those marked ``alone`` run alone)
+    marker = "alone" if os.environ.get("PIEZOFIN_EXCLUSIVE_TOGETHER") else "exclusive"
+    with _machine(exclusive=item.get_closest_marker(marker) is not None):
         yield
 
 

@@ -123,6 +123,7 @@ FISH_YAML = str(Path(__file__).resolve().parents[2] / "config" / "fish.yaml")
 
 @pytest.mark.slow
 @pytest.mark.exclusive  # (a closed loop over four processes at x5: timing as a fish's, not a loaded CI's)
+@pytest.mark.alone  # (about a core of CPU itself)
 def test_cmd_vel_turns_the_fish_at_the_yaw_rate_it_asks(tmp_path: Path) -> None:
     """Issue 42: a fish stack's ``cmd_vel`` (0.05 m/s, 0.015 rad/s: a 3.3 m circle) turns the twin's
     fish, each node in its own process with config/fish.yaml (fin_sim with the body and its IMU at

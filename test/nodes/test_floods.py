@@ -29,7 +29,7 @@ from piezofin_ros.bags import block_of, decode, read_messages
 from ..rosutil import Launch, errors_in
 
 # exclusive: the attacker must reach its rate (beside the parallel CPU-bound tests it sent 23,441 in 10 s)
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.exclusive]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.exclusive, pytest.mark.alone]  # (10 kHz floods)
 FLOOD = Path(__file__).resolve().parents[1] / "flood.py"
 SAMPLED = ("drive", "tip_velocity", "loadcell", "supply")
 #: every topic the fish's nodes subscribe, and what the attacker floods it with

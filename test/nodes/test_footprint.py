@@ -46,6 +46,7 @@ def test_a_node_loads_nothing_it_does_not_use(node: str, allowed: tuple[str, ...
 
 
 @pytest.mark.exclusive
+@pytest.mark.alone  # (a share of a core measured: beside another test, 10.6 % once)
 @pytest.mark.ros
 @pytest.mark.slow
 def test_estimator_and_controller_fit_a_fish_at_1_khz() -> None:
