@@ -38,6 +38,8 @@ class DeadReckoning:
     heading_var: float = math.nan  # rad^2, as the IMU reports it; NaN: no IMU heard (unknown)
     distance_m: float = 0.0
     speed_m_s: float = 0.0
+    yaw_rate_rad_s: float = 0.0  # as the IMU reports it (to port); 0 with its variance NaN: none heard
+    yaw_rate_var: float = math.nan  # (rad/s)^2, as the IMU reports it; NaN: not observed
     swum_s: float = 0.0
     _noise_var: float = 0.0
     _t: float = math.nan
@@ -67,6 +69,11 @@ class DeadReckoning:
         """The IMU's heading (rad) and its variance (rad^2): the next stretches are laid along it."""
         if math.isfinite(heading_rad) and math.isfinite(heading_var) and heading_var >= 0:
             self.heading_rad, self.heading_var = float(heading_rad), float(heading_var)
+
+    def spin(self, rate_rad_s: float, rate_var: float) -> None:
+        """The IMU's yaw rate (rad/s, to port) and its variance ((rad/s)^2): the twist's turn."""
+        if math.isfinite(rate_rad_s) and math.isfinite(rate_var) and rate_var >= 0:
+            self.yaw_rate_rad_s, self.yaw_rate_var = float(rate_rad_s), float(rate_var)
 
     @property
     def x_var_m2(self) -> float:

@@ -79,9 +79,12 @@ def _in_plane(xx: float, xy: float, yy: float, heading_var: float) -> list[float
     return out
 
 
-def _along_x(variance: float) -> list[float]:
-    """A 6x6 covariance (row-major) that knows x to ``variance`` and nothing of y, z, roll, pitch, yaw."""
-    return [variance if k == 0 else UNKNOWN if k % 7 == 0 else 0.0 for k in range(36)]
+def _surge_and_yaw(variance: float, yaw_var: float) -> list[float]:
+    """A 6x6 twist covariance (row-major) that knows the surge to ``variance`` and the yaw rate to
+    ``yaw_var`` (NaN: not observed), nothing of sway, heave, roll or pitch."""
+    out = [variance if k == 0 else UNKNOWN if k % 7 == 0 else 0.0 for k in range(36)]
+    out[35] = UNKNOWN if math.isnan(yaw_var) else yaw_var
+    return out
 
 
 def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
@@ -121,10 +124,10 @@ def fin_thrust(msg: Any) -> tuple[float, float, float]:
     return thrust, vpp, f
 
 
-def imu_reading(msg: Any) -> tuple[float, float, float]:
+def imu_reading(msg: Any) -> tuple[float, float, float, float]:
     """The door's check of an IMU's reading (``sensor_msgs/Imu``): its yaw rate, finite and within
-    what any fish turns; its heading (the orientation's yaw; NaN where its quaternion is none) and
-    that heading's variance (NaN where it gives none)."""
+    what any fish turns; its heading (the orientation's yaw; NaN where its quaternion is none), that
+    heading's variance and the yaw rate's (each NaN where it gives none)."""
     rate = float(msg.angular_velocity.z)
     if not (math.isfinite(rate) and abs(rate) <= YAW_RATE_MOST_RAD_S):
         raise MessageRefused(
@@ -132,13 +135,14 @@ def imu_reading(msg: Any) -> tuple[float, float, float]:
         )
     q = msg.orientation
     norm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
-    heading = heading_of(q)
-    var = float(msg.orientation_covariance[8])
-    if not (math.isfinite(norm) and abs(norm - 1.0) < 1e-3):
-        heading = math.nan
-    if not (math.isfinite(var) and var >= 0.0) or msg.orientation_covariance[0] == -1.0:
-        var = math.nan
-    return rate, heading, var
+    heading = heading_of(q) if math.isfinite(norm) and abs(norm - 1.0) < 1e-3 else math.nan
+    return rate, heading, _variance(msg.orientation_covariance), _variance(msg.angular_velocity_covariance)
+
+
+def _variance(covariance: Any) -> float:
+    """The yaw's variance of a 3x3 covariance as REP 145 gives it (its first element -1: none given)."""
+    var = float(covariance[8])
+    return var if math.isfinite(var) and var >= 0.0 and covariance[0] != -1.0 else math.nan
 
 
 @dataclass(frozen=True)
@@ -317,8 +321,8 @@ class SpeedLoopNode(Node):
         msg.pose.pose.orientation.z = math.sin(0.5 * o.heading_rad)
         msg.pose.pose.orientation.w = math.cos(0.5 * o.heading_rad)
         msg.pose.covariance = _in_plane(*o.position_covariance(), o.heading_var)
-        msg.twist.twist.linear.x = o.speed_m_s
-        msg.twist.covariance = _along_x(o.speed_var_m2_s2)
+        msg.twist.twist.linear.x, msg.twist.twist.angular.z = o.speed_m_s, o.yaw_rate_rad_s
+        msg.twist.covariance = _surge_and_yaw(o.speed_var_m2_s2, o.yaw_rate_var)
         self._odom.publish(msg)
 
     def _cmd_vel_expired(self, t: float) -> None:
@@ -359,10 +363,11 @@ class SpeedLoopNode(Node):
             self._thrust_n, self._voltage_pp, self._frequency_hz = thrust, vpp, f
         self.loop.estimate(self._now(), thrust)
 
-    def _on_imu(self, reading: tuple[float, float, float]) -> None:
-        rate, heading, var = reading
+    def _on_imu(self, reading: tuple[float, float, float, float]) -> None:
+        rate, heading, var, rate_var = reading
         self.yaw.measure(self._now(), rate)
         self.odometry.turn(heading, var)
+        self.odometry.spin(rate, rate_var)
 
     def _steer(self, t: float) -> None:
         """The offset the yaw loop asks now, on ``bias_demand`` (V; 0 while the fish swims straight),

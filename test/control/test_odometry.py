@@ -59,3 +59,14 @@ def test_stretches_are_laid_along_the_imus_heading_and_its_error_goes_across_the
     odo.turn(math.nan, 1e-4)  # (a reading that is none: kept as it was)
     assert odo.heading_rad == math.pi / 2
     assert DeadReckoning().position_covariance()[2] == UNKNOWN  # (no IMU: across unknown)
+
+
+def test_the_imus_yaw_rate_is_the_twists_turn_once_heard() -> None:
+    """The twist's yaw rate: none observed (0, its variance NaN) until the IMU gives one; a reading
+    that is none (not finite, a negative variance) leaves it as it was."""
+    odo = DeadReckoning()
+    assert odo.yaw_rate_rad_s == 0.0 and math.isnan(odo.yaw_rate_var)
+    odo.spin(0.02, 1e-6)
+    for rate, var in ((math.nan, 1e-6), (0.5, -1.0), (0.5, math.inf)):
+        odo.spin(rate, var)
+    assert (odo.yaw_rate_rad_s, odo.yaw_rate_var) == (0.02, 1e-6)

@@ -83,10 +83,13 @@ def test_cmd_vel_sets_the_speed_and_its_silence_stops_the_fish(tmp_path: Path) -
 def test_odometry_is_dead_reckoned_from_the_speed_sensor_with_its_covariance() -> None:
     """``odom`` (nav_msgs/Odometry) as a fish stack reads it: the distance the speed readings give
     (their trapezoid), the speed as twist, ``odom`` to ``base_link``, stamps that advance, and the
-    covariance of the sensor's noise and bias (control/odometry.py), the unobserved axes unknown."""
+    covariance of the sensor's noise and bias (control/odometry.py), the unobserved axes unknown;
+    once an IMU is heard, the twist's yaw rate is its reading, with its variance."""
     from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import Imu
 
     from piezofin_ros.control.odometry import UNKNOWN
+    from piezofin_ros.nodes._common import imu_msg
 
     proc = start("speed_loop", "-r", "__ns:=/odo", "-p", "rate_hz:=20.0", "-p", "speed_bias_m_s:=0.002")
     odoms: list[Odometry] = []
@@ -102,9 +105,21 @@ def test_odometry_is_dead_reckoned_from_the_speed_sensor_with_its_covariance() -
                 g.spin_for(0.05)
             swum = time.monotonic() - t0
             g.spin_for(0.3)
+            last = odoms[-1]
+            # an IMU heard: the twist turns at its yaw rate, with its variance
+            imu = node.create_publisher(Imu, "imu", QOS_SENSOR)
+            g.spin_until(lambda: imu.get_subscription_count() > 0, timeout=30.0, what="the IMU matched")
+
+            def turns() -> bool:  # (a reading each look, best effort as an IMU's)
+                imu.publish(imu_msg(0.02, 0.0, 1e-4, 1e-3, time.time()))
+                return odoms[-1].twist.twist.angular.z != 0.0
+
+            g.spin_until(turns, timeout=10.0, what="odom turning at the IMU's yaw rate")
+            turning = odoms[-1]
     finally:
         stop(proc)
-    last = odoms[-1]
+    assert last.twist.twist.angular.z == 0.0 and last.twist.covariance[35] == UNKNOWN  # (no IMU yet)
+    assert turning.twist.twist.angular.z == 0.02 and turning.twist.covariance[35] == pytest.approx(1e-6)
     assert last.header.frame_id == "odom" and last.child_frame_id == "base_link"
     assert last.pose.pose.orientation.w == 1.0 and last.twist.twist.linear.x == pytest.approx(0.05)
     x = last.pose.pose.position.x
