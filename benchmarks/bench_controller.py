@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,10 +63,6 @@ class Run:
 
 PLANTS = ("nominal", "softening", "loss", "combined")
 N_OURS = 15
-
-
-def progress(prefix: str) -> Callable[[str], None]:
-    return lambda line: print(f"  {prefix}: {line}", file=sys.stderr, flush=True)
 
 
 def plants_for(fin_name: str, rng: np.random.Generator) -> dict[str, Plant]:
@@ -208,14 +203,12 @@ def main() -> int:
     args = ap.parse_args()
     t0 = time.perf_counter()
     tasks = tasks_for(args.fins, args.seeds, args.plants)
-    say = progress("bench_controller")
-    done = workers.run_tasks(
+    done = workers.run_parsed(
         plant_task,
         tasks,
-        workers=args.workers,
-        ray_address=args.ray,
-        say=say,
-        label=lambda t: f"{t[0]} {t[1]} seed {t[2]} {PLANTS[t[3]]}",
+        args,
+        lambda t: f"{t[0]} {t[1]} seed {t[2]} {PLANTS[t[3]]}",
+        prefix="  bench_controller: ",
     )
     results: dict[tuple[str, str, str], list[Run]] = {}
     for runs in done:

@@ -206,14 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     tasks = [(name, d, a.side) for name in a.fish for d in DRIVES if d in a.drives]
     t0 = time.perf_counter()
     try:
-        results = workers.run_tasks(
-            run,
-            tasks,
-            workers=a.workers,
-            ray_address=a.ray,
-            say=lambda m: print(m, file=sys.stderr, flush=True),
-            label=lambda t: f"{t[0]}, {t[1]}",
-        )
+        results = workers.run_parsed(run, tasks, a, lambda t: f"{t[0]}, {t[1]}")
     except PiezofinError as exc:
         ap.error(str(exc))
     print(f"a {a.side:g} m square swum to port on mfc-fish's planar body, steered by the fin's offset:")

@@ -126,14 +126,7 @@ def main() -> int:
     args = ap.parse_args()
     items = cases(args.per_effect, args.outside, args.double, args.clean, args.seed, args.blind)
     t0 = time.perf_counter()
-    results = workers.run_tasks(
-        run,
-        items,
-        workers=args.workers,
-        ray_address=args.ray,
-        say=lambda line: print(f"  {line}", file=sys.stderr, flush=True),
-        label=lambda item: f"{item[0]} {item[1].fin}",
-    )
+    results = workers.run_parsed(run, items, args, lambda item: f"{item[0]} {item[1].fin}", prefix="  ")
     for j, r in enumerate(results):  # in the datasets' order, on any number of workers
         mark = "ok" if r["correct"] or (r["kind"] == "outside" and not r["confident"]) else "MISS"
         said = ",".join(r["named"]) or str(r.get("named_family") or "")  # type: ignore[arg-type]

@@ -355,14 +355,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"unknown effect {unknown[0]!r}: one of {', '.join(OUTSIDE)}")
     tasks = [(fin, s, a.duration, u) for fin in a.fins for u in [None, *a.unseen] for s in a.strategies]
     t0 = time.perf_counter()
-    results = workers.run_tasks(
-        run,
-        tasks,
-        workers=a.workers,
-        ray_address=a.ray,
-        say=lambda m: print(m, file=sys.stderr, flush=True),
-        label=lambda t: f"{t[0]}{' + ' + t[3] if t[3] else ''} {t[1]}",
-    )
+    results = workers.run_parsed(run, tasks, a, lambda t: f"{t[0]}{' + ' + t[3] if t[3] else ''} {t[1]}")
     print(table(results))
     wall = time.perf_counter() - t0
     runs = f"{len(tasks)} run{'s' if len(tasks) != 1 else ''}"

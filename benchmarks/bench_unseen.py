@@ -336,13 +336,8 @@ def main() -> int:
     ]
     results: dict[tuple[str, str, str], list[Run]] = {}
     failures: list[str] = []
-    done = workers.run_tasks(
-        plant_task,
-        cases,
-        workers=args.workers,
-        ray_address=args.ray,
-        say=lambda line: print(f"  plants {line}", file=sys.stderr, flush=True),
-        label=lambda c: f"{c[0]} {c[1]} seed {c[2]}",
+    done = workers.run_parsed(
+        plant_task, cases, args, lambda c: f"{c[0]} {c[1]} seed {c[2]}", prefix="  plants "
     )
     for runs, missed in done:  # in the cases' order: the same table on any number of workers
         for key, r in runs:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import stat
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from .errors import PiezofinError
 
@@ -127,6 +127,21 @@ def figure_metadata(path: str | os.PathLike[str]) -> dict[str, str]:
     """matplotlib's ``savefig(metadata=...)`` that marks a figure as the suite's."""
     suffix = Path(path).suffix.lower()
     return {"Software": SOFTWARE} if suffix == ".png" else {"Creator": SOFTWARE}
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 110, what: str = "--plot") -> None:
+    """A matplotlib figure written to ``path`` (its folders made, marked as the suite's: its
+    :func:`figure_metadata`) and closed whatever happens; a path it cannot write is one
+    :class:`OutputFileError` naming ``what`` and the path."""
+    import matplotlib.pyplot as plt
+
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=dpi, metadata=figure_metadata(path))
+    except OSError as exc:
+        raise OutputFileError(f"{what} {path}: cannot write ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
 
 
 def written_by_us(path: str | os.PathLike[str]) -> bool:

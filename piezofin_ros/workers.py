@@ -34,6 +34,7 @@ propagate, with the task's label added as a note.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -246,6 +247,21 @@ def _run_ray(
     finally:
         if started_here:
             ray.shutdown()
+
+
+def run_parsed(
+    fn: Callable[[T], R], items: Sequence[T], args: Any, label: Callable[[T], str], prefix: str = ""
+) -> list[R]:
+    """:func:`run_tasks` as a command's ``--workers`` and ``--ray`` ask (:func:`add_arguments`), its
+    progress lines on standard error after ``prefix``."""
+    return run_tasks(
+        fn,
+        items,
+        workers=args.workers,
+        ray_address=args.ray,
+        say=lambda line: print(f"{prefix}{line}", file=sys.stderr, flush=True),
+        label=label,
+    )
 
 
 def add_arguments(parser: Any) -> None:

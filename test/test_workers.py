@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import os
 import re
@@ -15,7 +16,7 @@ import numpy as np
 import psutil
 import pytest
 
-from piezofin_ros.workers import TaskError, run_tasks
+from piezofin_ros.workers import TaskError, add_arguments, run_parsed, run_tasks
 
 
 def draw(seed: int) -> float:
@@ -57,6 +58,18 @@ def test_results_come_in_the_tasks_order_on_one_and_two_workers() -> None:
     assert two == one  # bit for bit: the same tasks, the same order
     assert len(lines) == 12 and lines[-1].startswith("[12/12] seed ")
     assert all("s" in line for line in lines)
+
+
+def test_a_command_runs_its_tasks_as_its_options_ask(capsys: pytest.CaptureFixture[str]) -> None:
+    """``run_parsed``: ``--workers`` and ``--ray`` as :func:`add_arguments` parses them, progress on
+    standard error after the command's prefix, each task named by its label."""
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    for argv in (["--workers", "1"], ["--workers", "2"]):
+        done = run_parsed(abs, [-3, -1, -2], ap.parse_args(argv), lambda x: f"task {x}", prefix="  b: ")
+        assert done == [3, 1, 2]
+        err = capsys.readouterr().err
+        assert "  b: [3/3] task " in err and err.count("\n") == 3, err
 
 
 def test_a_killed_worker_costs_no_result(tmp_path: Path) -> None:

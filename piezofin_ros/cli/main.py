@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import workers
 from ..errors import PiezofinError
-from ..files import figure_metadata
+from ..files import save_figure
 from ..physics.fin import Fin, FinConfigError, load_fin, preset_names
 from ..physics.steady import SteadyState, harmonic_balance
 from .args import (
@@ -98,8 +98,7 @@ def plot_sweep(fin: Fin, state: SteadyState, path: str) -> None:
         f"{fin.name}: steady state, harmonic balance (psi = {fin.psi:.2f}, c_m = {fin.c_m:.3f}, "
         f"c_d = {fin.c_d:g} assumed)"
     )
-    fig.savefig(path, dpi=110, metadata=figure_metadata(path))
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _add_sweep_args(p: argparse.ArgumentParser) -> None:

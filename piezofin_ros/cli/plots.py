@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import figure_metadata
+from ..files import save_figure
 from ..identification.fit import water_admittance, water_mobility
 from ..identification.identify import Identification
 
@@ -65,6 +65,5 @@ def plot_frf(path: str | os.PathLike[str], ident: Identification) -> Path:
         axg.set_xlabel("frequency [Hz]")
         for a_ in (ax, axp, axi, axg):
             a_.grid(alpha=0.3, which="both")
-    fig.savefig(path, dpi=110, metadata=figure_metadata(path))
-    plt.close(fig)
+    save_figure(fig, path)
     return path

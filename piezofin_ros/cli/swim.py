@@ -13,12 +13,11 @@ import dataclasses
 import json
 import math
 import sys
-from pathlib import Path
 from typing import Any
 
 from ..control.swimming import STRATEGIES, Fish
 from ..errors import PiezofinError
-from ..files import figure_metadata
+from ..files import save_figure
 from ..physics.amplifier import load_amplifier
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
@@ -168,13 +167,7 @@ def plot(r: dict[str, Any], path: str) -> None:
     fig.suptitle(
         f"A fish on each fin ({'twins' if r['twin'] else 'nominal'}), battery {r['battery']['name']}"
     )
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110, metadata=figure_metadata(path))
-    except OSError as exc:
-        raise SwimUsageError(f"--plot {path}: cannot write ({exc.strerror or exc})") from None
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,14 +7,13 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..diagnosis.paper import PAPER_MAX_TPW
 from ..errors import PiezofinError
-from ..files import figure_metadata
+from ..files import save_figure
 from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
@@ -162,13 +161,7 @@ def plot(r: dict[str, Any], path: str) -> None:
         f"Thrust per watt at {r['v_curve']:.0f} Vpp in each watt, {which}"
         " (the paper's Fig. 10: about 60.7 mN/W)"
     )
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110, metadata=figure_metadata(path))
-    except OSError as exc:
-        raise WattsError(f"--plot {path}: cannot write ({exc.strerror or exc})") from None
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:

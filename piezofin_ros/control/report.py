@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..estimation.estimator import source_of, tpw_field
-from ..files import figure_metadata
+from ..files import save_figure
 from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in, watt_of
 from ..physics.model import Model
 
@@ -141,6 +141,5 @@ def plot_trials(
     for ax in axes:
         ax.legend(fontsize=7)
     fig.suptitle(title or f"{model.fin.name}: protocol trials")
-    fig.savefig(path, dpi=110, metadata=figure_metadata(path))
-    plt.close(fig)
+    save_figure(fig, path)
     return path
