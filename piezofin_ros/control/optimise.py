@@ -216,7 +216,7 @@ class Optimiser:
             return
         self.demand_n = demand_n if demand_n is not None and demand_n > 0 else None
         self.converged = False
-        self._update()
+        self._update(learn=False)  # (the trials are those of the last fit: only the choice moves)
 
     def observe(
         self,
@@ -395,12 +395,17 @@ class Optimiser:
         return inc if inc is not None else (self.choice.frequency_hz, self.choice.voltage_pp)
 
     # --- the update after each trial --------------------------------------------------------------
-    def _update(self) -> None:
-        self.fit = self.problem.fit(self.observations, self.fit.correction)
-        self._check_prior()
-        self.self_sensing_bound = self._bound()
+    def _update(self, learn: bool = True) -> None:
+        """After a trial, ``learn``: the fit, the prior's check, the calibration's bound and the
+        residual process, which depend on the trials alone; then what counts under the task and the
+        next point.  A new demand changes only the latter (a fish's speed loop sends one every few
+        seconds: refitting the same trials for each was half the fish controller's CPU)."""
+        if learn:
+            self.fit = self.problem.fit(self.observations, self.fit.correction)
+            self._check_prior()
+            self.self_sensing_bound = self._bound()
+            self._fit_residual_process()
         self._count()
-        self._fit_residual_process()
         lim = self.limits
         grid = np.geomspace(lim.frequency_min_hz, lim.frequency_max_hz, self.tuning.n_grid)
         surface, feasible = frontier(self, grid)

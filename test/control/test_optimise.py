@@ -211,15 +211,15 @@ def test_background_fits_and_demands_never_run_side_by_side(m8528: Fin, monkeypa
     # 50 ms sleep instead, a loaded machine (-n 2) once let the fit end between two windows
     sent = threading.Event()
 
-    def slow_update(self: Optimiser) -> None:
+    def slow_update(self: Optimiser, learn: bool = True) -> None:
         threads.append(threading.current_thread().name)
         if not running.acquire(blocking=False):
             overlaps.append(threads[-1])
-            return update(self)
+            return update(self, learn)
         try:
             if threads[-1].startswith("optimiser"):
                 sent.wait(30.0)  # (the window a second thread would need: held open)
-            update(self)
+            update(self, learn)
         finally:
             running.release()
 
@@ -260,9 +260,9 @@ def test_a_fit_slower_than_a_trial_does_not_hold_the_drive_at_the_point_it_learn
     the one that waited are learnt at a point."""
     update = Optimiser._update
 
-    def slow_update(self: Optimiser) -> None:
+    def slow_update(self: Optimiser, learn: bool = True) -> None:
         time.sleep(0.3)  # (longer than the trial below: two windows of 2 s fin time at 0.01 s each)
-        update(self)
+        update(self, learn)
 
     monkeypatch.setattr(Optimiser, "_update", slow_update)
     plant = Plant(m8528, loss_tan_delta=0.08)
