@@ -22,6 +22,8 @@ TOPIC_ESTIMATE = "estimate"
 TOPIC_SPEED = "swim_speed"
 TOPIC_STATUS = "controller/status"
 TOPIC_DEMAND = "thrust_demand"
+#: std_msgs/String (JSON): the controller's fitted fin, once its corrected model fits its trials
+TOPIC_MODEL = "controller/model"
 TOPIC_BATTERY = "battery"  # sensor_msgs/BatteryState: a fish's battery
 TOPIC_LOOP_STATUS = "speed_loop/status"  # std_msgs/String: what the speed loop is doing
 TOPIC_CMD_VEL = "cmd_vel"  # geometry_msgs/Twist (or TwistStamped): a fish stack's velocity command
@@ -73,6 +75,7 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_ESTIMATE, ESTIMATE, "estimate", "thrust_estimator"),
         Topic(TOPIC_SPEED, SPEED, "sensor", "fin_sim with a body, or a fish driver"),
         Topic(TOPIC_STATUS, STRING, "status", "controller"),
+        Topic(TOPIC_MODEL, STRING, "status", "controller (optimising)"),
         Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),
         Topic(TOPIC_BIAS, F64, "command", "speed_loop (its yaw loop), or a fish stack"),
         Topic(

@@ -37,6 +37,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from ..control.correction import Correction
 from ..control.driveloop import DriveLoop
 from ..control.optimise import Observation, OperatingBox, Optimiser
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
@@ -265,6 +266,7 @@ def swim_run(
     speed_bias_m_s: float = 0.0,
     measured_supply: bool = False,
     told_body: Body | None = None,
+    calibrate_estimator: bool = True,
 ) -> Trace:
     """Swim for ``duration_s`` of fish time from rest; ``schedule``: (time, set-point m/s) steps.
 
@@ -275,6 +277,8 @@ def swim_run(
     reads ``speed_bias_m_s`` high besides its noise; ``measured_supply``: the estimates carry the
     supply watt as the fish's battery measures it (the true amplifier's draw, with a meter's noise).
     ``told_body``: the body the speed loop is told, where it is not the one that swims.
+    ``calibrate_estimator``: the estimator's self-sensing follows an optimising drive's fit once the
+    corrected model fits its trials (the live estimator's ``calibration_from_controller``).
     """
     amp = amplifier or plant.amplifier
     rng = np.random.default_rng(seed)
@@ -285,6 +289,7 @@ def swim_run(
     n = round(duration_s / LOOP_DT_S)
     out = {k: np.full(n, np.nan) for k in Trace.__annotations__ if k != "events"}
     window_start, point, fitted = 0.0, (math.nan, math.nan), math.nan
+    followed: Correction | None = None  # (the fit the estimator's calibration follows)
     estimator = EstimatorConfig()
     steady_at, thrust0, supply = (math.nan, math.nan), 0.0, 0.0
     model = plant.model()
@@ -308,6 +313,11 @@ def swim_run(
             drive.add_estimate(t, e)
             fitted = _as_fitted(drive, e, v)
             window_start = t
+            if isinstance(drive, OptimisingDrive) and calibrate_estimator:
+                # (the controller's ``controller/model``: the estimator calibrated by the fitted fin)
+                c = drive.optimiser.fitted_correction()
+                if c is not None and c is not followed:
+                    followed, estimator_model = c, c.model(drive.optimiser.fin)
         if v > 0:
             if (f, v) != steady_at:  # (a drive at rest is one model evaluation, not one a tick)
                 p = model.predict(f, v)

@@ -59,6 +59,25 @@ class Correction:
         """The fitted numbers (for a status message: plain JSON, without the base model)."""
         return {p.name: float(getattr(self, p.name)) for p in PARAMS}
 
+    @classmethod
+    def of_fitted(cls, values: Any, base: Model | None = None) -> Correction:
+        """The correction of :meth:`fitted`'s numbers (from another process: each one named, a finite
+        number within the range the fit allows it, or one :class:`ControlError` saying which)."""
+        if not isinstance(values, dict) or set(values) != {p.name for p in PARAMS}:
+            names = ", ".join(p.name for p in PARAMS)
+            raise ControlError(f"a correction names exactly {names}")
+        out = {}
+        for p in PARAMS:
+            x, (lo, hi) = values[p.name], p.bounds()
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                raise ControlError(f"correction {p.name} = {x!r}: not a finite number")
+            at = x if not p.log else math.log(x) if x > 0 else -math.inf  # (in fit coordinates)
+            if not lo <= at <= hi:
+                low, high = (math.exp(lo), math.exp(hi)) if p.log else (lo, hi)
+                raise ControlError(f"correction {p.name} = {x!r}: outside [{low:.3g}, {high:.3g}]")
+            out[p.name] = float(x)
+        return cls(**out, base=base)
+
     def model(self, fin: Fin) -> Model:
         """The base model (``fin`` without one) plus the correction's effects (a load cell's gain
         describes the rig, not the fin: :meth:`response` applies it)."""

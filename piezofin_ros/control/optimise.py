@@ -75,10 +75,14 @@ from .evidence import Counted, Observation, Task, close, count
 from .fit import MODEL_ERROR, Fit, FitProblem
 from .gp import ResidualGP
 from .objective import THRUST_PER_WATT, Objective
-from .proposal import RULES, Mode, is_quiet, propose, trimmed
+from .proposal import RULES, Mode, Proposal, is_quiet, mode_of, propose, trimmed
 from .response import EstimateNoise
 from .thrustmap import Choice, OperatingBox, Surface, best, frontier, surface
 from .tuning import Tuning
+
+#: Trials the corrected model must fit before it calibrates an estimator's self-sensing (a wrong prior
+#: is dropped at the fourth at the earliest: ``Optimiser._check_prior``).
+CALIBRATES_AFTER = 4
 
 __all__ = [  # (the rooms' types the optimiser's users meet, re-exported)
     "MISFIT_CHI2",
@@ -104,16 +108,6 @@ MISFIT_CHI2 = 4.0
 #: Which estimate feeds the optimiser: Lighthill on the vibrometer's tip velocity (with the fin's
 #: ``c_m``), the drive's own current (a fish), or a load cell.
 SOURCES = tuple(SOURCE)
-
-
-@dataclass(frozen=True)
-class Proposal:
-    """The next trial: the mode the map is read in and why, the rule that chose the point."""
-
-    mode: Mode = Mode.MODEL
-    reason: str = "no trial yet: the model's optimum"
-    rule: str = "map"  # (one of proposal.RULES)
-    point: tuple[float, float] | None = None
 
 
 @dataclass
@@ -269,6 +263,21 @@ class Optimiser:
         self._update()
         return True
 
+    def fitted_correction(self) -> Correction | None:
+        """The fitted correction once the corrected model fits its self-sensed trials (at least
+        :data:`CALIBRATES_AFTER` of them, its misfit within ``search_chi2``: the model mode), its base
+        the model it was given while that is kept: what calibrates an estimator's self-sensing (the
+        controller's ``controller/model``); None before, while the model misfits its trials, and on
+        other sources (a vibrometer's or a load cell's reading is fitted as read: an estimator
+        calibrated by the fit would feed the fit its own ``c_m`` back)."""
+        if (
+            not source_of(self.source).self_sensed
+            or len(self.observations) < CALIBRATES_AFTER
+            or self.proposal.mode is not Mode.MODEL
+        ):
+            return None
+        return self.fit.correction
+
     def request_identification(self) -> None:
         """Take a quiet identification trial next, whatever the demand (an operator, or a fish's
         stack at a moment its speed may drop: a trial there gives a fraction of the thrust)."""
@@ -419,7 +428,7 @@ class Optimiser:
                 choice = best(self, surface, feasible)
         self.choice = choice
         inc = self.incumbent()
-        self.proposal = self._mode(inc)
+        self.proposal = mode_of(self, inc)
         rule, point = propose(self, inc)
         self.proposal = replace(self.proposal, rule=rule, point=point)
         tol = self.tuning.tolerance
@@ -427,20 +436,6 @@ class Optimiser:
             p for p in self.calibrating if any(close(o.point, p, tol) for o in self.observations)
         ] + ([point] if rule == "calibrate" else [])
         self.converged = inc is not None and close(point, inc, tol)
-
-    def _mode(self, inc: tuple[float, float] | None) -> Proposal:
-        n = len(self.observations)
-        chi = math.sqrt(self.fit.chi2)
-        if n == 0:
-            return Proposal(Mode.MODEL, "no trial yet: the model's optimum")
-        if self.fit.chi2 > self.tuning.search_chi2 and n >= 2:
-            return Proposal(
-                Mode.SEARCH,
-                f"the corrected model misses the trials by {chi:.1f} sigma (RMS): "
-                "searching near the best measured point"
-                + ("" if inc is not None else " (none meets the task yet: the map's optimum)"),
-            )
-        return Proposal(Mode.MODEL, f"the corrected model fits the {n} trial(s) ({chi:.1f} sigma RMS)")
 
     # --- outputs ----------------------------------------------------------------------------------
     def propose(self) -> tuple[float, float]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
 
@@ -53,6 +54,33 @@ class ProposalInputs(MapInputs, Protocol):
     def mode(self) -> Mode: ...
 
     def best_counted(self) -> Counted | None: ...
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """The next trial: the mode the map is read in and why, the rule that chose the point."""
+
+    mode: Mode = Mode.MODEL
+    reason: str = "no trial yet: the model's optimum"
+    rule: str = "map"  # (one of RULES)
+    point: tuple[float, float] | None = None
+
+
+def mode_of(opt: ProposalInputs, inc: Point | None) -> Proposal:
+    """The mode the map is read in after a fit: the model's while the corrected model fits the trials
+    (within ``search_chi2``), a search near the best measured point while it misses them."""
+    n = len(opt.observations)
+    chi = math.sqrt(opt.fit.chi2)
+    if n == 0:
+        return Proposal(Mode.MODEL, "no trial yet: the model's optimum")
+    if opt.fit.chi2 > opt.tuning.search_chi2 and n >= 2:
+        return Proposal(
+            Mode.SEARCH,
+            f"the corrected model misses the trials by {chi:.1f} sigma (RMS): "
+            "searching near the best measured point"
+            + ("" if inc is not None else " (none meets the task yet: the map's optimum)"),
+        )
+    return Proposal(Mode.MODEL, f"the corrected model fits the {n} trial(s) ({chi:.1f} sigma RMS)")
 
 
 def f_res(opt: ProposalInputs) -> float:

@@ -17,6 +17,7 @@ be fitted online.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -55,6 +56,17 @@ class Calibration:
 
 
 NOMINAL = Calibration()
+
+
+def calibrated_by(model: Any) -> Callable[[float, float], Calibration]:
+    """The self-sensing's calibration at any (frequency Hz, Vpp) by a model
+    (:class:`~piezofin_ros.physics.model.Model`: the fin file's, an augmented one, or the
+    controller's fit)."""
+
+    def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
+        return Calibration.of_law(model.law(frequency_hz, voltage_pp))
+
+    return calibrate
 
 
 def self_sensed_tip(

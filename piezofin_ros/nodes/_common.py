@@ -107,6 +107,7 @@ from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contrac
     TOPIC_IMU,
     TOPIC_LOADCELL,
     TOPIC_LOOP_STATUS,
+    TOPIC_MODEL,
     TOPIC_ODOM,
     TOPIC_SPEED,
     TOPIC_STATUS,

@@ -22,6 +22,7 @@ import math
 import sys
 import time
 from dataclasses import dataclass
+from typing import Any
 
 from rclpy.context import Context
 from rclpy.node import Node
@@ -49,6 +50,7 @@ from ._common import (
     TOPIC_DEMAND,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
+    TOPIC_MODEL,
     TOPIC_STATUS,
     Inbox,
     SilenceWatch,
@@ -163,6 +165,18 @@ ESTIMATOR_SETTLE_S = 1.0
 BIAS_FRESH_S = 1.0
 
 
+def fitted_model_message(fin: str, base: str, c: Any, opt: Any) -> dict[str, object]:
+    """``controller/model``'s JSON: the fin, the base model the correction applies on (the
+    ``model`` parameter; "": the fin file), the fitted numbers, and what they rest on."""
+    return {
+        "fin": fin,
+        "base": base,
+        "correction": c.fitted(),
+        "trials": len(opt.observations),
+        "misfit_sigma": math.sqrt(max(opt.fit.chi2, 0.0)),
+    }
+
+
 class Controller(Node):
     def __init__(self, *, context: Context | None = None, node_name: str = "controller", **kwargs: object):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
@@ -183,6 +197,9 @@ class Controller(Node):
         self._cmd_pub = self.create_publisher(*endpoint(TOPIC_CMD))
         self._status_pub = self.create_publisher(*endpoint(TOPIC_STATUS))
         self._status_wall = -math.inf  # (time.monotonic) when the status was last published
+        # the fitted fin, once the corrected model fits its trials: an estimator's self-sensing follows it
+        self._model_pub = self.create_publisher(*endpoint(TOPIC_MODEL)) if self.loop is not None else None
+        self._model_sent: object = None  # (the correction last sent)
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         # polled (a flood of estimates held the executor, and the heartbeat with it: the watchdog tripped)
         self.inbox.polled(
@@ -440,6 +457,22 @@ class Controller(Node):
         # change, had it wait for the next trial: 4.1 s in the launch test, or forever once done)
         if strategy.status_due(t) or time.monotonic() - self._status_wall >= 1.0:
             self._publish_status()
+        self._publish_model()
+
+    def _publish_model(self) -> None:
+        """``controller/model``: the fitted correction, each time it changes once the corrected model
+        fits its trials (``Optimiser.fitted_correction``), with the base it applies on (the model this
+        controller was given while it keeps it; none once dropped: the fin file)."""
+        loop = self.loop
+        if loop is None or self._model_pub is None:
+            return
+        opt = loop.optimiser
+        c = opt.fitted_correction()
+        if c is None or c is self._model_sent:
+            return
+        self._model_sent = c
+        message = fitted_model_message(opt.fin.name, self.config.model if c.base is not None else "", c, opt)
+        self._model_pub.publish(String(data=json.dumps(message)))
 
     def _on_demand(self, d: float) -> None:  # (within [0, 10] N: checked at the door)
         self.strategy.set_demand(d or None)  # (the loop coalesces a flood: one fit at a time)

@@ -10,10 +10,11 @@ recorded live.
 
 from __future__ import annotations
 
+import json
 import math
 import sys
-from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from rclpy.context import Context
 from rclpy.node import Node
@@ -29,18 +30,20 @@ from ..bags.blocks import (
 from ..config import setting
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate, EstimatorConfig, StreamEstimator
-from ..estimation.selfsense import Calibration
+from ..estimation.selfsense import calibrated_by
 from ..physics.amplifier import AmplifierError, load_amplifier
-from ..physics.fin import MEDIA, Fin, load_fin
+from ..physics.fin import MEDIA, load_fin
 from ._common import (
     TOPIC_BATTERY,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
     TOPIC_LOADCELL,
+    TOPIC_MODEL,
     TOPIC_SPEED,
     TOPIC_SUPPLY,
     TOPIC_TIP,
     Inbox,
+    MessageRefused,
     SilenceWatch,
     StartupError,
     battery_reading,
@@ -82,6 +85,17 @@ class ThrustEstimatorConfig:
         -1.0,
         1000.0,
     )
+    calibration_from_controller: bool = setting(
+        True,
+        "the self-sensed thrust calibrated by the optimising controller's fitted fin (controller/model, "
+        "sent by a controller optimising on self-sensed estimates once its corrected model fits its "
+        "trials), where it is of this fin and of this model (or of the fin file); until then, and with "
+        "false, by fin or model",
+    )
+
+
+#: The longest ``controller/model`` message read, characters (its JSON is about 400).
+MODEL_MESSAGE_MOST = 4096
 
 
 #: Sample blocks taken from each sampled topic a look (every 10 ms): 5,000 a second, where fin_sim at
@@ -98,9 +112,11 @@ class ThrustEstimator(Node):
         super().__init__(node_name, context=context, **kwargs)  # type: ignore[arg-type]
         own = declare(self, ThrustEstimatorConfig)
         calibrate = None
+        self.core_model: Any = None  # (the augmented model given, which a controller's fit may apply on)
         try:
             if own.model:
-                self.fin, calibrate = _calibration_of(own.model)
+                self.core_model = _model_of(own.model)
+                self.fin, calibrate = self.core_model.fin, calibrated_by(self.core_model)
             else:
                 self.fin = load_fin(own.fin)
             config = declare(self, EstimatorConfig, "estimator")
@@ -130,6 +146,10 @@ class ThrustEstimator(Node):
         # the newest speed only, polled: a flood of it costs one reading per look (it starved the drive's)
         inbox.latest(endpoint(TOPIC_SPEED)[0], TOPIC_SPEED, self._on_speed, speed_reading)
         inbox.polled(BatteryState, TOPIC_BATTERY, self._on_battery, battery_reading, depth=50, most=10)
+        self._model_name = own.model  # (what a controller's fitted fin must apply on, or "": the fin file)
+        self.calibration = f"the model {own.model}" if own.model else f"the fin file {own.fin}"
+        if own.calibration_from_controller:
+            inbox.latest(endpoint(TOPIC_MODEL)[0], TOPIC_MODEL, self._on_model, self._fitted_model)
         self._last_t = float("nan")
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
         drive = self.resolve_topic_name(TOPIC_DRIVE)
@@ -154,6 +174,7 @@ class ThrustEstimator(Node):
             **{f"blocks on {self.resolve_topic_name(k)}": n for k, n in self.received.items()},
             "refused": self.rejected,
             "supply watt measured on": self._meter or "nothing (the amplifier's model)",
+            "self-sensing calibrated by": self.calibration,
         }
         if last is not None:
             values.update(
@@ -176,6 +197,48 @@ class ThrustEstimator(Node):
     def rejected(self) -> int:
         """Blocks and readings refused at the door (their reasons were said)."""
         return sum(self.inbox.refused.values())
+
+    def _fitted_model(self, msg: Any) -> tuple[Any, str]:
+        """The door's check of ``controller/model``: JSON of this fin, on this estimator's own model
+        (or, "", the fin file alone; never a path from the network), its correction each within the
+        fit's range; the model it makes, and what it rests on."""
+        from ..control.correction import Correction
+
+        data = str(msg.data)
+        if len(data) > MODEL_MESSAGE_MOST:
+            raise MessageRefused(f"{len(data)} characters: a fitted model's message holds a few hundred")
+        try:
+            m = json.loads(data)
+        except ValueError as exc:
+            raise MessageRefused(f"not JSON ({exc})") from None
+        if not isinstance(m, dict) or not isinstance(m.get("fin"), str) or not isinstance(m.get("base"), str):
+            raise MessageRefused("a fitted model is a JSON object with a fin and a base")
+        if m["fin"] != self.fin.name:
+            raise MessageRefused(f"a fit of {m['fin'][:40]!r}: this estimator's fin is {self.fin.name}")
+        if m["base"] not in ("", self._model_name):
+            raise MessageRefused(
+                f"a fit on the model {m['base'][:80]!r}: this estimator knows "
+                + (f"{self._model_name} and " if self._model_name else "")
+                + "the fin file"
+            )
+        try:
+            base = self.core_model if m["base"] else None
+            c = Correction.of_fitted(m.get("correction"), base)
+        except PiezofinError as exc:
+            raise MessageRefused(str(exc)) from None
+        trials, misfit = m.get("trials"), m.get("misfit_sigma")
+        said = f"{trials} trials" if isinstance(trials, int) and not isinstance(trials, bool) else "trials"
+        if isinstance(misfit, (int, float)) and math.isfinite(misfit):
+            said += f", {misfit:.1f} sigma RMS"
+        return c.model(self.fin), f"the controller's fitted fin ({said}; on {m['base'] or 'the fin file'})"
+
+    def _on_model(self, fitted: tuple[Any, str]) -> None:
+        model, said = fitted
+        self.core.calibrate = calibrated_by(model)
+        first = not self.calibration.startswith("the controller's")
+        self.calibration = said
+        if first:
+            self.get_logger().info(f"self-sensed thrust calibrated by {said} from now on")
 
     def _on_drive(self, b: Block) -> None:
         self.received[TOPIC_DRIVE] += 1
@@ -249,20 +312,15 @@ class ThrustEstimator(Node):
         self._emit(self.core.flush())
 
 
-def _calibration_of(path: str) -> tuple[Fin, Callable[[float, float], Calibration]]:
-    """An augmented model's fin, and its self-sensing calibration at any (frequency, Vpp).  (The model
-    and its steady state load only here: an estimator without one stays small, for a fish.)"""
+def _model_of(path: str) -> Any:
+    """The augmented model of the ``model`` parameter.  (The model and its steady state load only here:
+    an estimator without one stays small, for a fish.)"""
     from ..physics.model import load_model
 
     try:
-        model = load_model(path)
+        return load_model(path)
     except PiezofinError as exc:
         raise StartupError(f"parameter model: {exc}") from None
-
-    def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
-        return Calibration.of_law(model.law(frequency_hz, voltage_pp))
-
-    return model.fin, calibrate
 
 
 def main(args: list[str] | None = None) -> int:

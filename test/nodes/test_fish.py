@@ -11,11 +11,11 @@ import rclpy
 import yaml
 from std_msgs.msg import String
 
-from piezofin_ros.nodes._common import QOS_COMMAND
+from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, msg_block
 from piezofin_ros.physics.fin import load_fin
 from piezofin_ros.physics.model import Model
 
-from ..rosutil import graph, start, stop
+from ..rosutil import data_type, graph, start, stop
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -34,7 +34,8 @@ def test_a_fish_meets_its_demand_in_truth_on_a_fin_it_was_not_told(tmp_path: Pat
     (`mode:=optimise source:=self demand_n:=...`) run as `ros2 run` starts them.  The raw self-sensed
     thrust reads the loss current as motion; the controller's fit of the drive's admittance finds
     the loss and the coupling, says its mode and its calibration bound, and the point it holds meets
-    the demand on the hidden fin itself."""
+    the demand on the hidden fin itself; the estimator, calibrated by the controller's fitted fin
+    (``controller/model``), then self-senses the hidden fin's thrust within 10 %."""
     path = tmp_path / "hidden.yaml"
     path.write_text(yaml.safe_dump(HIDDEN.to_mapping()))
     demand = 3e-3
@@ -57,11 +58,15 @@ def test_a_fish_meets_its_demand_in_truth_on_a_fin_it_was_not_told(tmp_path: Pat
         f"demand_n:={demand}",
     )
     statuses: list[dict] = []
+    estimates: list = []
     try:
         with graph() as g:
             node = g.add(rclpy.create_node("watcher", namespace=ns.strip("/"), context=g.context))
             node.create_subscription(
                 String, "controller/status", lambda m: statuses.append(json.loads(m.data)), QOS_COMMAND
+            )
+            node.create_subscription(
+                data_type("estimate"), "estimate", lambda m: estimates.append(msg_block(m)), QOS_DATA
             )
             g.spin_until(
                 lambda: (
@@ -82,3 +87,8 @@ def test_a_fish_meets_its_demand_in_truth_on_a_fin_it_was_not_told(tmp_path: Pat
     truth = float(HIDDEN.predict(held["frequency_hz"], held["voltage_pp"]).thrust_n)
     assert truth >= demand, (truth, held, outs[0][-2000:])
     assert held["thrust_n"] == pytest.approx(truth, rel=max(st["self_sensing_bound"], 0.02) + 0.02)
+    # the estimator, once the fit calibrated it: its self-sensed thrust on the hidden fin's own
+    assert "self-sensed thrust calibrated by the controller's fitted fin" in outs[1], outs[1][-3000:]
+    last = {n: float(estimates[-1].values[estimates[-1].names.index(n), 0]) for n in estimates[-1].names}
+    hidden = float(HIDDEN.predict(last["frequency_hz"], last["voltage_pp"]).thrust_n)
+    assert last["thrust_self_n"] == pytest.approx(hidden, rel=0.1), (last, hidden)

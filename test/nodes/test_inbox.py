@@ -13,6 +13,7 @@ a number that came from them.
 from __future__ import annotations
 
 import array
+import json
 import math
 import time
 from pathlib import Path
@@ -23,7 +24,7 @@ import pytest
 import rclpy
 from piezofin_msgs.msg import Estimate as EstimateMsg
 from sensor_msgs.msg import BatteryState, Imu
-from std_msgs.msg import Float64, Float64MultiArray
+from std_msgs.msg import Float64, Float64MultiArray, String
 
 from piezofin_ros.bags.blocks import (
     CHANNEL_MOST,
@@ -34,6 +35,7 @@ from piezofin_ros.bags.blocks import (
     Block,
     field_of,
 )
+from piezofin_ros.control.correction import PARAMS
 from piezofin_ros.estimation.estimator import Estimate
 from piezofin_ros.nodes._common import (
     BATTERY_MOST_A,
@@ -41,6 +43,7 @@ from piezofin_ros.nodes._common import (
     QOS_COMMAND,
     QOS_DATA,
     QOS_SENSOR,
+    QOS_STATUS,
     block_msg,
     msg_block,
     record_msg,
@@ -121,6 +124,26 @@ def battery_states() -> list[BatteryState]:
     return out
 
 
+def fitted_models() -> list[String]:
+    """``controller/model`` as an attacker sends it: no JSON, no object, another fin, a base that is a
+    path or another model (never read from the network), a correction with a name missing or added,
+    each value not a finite number or beyond the fit's range, and a message of a megabyte."""
+    good = {p.name: 1.0 for p in PARAMS} | {"softening": 0.0, "coupling_k": 0.0, "loss_tan_delta": 0.0}
+    good |= {"leakage_us": 0.0}
+    plain = {"fin": "M8528-P1", "base": "", "correction": good, "trials": 5, "misfit_sigma": 1.0}
+    bodies: list[object] = ["{", "[]", "null", '"M8528-P1"', "1e999", "x" * 1_000_000]
+    bodies += [{**plain, "fin": fin} for fin in ("M8514-P1", "", None, 7, "M8528-P1" * 1000)]
+    bodies += [
+        {**plain, "base": b} for b in ("/etc/passwd", "../../config/models/x.yaml", "paper-twin-M8514-P1", 1)
+    ]
+    bodies += [{**plain, "correction": c} for c in (None, [], {**good, "extra": 1.0}, {"added_mass": 1.0})]
+    for name in good:
+        for x in [*HOSTILE, math.nan, True, "1.0", None, [1.0], -1.0, 0.0, 1e6, -1e6]:
+            if x != good[name]:
+                bodies.append({**plain, "correction": {**good, name: x}})
+    return [String(data=b if isinstance(b, str) else json.dumps(b)) for b in bodies]
+
+
 #: each node, its namespace-relative subscriptions and the hostile messages of each
 ATTACKS = {
     "thrust_estimator": {
@@ -130,6 +153,7 @@ ATTACKS = {
         "loadcell": (data_type("loadcell"), QOS_DATA, hostile_blocks("loadcell", LOADCELL_CHANNELS)),
         "supply": (data_type("supply"), QOS_DATA, hostile_blocks("supply", SUPPLY_CHANNELS)),
         "battery": (BatteryState, QOS_SENSOR, battery_states()),
+        "controller/model": (String, QOS_STATUS, fitted_models()),
     },
     "speed_loop": {
         "swim_speed": (data_type("swim_speed"), QOS_SENSOR, speed_readings()),
@@ -315,3 +339,51 @@ def test_a_driver_publishing_best_effort_is_read_where_a_reading_may_drop_and_to
     assert "publish it reliable" in said[0], said[0]
     assert "swim_speed" not in said[0] and "publishes" not in out.replace(said[0], ""), out[-3000:]
     assert speeds and speeds[-1] == pytest.approx(0.05), speeds[-5:]
+
+
+def test_the_estimator_takes_the_controllers_fitted_fin_and_says_so_once(tmp_path: Path) -> None:
+    """``controller/model`` (what an optimising controller on self-sensed estimates sends once its
+    corrected model fits its trials): the estimator's self-sensed thrust follows the fitted fin from
+    the next window, here twice the fin file's ``c_m`` so twice the thrust on the same drive, said in
+    one line however often the fit is sent again."""
+    ns = "calibrated"
+    log = tmp_path / "estimator.log"
+    proc = start("thrust_estimator", "-r", f"__ns:=/{ns}", *ARGS["thrust_estimator"], log=log)
+    heard: list[Block] = []
+    good = {p.name: 1.0 for p in PARAMS} | dict.fromkeys(("softening", "coupling_k", "loss_tan_delta"), 0.0)
+    fit = {"fin": "M8528-P1", "base": "", "correction": {**good, "leakage_us": 0.0, "added_mass": 2.0}}
+    t_fin = [0.0]
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("controller_and_driver", namespace=ns, context=g.context))
+            node.create_subscription(EstimateMsg, "estimate", lambda m: heard.append(msg_block(m)), QOS_DATA)
+            drive = node.create_publisher(data_type("drive"), "drive", QOS_DATA)
+            speed = node.create_publisher(data_type("swim_speed"), "swim_speed", QOS_SENSOR)
+            model = node.create_publisher(String, "controller/model", QOS_STATUS)
+            g.spin_until(lambda: drive.get_subscription_count() > 0, 30.0, "the estimator's drive")
+
+            def swim(seconds: float) -> None:  # 5 Hz at 200 V, the current a fin's
+                for _ in range(round(seconds / 0.05)):
+                    t = t_fin[0] + np.arange(50) * 1e-3
+                    t_fin[0] += 0.05
+                    v, i = 200.0 * np.sin(2 * np.pi * 5 * t), 1e-5 * np.cos(2 * np.pi * 5 * t + 0.1)
+                    drive.publish(sample_msg("drive", Block.from_columns(t_s=t, voltage_V=v, current_A=i)))
+                    speed.publish(speed_msg(data_type("swim_speed"), 0.05, float(t[-1])))
+                    g.spin_for(0.02)
+
+            swim(2.0)  # (windows of 0.6 s: three periods)
+            g.spin_until(lambda: len(heard) >= 2, 20.0, "estimates on the fin file's calibration")
+            before = len(heard)
+            for _ in range(3):  # (sent again as a controller does after each fit: said once)
+                model.publish(String(data=json.dumps({**fit, "trials": 5, "misfit_sigma": 0.8})))
+                g.spin_for(0.3)
+            g.spin_until(lambda: "fitted fin" in log.read_text(), 20.0, "the estimator taking the fit")
+            swim(2.0)
+            g.spin_until(lambda: len(heard) >= before + 2, 20.0, "estimates on the fitted fin")
+    finally:
+        stop(proc)
+    out = log.read_text()
+    said = [line for line in out.splitlines() if "calibrated by the controller's fitted fin" in line]
+    assert len(said) == 1 and "5 trials, 0.8 sigma RMS; on the fin file" in said[0], out[-3000:]
+    selfs = [float(b.values[b.names.index("thrust_self_n"), 0]) for b in heard]
+    assert selfs[-1] / selfs[before - 1] == pytest.approx(2.0, rel=1e-6), selfs
