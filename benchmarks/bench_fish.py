@@ -243,7 +243,11 @@ def plot_strangers(results: list[dict[str, Any]], path: Path) -> None:
         ax[1, k].plot(ours.t, ours.demand_n * 1e3, label="demand (speed loop)")
         ax[1, k].plot(ours.t, ours.thrust_n * 1e3, label="thrust in truth")
         ax[1, k].plot(
-            ours.t, ours.thrust_estimate_n * 1e3, ".", ms=2, label="self-sensed (the twin's calibration)"
+            ours.t,
+            ours.thrust_estimate_n * 1e3,
+            ".",
+            ms=2,
+            label="self-sensed by the estimator (the twin's calibration, then the fit's)",
         )
         ax[1, k].plot(
             ours.t,
@@ -289,9 +293,14 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     ax[1].plot(ours.t, ours.demand_n * 1e3, label="demand (speed loop)")
     ax[1].plot(ours.t, ours.thrust_n * 1e3, label="thrust in truth")
     # the estimator reads the current's motional part through the fin file's coupling and c_m (here
-    # the nominal fin's, 30-50 % low on the twin); the optimiser's fit calibrates it from the trials
+    # the nominal fin's, 30-50 % low on the twin) until the optimiser's fit, calibrated from the
+    # trials, fits four of them: then through the fit's (controller/model), on the red dots
     ax[1].plot(
-        ours.t, ours.thrust_estimate_n * 1e3, ".", ms=2, label="self-sensed, the fin file's calibration"
+        ours.t,
+        ours.thrust_estimate_n * 1e3,
+        ".",
+        ms=2,
+        label="self-sensed by the estimator (the fin file's calibration, then the fit's)",
     )
     ax[1].plot(
         ours.t, ours.thrust_fitted_n * 1e3, ".", ms=2, label="self-sensed, as the optimiser's fit reads it"

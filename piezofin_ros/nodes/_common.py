@@ -446,15 +446,20 @@ class Inbox:
     Other exceptions are bugs and propagate.
     """
 
-    #: How often the polled subscriptions are looked at, s of wall time.
+    #: How often the polled subscriptions are looked at by default, s of wall time (the estimator's
+    #: blocks: 20 a second per topic at x1, 800 at x40).
     POLL_S = 0.01
     #: How often the publishers of the polled topics are asked their type, s of wall time.
     TYPES_S = 2.0
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, poll_s: float = POLL_S) -> None:
+        """``poll_s``: how often the polled subscriptions are looked at (a node whose messages come a
+        few a second looks less often: each look wakes the executor, 100 a second cost the controller
+        about 2 % of a core)."""
         from rclpy.clock import Clock, ClockType
 
         self._node = node
+        self.poll_s = poll_s
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._said: dict[str, int] = {}
         self._helper: Node | None = None
@@ -492,7 +497,7 @@ class Inbox:
         depth: int,
         most: int,
     ) -> Any:
-        """A subscription looked at every :attr:`POLL_S` s of wall time: up to ``most`` of its queued
+        """A subscription looked at every ``poll_s`` s of wall time: up to ``most`` of its queued
         messages (oldest first) go through ``check`` to ``handler`` as :meth:`subscribe`'s do.
 
         Its queue (``depth`` deep) lives in the middleware and is never seen by the executor, so a
@@ -510,7 +515,7 @@ class Inbox:
         if self._helper is None:
             self._helper = helper_node(node, "inbox")
             # one timer looks at every polled subscription, in the order they were made
-            node.create_timer(self.POLL_S, self._poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
+            node.create_timer(self.poll_s, self._poll, clock=Clock(clock_type=ClockType.STEADY_TIME))
         qos = Q(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability_of(topic))
         sub = self._helper.create_subscription(msg_type, node.resolve_topic_name(topic), never, qos)
         self._polls.append((sub, topic, handler, check, most))
@@ -825,6 +830,9 @@ class TeardownWatchdog:
 #: a turn of a node's spin loop, or its close(), taking this long is stuck: its threads' stacks go
 #: to standard error (a stopping node that does not stop is otherwise killed without a word)
 STALL_S = 8.0
+#: the stall watch is armed again at most this often (s), for STALL_S more: each arming wakes
+#: faulthandler's thread (0.4 ms), and armed every turn it cost a node 4-5 % of a core
+REARM_S = 1.0
 
 
 class StopFlag:
@@ -941,11 +949,15 @@ def run_node(
             executor.add_node(node)
         # spin_once in a loop, not spin(): with rclpy 7.1's EventsExecutor.spin() a lifecycle
         # node's services do not answer clients in other processes (measured), spin_once does.
+        armed = -math.inf
         while context.ok() and not stop and not (until is not None and all(until(n) for n in nodes)):
             # a turn of the loop that takes STALL_S (a callback or the middleware that never returns:
             # then neither SIGINT nor SIGTERM reaches the flag, and `ros2 launch` ends in SIGKILL)
-            # leaves every thread's stack on standard error
-            faulthandler.dump_traceback_later(STALL_S)
+            # leaves every thread's stack on standard error (armed at most every REARM_S for
+            # STALL_S + REARM_S: it fires only after a turn of STALL_S at least)
+            if (now := time.monotonic()) - armed >= REARM_S:
+                faulthandler.dump_traceback_later(STALL_S + REARM_S)
+                armed = now
             executor.spin_once(timeout_sec=0.1)
             code = next((n.exit_code for n in nodes if getattr(n, "exit_code", None) is not None), None)
             if code is not None:
