@@ -290,6 +290,7 @@ def swim_run(
     out = {k: np.full(n, np.nan) for k in Trace.__annotations__ if k != "events"}
     window_start, point, fitted = 0.0, (math.nan, math.nan), math.nan
     followed: Correction | None = None  # (the fit the estimator's calibration follows)
+    fitted_from: tuple[float, Model] | None = None  # (and the fin time it applies from)
     estimator = EstimatorConfig()
     steady_at, thrust0, supply = (math.nan, math.nan), 0.0, 0.0
     model = plant.model()
@@ -306,6 +307,8 @@ def swim_run(
         if (f, v) != point:
             point, window_start = (f, v), t + estimator.settle_s
         elif v > 0 and t - window_start >= estimator.window_s - 1e-9:
+            if fitted_from is not None and window_start >= fitted_from[0]:  # (windows from the fit's time)
+                estimator_model = fitted_from[1]
             e = _window(
                 plant, plant.fin, amp, f, v, window_start, t, rng, swimmer.speed_m_s, estimator_model, meter
             )
@@ -317,7 +320,7 @@ def swim_run(
                 # (the controller's ``controller/model``: the estimator calibrated by the fitted fin)
                 c = drive.optimiser.fitted_correction()
                 if c is not None and c is not followed:
-                    followed, estimator_model = c, c.model(drive.optimiser.fin)
+                    followed, fitted_from = c, (t, c.model(drive.optimiser.fin))
         if v > 0:
             if (f, v) != steady_at:  # (a drive at rest is one model evaluation, not one a tick)
                 p = model.predict(f, v)

@@ -525,6 +525,7 @@ class StreamEstimator:
         self.fin = fin
         self.config = config or EstimatorConfig()
         self.calibrate = calibrate  # (frequency Hz, Vpp) -> the self-sensing's calibration there
+        self._later: list[tuple[float, Callable[[float, float], Calibration]]] = []  # (calibrate_from)
         self.amplifier = amplifier
         self.drive = _Channel()
         self.tip = _Channel()
@@ -866,6 +867,16 @@ class StreamEstimator:
         before = [u for (t, u) in self._speed if t < t1]
         return before[-1] if before else 0.0
 
+    def calibrate_from(self, t_s: float, calibrate: Callable[[float, float], Calibration]) -> None:
+        """The self-sensing's calibration for the windows that start at ``t_s`` (fin time) or later: a
+        live run and its replay, however late the calibration reaches each, estimate alike."""
+        self._later = sorted([*self._later, (float(t_s), calibrate)], key=lambda c: c[0])
+
+    def _calibration_at(self, t_start: float) -> Callable[[float, float], Calibration] | None:
+        """The calibration of a window that starts at ``t_start``."""
+        later = [c for t, c in self._later if t <= t_start]
+        return later[-1] if later else self.calibrate
+
     def _compute(self, p: _Pending) -> Estimate | None:
         t, vi = self.drive.slice(p.t_start, p.t_end)
         if t.size < 4:
@@ -874,8 +885,9 @@ class StreamEstimator:
         tt, u = self.tip.slice(p.t_start, p.t_end)
         speed = self._speed_at(p.t_start, p.t_end)
         cal = NOMINAL  # (a calibration's field: the window's peak-to-peak drive)
-        if self.calibrate is not None:
-            cal = self.calibrate(freq, float(np.ptp(vi[:, 0])))
+        calibrate = self._calibration_at(p.t_start)
+        if calibrate is not None:
+            cal = calibrate(freq, float(np.ptp(vi[:, 0])))
         r = analyse_window(
             self.fin,
             t,

@@ -165,12 +165,14 @@ ESTIMATOR_SETTLE_S = 1.0
 BIAS_FRESH_S = 1.0
 
 
-def fitted_model_message(fin: str, base: str, c: Any, opt: Any) -> dict[str, object]:
+def fitted_model_message(fin: str, base: str, c: Any, opt: Any, t_s: float) -> dict[str, object]:
     """``controller/model``'s JSON: the fin, the base model the correction applies on (the
-    ``model`` parameter; "": the fin file), the fitted numbers, and what they rest on."""
+    ``model`` parameter; "": the fin file), the fitted numbers, what they rest on, and the fin time
+    (the node's clock) from which an estimator's windows take it."""
     return {
         "fin": fin,
         "base": base,
+        "t_s": t_s,
         "correction": c.fitted(),
         "trials": len(opt.observations),
         "misfit_sigma": math.sqrt(max(opt.fit.chi2, 0.0)),
@@ -443,6 +445,7 @@ class Controller(Node):
         if not strategy.started() and not self._estimator_ready():
             return
         command = strategy.command(t)
+        self._publish_model()  # (before the command that moves the drive to the fit's next point)
         log = self.get_logger()
         for event in strategy.events:  # one call site per severity: rclpy's logger requires it
             if event.level == "error":
@@ -459,7 +462,6 @@ class Controller(Node):
         # change, had it wait for the next trial: 4.1 s in the launch test, or forever once done)
         if strategy.status_due(t) or time.monotonic() - self._status_wall >= 1.0:
             self._publish_status()
-        self._publish_model()
 
     def _publish_model(self) -> None:
         """``controller/model``: the fitted correction, each time it changes once the corrected model
@@ -473,7 +475,8 @@ class Controller(Node):
         if c is None or c is self._model_sent:
             return
         self._model_sent = c
-        message = fitted_model_message(opt.fin.name, self.config.model if c.base is not None else "", c, opt)
+        base = self.config.model if c.base is not None else ""
+        message = fitted_model_message(opt.fin.name, base, c, opt, self._now())
         self._model_pub.publish(String(data=json.dumps(message)))
 
     def _on_demand(self, d: float) -> None:  # (within [0, 10] N: checked at the door)

@@ -198,7 +198,7 @@ class ThrustEstimator(Node):
         """Blocks and readings refused at the door (their reasons were said)."""
         return sum(self.inbox.refused.values())
 
-    def _fitted_model(self, msg: Any) -> tuple[Any, str]:
+    def _fitted_model(self, msg: Any) -> tuple[Any, float, str]:
         """The door's check of ``controller/model``: JSON of this fin, on this estimator's own model
         (or, "", the fin file alone; never a path from the network), its correction each within the
         fit's range; the model it makes, and what it rests on."""
@@ -226,15 +226,26 @@ class ThrustEstimator(Node):
             c = Correction.of_fitted(m.get("correction"), base)
         except PiezofinError as exc:
             raise MessageRefused(str(exc)) from None
+        t_s = m.get("t_s")
+        if (
+            isinstance(t_s, bool)
+            or not isinstance(t_s, (int, float))
+            or not (math.isfinite(t_s) and t_s >= 0)
+        ):
+            raise MessageRefused(f"t_s = {t_s!r}: the fin time the fit applies from, finite and >= 0, s")
         trials, misfit = m.get("trials"), m.get("misfit_sigma")
         said = f"{trials} trials" if isinstance(trials, int) and not isinstance(trials, bool) else "trials"
         if isinstance(misfit, (int, float)) and math.isfinite(misfit):
             said += f", {misfit:.1f} sigma RMS"
-        return c.model(self.fin), f"the controller's fitted fin ({said}; on {m['base'] or 'the fin file'})"
+        return (
+            c.model(self.fin),
+            float(t_s),
+            f"the controller's fitted fin ({said}; on {m['base'] or 'the fin file'})",
+        )
 
-    def _on_model(self, fitted: tuple[Any, str]) -> None:
-        model, said = fitted
-        self.core.calibrate = calibrated_by(model)
+    def _on_model(self, fitted: tuple[Any, float, str]) -> None:
+        model, t_s, said = fitted
+        self.core.calibrate_from(t_s, calibrated_by(model))  # (windows from the fit's time on)
         first = not self.calibration.startswith("the controller's")
         self.calibration = said
         if first:

@@ -130,13 +130,15 @@ def fitted_models() -> list[String]:
     each value not a finite number or beyond the fit's range, and a message of a megabyte."""
     good = {p.name: 1.0 for p in PARAMS} | {"softening": 0.0, "coupling_k": 0.0, "loss_tan_delta": 0.0}
     good |= {"leakage_us": 0.0}
-    plain = {"fin": "M8528-P1", "base": "", "correction": good, "trials": 5, "misfit_sigma": 1.0}
+    plain = {"fin": "M8528-P1", "base": "", "t_s": 0.0, "correction": good, "trials": 5, "misfit_sigma": 1.0}
     bodies: list[object] = ["{", "[]", "null", '"M8528-P1"', "1e999", "x" * 1_000_000]
     bodies += [{**plain, "fin": fin} for fin in ("M8514-P1", "", None, 7, "M8528-P1" * 1000)]
     bodies += [
         {**plain, "base": b} for b in ("/etc/passwd", "../../config/models/x.yaml", "paper-twin-M8514-P1", 1)
     ]
     bodies += [{**plain, "correction": c} for c in (None, [], {**good, "extra": 1.0}, {"added_mass": 1.0})]
+    bodies += [{**plain, "t_s": t} for t in (None, "0", True, math.nan, math.inf, -1.0, -1e308, [0.0])]
+    bodies.append({k: v for k, v in plain.items() if k != "t_s"})
     for name in good:
         for x in [*HOSTILE, math.nan, True, "1.0", None, [1.0], -1.0, 0.0, 1e6, -1e6]:
             if x != good[name]:
@@ -343,9 +345,9 @@ def test_a_driver_publishing_best_effort_is_read_where_a_reading_may_drop_and_to
 
 def test_the_estimator_takes_the_controllers_fitted_fin_and_says_so_once(tmp_path: Path) -> None:
     """``controller/model`` (what an optimising controller on self-sensed estimates sends once its
-    corrected model fits its trials): the estimator's self-sensed thrust follows the fitted fin from
-    the next window, here twice the fin file's ``c_m`` so twice the thrust on the same drive, said in
-    one line however often the fit is sent again."""
+    corrected model fits its trials): the estimator's self-sensed thrust follows the fitted fin in the
+    windows that start at the fit's fin time or later, here twice the fin file's ``c_m`` so twice the
+    thrust on the same drive, said in one line however often the fit is sent again."""
     ns = "calibrated"
     log = tmp_path / "estimator.log"
     proc = start("thrust_estimator", "-r", f"__ns:=/{ns}", *ARGS["thrust_estimator"], log=log)
@@ -375,7 +377,9 @@ def test_the_estimator_takes_the_controllers_fitted_fin_and_says_so_once(tmp_pat
             g.spin_until(lambda: len(heard) >= 2, 20.0, "estimates on the fin file's calibration")
             before = len(heard)
             for _ in range(3):  # (sent again as a controller does after each fit: said once)
-                model.publish(String(data=json.dumps({**fit, "trials": 5, "misfit_sigma": 0.8})))
+                model.publish(
+                    String(data=json.dumps({**fit, "t_s": t_fin[0], "trials": 5, "misfit_sigma": 0.8}))
+                )
                 g.spin_for(0.3)
             g.spin_until(lambda: "fitted fin" in log.read_text(), 20.0, "the estimator taking the fit")
             swim(2.0)

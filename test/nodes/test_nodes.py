@@ -171,7 +171,14 @@ def test_replay_reproduces_the_live_estimates(live: dict[str, Any]) -> None:
                 parameter_overrides=params(
                     bag=str(live["bag"]),
                     rate=20.0,
-                    topics=["/fin/drive", "/fin/tip_velocity", "/fin/loadcell", "/fin/supply"],
+                    # (and the controller's fitted fin: the estimator's self-sensing followed it live)
+                    topics=[
+                        "/fin/drive",
+                        "/fin/tip_velocity",
+                        "/fin/loadcell",
+                        "/fin/supply",
+                        "/fin/controller/model",
+                    ],
                 ),
             )
         )
