@@ -5,6 +5,7 @@ from __future__ import annotations
 import array
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -211,8 +212,18 @@ def errors_in(out: str) -> list[str]:
     """The ``[ERROR]`` lines of a launch's output but launch's own escalation ("failed to terminate '5'
     seconds after receiving 'SIGINT', escalating to 'SIGTERM'"): a node slower than 5 s to stop on a
     loaded machine (CI's whole run, beside two other workers), which launch then stops with SIGTERM,
-    as the node handles it.  A test that allows it still asserts that every process finished cleanly."""
-    return [x for x in out.splitlines() if "[ERROR]" in x and "failed to terminate" not in x]
+    as the node handles it.  A test that allows it still asserts that every process finished cleanly.
+    Nor the death launch reports for a child whose status asyncio's child watcher lost ("Unknown child
+    process pid N, will report returncode 255", then "process has died [pid N, exit code 255"): the
+    status is asyncio's guess, not the node's (once in a whole run, the controller of a clean stop)."""
+    lost = set(re.findall(r"Unknown child process pid (\d+), will report returncode 255", out))
+    return [
+        x
+        for x in out.splitlines()
+        if "[ERROR]" in x
+        and "failed to terminate" not in x
+        and not any(f"process has died [pid {pid}, exit code 255" in x for pid in lost)
+    ]
 
 
 def ros2(
