@@ -223,8 +223,8 @@ class FinSim(LifecycleNode):
         self.blocks_published = 0  # on each data topic
         self.command_log: list[str] = []
         self.command_counts: collections.Counter[str] = collections.Counter()
-        self._last_reason_log_ns = -(2**62)
-        self._unlogged = 0
+        self._last_reason_log_ns: dict[str, int] = {}  # per kind (rejected, clamped, ignored)
+        self._unlogged: collections.Counter[str] = collections.Counter()
         self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
         self.inbox.subscribe(Float64MultiArray, TOPIC_CMD, self._on_command, QOS_COMMAND)
         self._clamped_ns = self._monitor_off_ns = -(2**62)  # (steady clock) the last clamp or refusal, ...
@@ -533,23 +533,23 @@ class FinSim(LifecycleNode):
         return Report(OK, f"{r.percentage * 100:.0f} % left ({r.voltage_v:.2f} V)", values)
 
     def _log_command(self, reason: str) -> None:
-        """Keep and log the reason; bursts are logged once a second with the count of the rest."""
+        """Keep and log the reason; bursts are logged once a second per kind (rejected, clamped,
+        ignored) with the count of the rest of that kind, so a flood of one kind never hides
+        another."""
         self._clamped_ns, self._last_reason = self._steady.now().nanoseconds, reason
-        self.command_counts[reason.split(":", 1)[0]] += 1
+        kind = reason.split(":", 1)[0]
+        self.command_counts[kind] += 1
         self.command_log.append(reason)
         if len(self.command_log) > 1000:
             del self.command_log[:500]
         now = self.get_clock().now().nanoseconds
-        if now - self._last_reason_log_ns >= 1_000_000_000:
-            extra = (
-                self._unlogged
-                and f" (and {self._unlogged} more rejected, clamped or ignored since the last line)"
-            )
-            self.get_logger().warning(reason + (extra or ""))
-            self._last_reason_log_ns = now
-            self._unlogged = 0
+        if now - self._last_reason_log_ns.get(kind, -(2**62)) >= 1_000_000_000:
+            rest = self._unlogged.pop(kind, 0)
+            extra = f" (and {rest} more {kind} since the last such line)" if rest else ""
+            self.get_logger().warning(reason + extra)
+            self._last_reason_log_ns[kind] = now
         else:
-            self._unlogged += 1
+            self._unlogged[kind] += 1
         self.diagnostics.update()
 
     def _tick(self) -> None:

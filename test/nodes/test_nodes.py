@@ -370,6 +370,33 @@ def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
         assert np.all(np.abs(v[-20:]) < 2.0)  # deactivate ramped it to zero
 
 
+def test_a_flood_of_one_refusal_never_hides_a_clamp(capfd: pytest.CaptureFixture[str]) -> None:
+    """Refusals are said at most once a second per kind: 20 malformed commands, then one that is
+    clamped, within the same second: both kinds are said, and the next line of the flooded kind says
+    how many of its kind went unsaid (CI once saw a clamp hidden behind a second of rejections)."""
+    with graph() as g:
+        sim = g.add(FinSim(context=g.context, parameter_overrides=params(realtime_factor=5.0)))
+        probe = g.add(__import__("rclpy").create_node("probe", context=g.context))
+        cmd = probe.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+        sim.trigger_configure()
+        sim.trigger_activate()
+        g.spin_until(lambda: cmd.get_subscription_count() >= 1, timeout=10.0)
+        for _ in range(20):
+            cmd.publish(Float64MultiArray(data=[1.0, 2.0]))
+            g.spin_for(0.01)
+        cmd.publish(block_msg(Block.from_record({"frequency_hz": 5.0, "voltage_pp_V": 2000.0, "on": 1.0})))
+        g.spin_until(lambda: sim.command_counts["clamped"] >= 1, timeout=5.0, what="the clamp")
+        flooded = sim.command_counts["rejected"]
+        g.spin_for(1.1)  # past the second: the next rejection is said with the count of the rest
+        cmd.publish(Float64MultiArray(data=[1.0, 2.0]))
+        g.spin_until(lambda: sim.command_counts["rejected"] > flooded, timeout=5.0, what="the last one")
+    err = capfd.readouterr().err
+    assert flooded > 5, err
+    assert err.count("rejected: malformed command") == 2, err
+    assert err.count("clamped:") == 1, err
+    assert f"(and {flooded - 1} more rejected since the last such line)" in err, err
+
+
 def test_drive_limits_can_be_tightened_live_over_the_parameter_service() -> None:
     """An operator lowers the cap on a running fin (`ros2 param set /fin_sim limits.voltage_pp_max 400`):
     the drive ramps down to it at once; relaxing a limit is refused with the reason; a band that
