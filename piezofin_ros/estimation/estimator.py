@@ -501,6 +501,10 @@ class _Segment:
     next_window: int = 0  # index of the first period of the next running window
 
 
+#: The calibrations kept that wait for their time (``StreamEstimator.calibrate_from``).
+_LATER_MOST = 16
+
+
 class StreamEstimator:
     """Incremental estimator: feed blocks with ``add_*``; each call returns new estimates.
 
@@ -525,7 +529,9 @@ class StreamEstimator:
         self.fin = fin
         self.config = config or EstimatorConfig()
         self.calibrate = calibrate  # (frequency Hz, Vpp) -> the self-sensing's calibration there
-        self._later: list[tuple[float, Callable[[float, float], Calibration]]] = []  # (calibrate_from)
+        # (calibrate_from) (fin time from, arrival, calibration), by time: at most _LATER_MOST
+        self._later: list[tuple[float, int, Callable[[float, float], Calibration]]] = []
+        self._arrivals = 0
         self.amplifier = amplifier
         self.drive = _Channel()
         self.tip = _Channel()
@@ -869,12 +875,19 @@ class StreamEstimator:
 
     def calibrate_from(self, t_s: float, calibrate: Callable[[float, float], Calibration]) -> None:
         """The self-sensing's calibration for the windows that start at ``t_s`` (fin time) or later: a
-        live run and its replay, however late the calibration reaches each, estimate alike."""
-        self._later = sorted([*self._later, (float(t_s), calibrate)], key=lambda c: c[0])
+        live run and its replay, however late the calibration reaches each, estimate alike.  At most
+        ``_LATER_MOST`` are kept, the earliest sent let go first (a segment's last window starts
+        where the segment settled, before windows already estimated, so none is let go by time): a
+        stream of them, each from a time of its own, cannot grow the estimator."""
+        self._arrivals += 1
+        later = [*self._later, (float(t_s), self._arrivals, calibrate)]
+        if len(later) > _LATER_MOST:
+            later.remove(min(later, key=lambda c: c[1]))
+        self._later = sorted(later, key=lambda c: c[0])
 
     def _calibration_at(self, t_start: float) -> Callable[[float, float], Calibration] | None:
         """The calibration of a window that starts at ``t_start``."""
-        later = [c for t, c in self._later if t <= t_start]
+        later = [c for t, _, c in self._later if t <= t_start]
         return later[-1] if later else self.calibrate
 
     def _compute(self, p: _Pending) -> Estimate | None:

@@ -94,3 +94,36 @@ def test_lighthill_thrust_with_a_kc_dependent_added_mass_needs_the_frequency() -
     expected = 0.5 * FIN.m_v * 1.3 * (1 + 0.5 * kc + 0.25 * kc**2) * u**2
     assert float(lighthill_thrust(FIN, u, cal, f)) == pytest.approx(expected, rel=1e-12)
     assert float(lighthill_thrust(FIN, u)) == pytest.approx(0.5 * FIN.m_v * u**2, rel=1e-12)
+
+
+def test_a_stream_of_calibrations_cannot_grow_the_estimator(both) -> None:
+    """``calibrate_from`` (the controller's fitted fin, a message from the network): 20,000 of them,
+    each from a time of its own, grow the estimator by no more than a few kilobytes (it kept every
+    one); the calibration sent last for the windows' times still applies, as alone."""
+    import tracemalloc
+
+    from piezofin_ros.estimation.selfsense import NOMINAL
+
+    rig = SimulatedRig(FIN, model=MODEL.knobs_at, seed=3, t0=100.0)
+    est = StreamEstimator(FIN, EstimatorConfig())
+    tracemalloc.start()
+    try:
+        for k in range(200):
+            est.calibrate_from(1e6 + k, lambda f, v: NOMINAL)
+        before = tracemalloc.get_traced_memory()[0]
+        for k in range(200, 20_000):
+            est.calibrate_from(1e6 + k, lambda f, v: NOMINAL)
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert grown < 20_000, grown
+    est.calibrate_from(0.0, calibrate)
+    out: list[Estimate] = []
+    for f, vpp in ((6.0, 800.0), (9.5, 500.0)):
+        for k in range(round(12.0 / 0.05)):
+            rig.command(f, vpp, 1 if k * 0.05 < 11.0 else 0)
+            b = rig.step(50)
+            out += est.add_drive(b.t, b.voltage, b.current)
+            out += est.add_tip(b.t, b.tip_velocity)
+    got = [e.thrust_self_n for e in out + est.flush() if e.final]
+    assert got == [e.thrust_self_n for e in both[1]]
