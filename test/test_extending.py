@@ -3,7 +3,8 @@
 Each test adds what docs/reference.md's "Extending" table says a newcomer adds (an amplifier kind, an
 objective, a drag law), here in the test instead of in the package, and shows the rest of the code
 taking it with no other line changed: the loader, the registry's property test, the optimiser, the
-fish's surge step.  Read one as the recipe; it fails if that recipe stops being enough.
+fish's surge step.  Read one as the recipe; it fails if that recipe stops being enough.  A node's
+recipe, which needs rclpy and DDS, is ``test/nodes/test_extending_a_node.py``.
 """
 
 from __future__ import annotations
