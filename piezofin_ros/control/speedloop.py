@@ -11,7 +11,9 @@ with ``D`` the body's drag (:class:`~piezofin_ros.physics.swim.Body`), ``n`` its
 proportional gain of half the body's own damping at the set-point by default (``K_p = D'(U^*) / 2n``:
 a loop gain of 1/2, stable behind the optimising controller, which meets a new demand only after its
 trials, tens of seconds) and an integral that removes what the drag law gets wrong, winding only
-while the fin gives what is asked (the estimator's thrust at least 85 % of the demand).  Safe
+while the fin gives what is asked (the estimator's thrust at least 85 % of the demand), or, where no
+estimate has come in ``unjudged_after_s`` of its first set-point (a stack with no estimator, or a
+drive that never rests long enough for an estimator's window), as any PI loop winds.  Safe
 whatever it is fed:
 
 * the demand stays within ``[min_demand_n, max_demand_n]`` while there is a set-point (the
@@ -61,6 +63,14 @@ class SpeedLoopConfig:
         "reading turned the sensor's noise into demands that jumped by 30 % every second",
         0.0,
         60.0,
+    )
+
+    unjudged_after_s: float = setting(
+        30.0,
+        "no thrust estimate this long after the first set-point: the integral winds on the speed alone, "
+        "as any PI loop (with no estimate to judge by, it never wound: a fish 13 % slow for good), s",
+        1.0,
+        3600.0,
     )
 
     widen_after_s: float = setting(
@@ -113,6 +123,7 @@ class SpeedLoop:
     #: sensor at odds with the drag law), ``saturated`` (at the most thrust allowed), ``holding``
     kind: str = "idle"
     _last_t: float = math.nan
+    _first_t: float = math.nan  # (the first update with a set-point)
     _speed: float = math.nan
     _speed_t: float = -math.inf
     _disagree_since: float = math.nan
@@ -216,7 +227,10 @@ class SpeedLoop:
         # to a new demand (its trials take tens of seconds) is no error of the drag law.  A fin that
         # gives more (the controller meets a demand with a margin) winds it: the speed is what counts
         delivered = t - self._thrust_t <= 60.0 and self._thrust >= 0.85 * self.demand_n
-        if delivered and (raw < cap or e < 0) and (raw > cfg.min_demand_n or e > 0):
+        if math.isnan(self._first_t):
+            self._first_t = t
+        unjudged = not math.isfinite(self._thrust_t) and t - self._first_t >= cfg.unjudged_after_s
+        if (delivered or unjudged) and (raw < cap or e < 0) and (raw > cfg.min_demand_n or e > 0):
             self.integral_n += kp / cfg.ti_s * e * dt
         self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cap)
         self.kind, self.state = self._judge(t, e)
