@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import re
 from typing import Any
 
 import numpy as np
@@ -390,11 +391,14 @@ def test_a_flood_of_one_refusal_never_hides_a_clamp(capfd: pytest.CaptureFixture
         g.spin_for(1.1)  # past the second: the next rejection is said with the count of the rest
         cmd.publish(Float64MultiArray(data=[1.0, 2.0]))
         g.spin_until(lambda: sim.command_counts["rejected"] > flooded, timeout=5.0, what="the last one")
+        total = sim.command_counts["rejected"]
     err = capfd.readouterr().err
-    assert flooded > 5, err
-    assert err.count("rejected: malformed command") == 2, err
-    assert err.count("clamped:") == 1, err
-    assert f"(and {flooded - 1} more rejected since the last such line)" in err, err
+    assert flooded > 5 and "clamped:" in err, err
+    # every rejection said or counted on the next line of its kind (a loaded machine may say one more
+    # line within the flood; the last one, after a quiet second, is said with the rest)
+    said = err.count("rejected: malformed command")
+    unsaid = sum(int(n) for n in re.findall(r"\(and (\d+) more rejected since the last such line\)", err))
+    assert said >= 2 and unsaid >= 1 and said + unsaid == total, (said, unsaid, total, err)
 
 
 def test_drive_limits_can_be_tightened_live_over_the_parameter_service() -> None:
