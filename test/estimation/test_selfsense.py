@@ -30,10 +30,12 @@ def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
     return Calibration.of_law(MODEL.law(frequency_hz, voltage_pp))
 
 
-def finals(calibrated: bool) -> list[Estimate]:
-    """Two continuous points on the rig streaming MODEL, through the streaming estimator."""
+def finals(calibrated: bool, est: StreamEstimator | None = None) -> list[Estimate]:
+    """Two continuous points on the rig streaming MODEL, through the streaming estimator (``est``,
+    or a new one calibrated or not)."""
     rig = SimulatedRig(FIN, model=MODEL.knobs_at, seed=3, t0=100.0)
-    est = StreamEstimator(FIN, EstimatorConfig(), calibrate if calibrated else None)
+    if est is None:
+        est = StreamEstimator(FIN, EstimatorConfig(), calibrate if calibrated else None)
     out: list[Estimate] = []
     for f, vpp in ((6.0, 800.0), (9.5, 500.0)):
         for k in range(round(12.0 / 0.05)):
@@ -104,7 +106,6 @@ def test_a_stream_of_calibrations_cannot_grow_the_estimator(both) -> None:
 
     from piezofin_ros.estimation.selfsense import NOMINAL
 
-    rig = SimulatedRig(FIN, model=MODEL.knobs_at, seed=3, t0=100.0)
     est = StreamEstimator(FIN, EstimatorConfig())
     tracemalloc.start()
     try:
@@ -118,12 +119,5 @@ def test_a_stream_of_calibrations_cannot_grow_the_estimator(both) -> None:
         tracemalloc.stop()
     assert grown < 20_000, grown
     est.calibrate_from(0.0, calibrate)
-    out: list[Estimate] = []
-    for f, vpp in ((6.0, 800.0), (9.5, 500.0)):
-        for k in range(round(12.0 / 0.05)):
-            rig.command(f, vpp, 1 if k * 0.05 < 11.0 else 0)
-            b = rig.step(50)
-            out += est.add_drive(b.t, b.voltage, b.current)
-            out += est.add_tip(b.t, b.tip_velocity)
-    got = [e.thrust_self_n for e in out + est.flush() if e.final]
+    got = [e.thrust_self_n for e in finals(False, est)]
     assert got == [e.thrust_self_n for e in both[1]]
