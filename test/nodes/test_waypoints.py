@@ -83,7 +83,7 @@ def test_the_fish_swims_a_course_of_waypoints_and_says_where_it_is(tmp_path: Pat
 
 #: docs/fish.md's line for a course from a planner or a person, word for word
 PATH_TYPED = [
-    "ros2", "topic", "pub", "--once", "/fish/waypoints/path", "nav_msgs/msg/Path",
+    "ros2", "topic", "pub", "--once", "--keep-alive", "5", "/fish/waypoints/path", "nav_msgs/msg/Path",
     "{header: {frame_id: odom}, poses: [{pose: {position: {x: 0.0, y: 0.0}}}, {pose: {position: {x: 12.0, y: 0.0}}}, {pose: {position: {x: 12.0, y: 12.0}}}]}",  # noqa: E501
 ]  # fmt: skip
 
