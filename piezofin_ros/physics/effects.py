@@ -231,10 +231,7 @@ class Effects(tuple[Effect, ...]):
     def describe(self, op: OperatingPoint, drive_pp: FloatArray | None = None) -> Knobs:
         """The knobs at ``op``; ``drive_pp``: the drive as its monitor read it, which the fin gets
         (over the monitor's gain) in place of the amplifier's output."""
-        k = Knobs()
-        for e in self:
-            if e.family == AMPLIFIER:
-                k = e.describe(k, op)
+        k = _describe_in_turn(Knobs(), (e for e in self if e.family == AMPLIFIER), op)
         if drive_pp is None:
             v_fin = op.voltage_pp * np.asarray(k.voltage) * np.asarray(k.voltage_scale)
         else:
@@ -244,10 +241,7 @@ class Effects(tuple[Effect, ...]):
                     monitor = e.describe(monitor, op)
             v_fin = np.asarray(drive_pp, float) / np.asarray(monitor.voltage_gain)
         at_fin = replace(op, voltage_pp=np.broadcast_to(v_fin, np.shape(op.voltage_pp)))
-        for e in self:
-            if e.family != AMPLIFIER:
-                k = e.describe(k, at_fin)
-        return k
+        return _describe_in_turn(k, (e for e in self if e.family != AMPLIFIER), at_fin)
 
     def law(
         self, fin: Fin, frequency_hz: FloatArray, voltage_pp: FloatArray, time_s: FloatArray | float = 0.0
@@ -844,6 +838,37 @@ class _Drift(Effect):
         time_s: FloatArray | float = 0.0,
     ) -> TimeLaw:
         return replace(law, **{self.target: getattr(law, self.target) * self._factor(time_s)})
+
+
+def sole_target(e: Effect) -> str | None:
+    """The one knob ``e`` sets, where its describing function sets that one alone (a coefficient's or
+    a drift's, not overridden); None for any other effect."""
+    describe = type(e).describe
+    if describe is Coefficient.describe or describe is _Drift.describe:
+        return str(type(e).target)  # type: ignore[attr-defined]
+    return None
+
+
+def _describe_in_turn(k: Knobs, effects: Iterable[Effect], op: OperatingPoint) -> Knobs:
+    """Each effect's describing function in turn, a run of coefficients (each setting its target
+    alone, as :meth:`Coefficient.describe` does, the same arithmetic in the same order) copied into
+    the knobs once: a dozen copies a solve were a tenth of a fish controller's fit."""
+    pending: dict[str, Any] = {}
+    omega = None
+    for e in effects:
+        cls = type(e)
+        if cls.describe is Coefficient.describe and cls._apply is Coefficient._apply:  # type: ignore[attr-defined]
+            c: Coefficient = e  # type: ignore[assignment]
+            if omega is None:
+                omega = op.omega
+            old = pending[c.target] if c.target in pending else getattr(k, c.target)
+            x = c.amount(op.fin, omega, op.voltage_pp)
+            pending[c.target] = old * x if c.how == "scale" else (old + x if c.how == "add" else x)
+            continue
+        if pending:
+            k, pending = replace(k, **pending), {}
+        k = e.describe(k, op)
+    return replace(k, **pending) if pending else k
 
 
 @register

@@ -22,6 +22,26 @@ from numpy.typing import NDArray
 FloatArray = NDArray[Any]
 
 
+#: The knobs the steady amplitude never reads: only the readings and the current do (see the
+#: equations above).  An effect that sets one of these alone (its ``target``) leaves the amplitude
+#: as it was, so :func:`~piezofin_ros.physics.model.steady_knobs` reuses the amplitude it solved
+#: without it (a fit's columns in the capacitance, the losses and the load cell's gain).
+#: ``test_model.py`` holds each to it.
+UNREAD_BY_AMPLITUDE = frozenset(
+    {
+        "capacitance",
+        "loss_conductance",
+        "thrust_gain",
+        "thrust_bias_n",
+        "tip_gain",
+        "tip_delay_s",
+        "current_gain",
+        "current_delay_s",
+        "current_harmonics_a2",
+    }
+)
+
+
 @dataclass(frozen=True)
 class Knobs:
     """Multiplicative (and additive) modifications of the model's coefficients, per operating point."""

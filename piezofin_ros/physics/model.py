@@ -29,16 +29,18 @@ map (a correction is effects fitted on top of a model), the benchmark plants and
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .effects import Effect, Effects, ModelError, OperatingPoint, TimeLaw, effect_class, make
+from .effects import Effect, Effects, ModelError, OperatingPoint, TimeLaw, effect_class, make, sole_target
 from .fin import Fin, FinConfigError, preset_path, presets, read_yaml_file
-from .knobs import Knobs
+from .knobs import UNREAD_BY_AMPLITUDE, Knobs
 from .steady import coefficients, solve_amplitude
 
 FloatArray = NDArray[Any]
@@ -223,6 +225,74 @@ def load_model(path: str) -> Model:
         raise ModelError(str(exc) if path in str(exc) else f"{path}: {exc}") from None
 
 
+class _Solved:
+    """The steady amplitudes last solved, by what they depend on (an LRU of :attr:`MOST`): the fin,
+    the effects that move it (not those that set only a knob the amplitude never reads,
+    :data:`~.knobs.UNREAD_BY_AMPLITUDE`), the points and the iterations.  A fit's forward
+    differences in the capacitance, the losses and the load cell's gain, and each fit's sigma,
+    solve the same amplitudes again at the same points: 4 of its 10 models.  Arrays of more than
+    :attr:`POINTS_MOST` points are solved each time (their key would cost).  Thread-safe: the
+    controller fits in a worker while its node may predict."""
+
+    MOST = 64
+    POINTS_MOST = 4096
+
+    def __init__(self) -> None:
+        self._amps: OrderedDict[Hashable, FloatArray] = OrderedDict()
+        self._lock = threading.Lock()
+        self.hits = self.misses = 0
+
+    def key(
+        self,
+        fin: Fin,
+        effects: Effects,
+        arrays: tuple[FloatArray | None, ...],
+        iterations: int,
+    ) -> Hashable | None:
+        if arrays[0] is None or arrays[0].size > self.POINTS_MOST:
+            return None
+        moving = tuple(e for e in effects if sole_target(e) not in UNREAD_BY_AMPLITUDE)
+        parts = tuple(
+            None if a is None else (a.shape, np.ascontiguousarray(a, float).tobytes()) for a in arrays
+        )
+        key = (fin, moving, iterations, parts)
+        try:
+            hash(key)
+        except TypeError:  # (an effect or a fin holding an array: solved each time)
+            return None
+        return key
+
+    def __len__(self) -> int:
+        return len(self._amps)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._amps.clear()
+
+    def get(self, key: Hashable | None) -> FloatArray | None:
+        if key is None:
+            return None
+        with self._lock:
+            amp = self._amps.get(key)
+            if amp is None:
+                self.misses += 1
+                return None
+            self._amps.move_to_end(key)
+            self.hits += 1
+        return amp.copy()
+
+    def put(self, key: Hashable | None, amp: FloatArray) -> None:
+        if key is None:
+            return
+        with self._lock:
+            self._amps[key] = np.array(amp, dtype=float)
+            while len(self._amps) > self.MOST:
+                self._amps.popitem(last=False)
+
+
+_SOLVED = _Solved()
+
+
 def steady_knobs(
     fin: Fin,
     effects: Iterable[Effect],
@@ -256,6 +326,31 @@ def steady_knobs(
         k = knobs(ff, vv, tt, phi * amp, mm)
         return solve_amplitude(*coefficients(fin, 2 * math.pi * ff, k), _force(fin, k, vv, mm), guess=amp)
 
+    key = _SOLVED.key(fin, effects, (f, vpp, t_all, measured), iterations)
+    cached = _SOLVED.get(key)
+    if cached is not None:
+        amp = cached
+    else:
+        amp = _solve_steady(f, vpp, t_all, measured, amp_dep, iterations, solve)
+        _SOLVED.put(key, amp)
+    k = knobs(f, vpp, t_all, phi * amp, None if measured is None else np.broadcast_to(measured, f.shape))
+    kk = Knobs(
+        **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
+    )
+    return kk, amp
+
+
+def _solve_steady(
+    f: FloatArray,
+    vpp: FloatArray,
+    t_all: FloatArray,
+    measured: FloatArray | None,
+    amp_dep: bool,
+    iterations: int,
+    solve: Callable[[FloatArray, FloatArray, FloatArray, FloatArray | None, FloatArray], FloatArray],
+) -> FloatArray:
+    """:func:`steady_knobs`'s amplitude: the linear one, then the fixed point where an effect depends
+    on it, and the lowest root where that does not settle."""
     amp = solve(f, vpp, t_all, measured, np.zeros_like(f))
     if amp_dep:
         amp = _fixed_point(lambda x: solve(f, vpp, t_all, measured, x), amp, iterations)
@@ -267,11 +362,7 @@ def steady_knobs(
             amp[bad] = _lowest_root(
                 lambda x, j: solve(fb[j], vb[j], tb[j], None if mb is None else mb[j], x), amp[bad]
             )
-    k = knobs(f, vpp, t_all, phi * amp, None if measured is None else np.broadcast_to(measured, f.shape))
-    kk = Knobs(
-        **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
-    )
-    return kk, amp
+    return amp
 
 
 def _fixed_point(g: Callable[[FloatArray], FloatArray], amp: FloatArray, iterations: int) -> FloatArray:
