@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from ..diagnosis.paper import PAPER_MAX_TPW
 from ..errors import PiezofinError
 from ..files import save_figure
 from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
@@ -105,6 +104,8 @@ def compute(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def table(r: dict[str, Any]) -> str:
+    from ..diagnosis.paper import PAPER_MAX_TPW  # (scipy.stats and .optimize: a second, for one number)
+
     labels = list(next(iter(r["watts"].values())))
     width = max(22, *(len(x) + 2 for x in labels))
     lines = [
@@ -137,6 +138,8 @@ def plot(r: dict[str, Any], path: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from ..diagnosis.paper import PAPER_MAX_TPW
 
     labels = list(next(iter(r["curves"].values())))
     # one log scale for every panel: the watts differ 5 to 5,000 times, and the panels show by how much

@@ -31,7 +31,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize, stats
 
 from ..errors import DiagnosisError
 from ..physics.amplifier import PAPER_BENCH
@@ -233,6 +232,8 @@ class Hypothesis:
 
     @property
     def p_value(self) -> float:
+        from scipy import stats  # (here: the paper's constants are read by every command line's parser)
+
         return float(stats.chi2.sf(self.chi2, max(len(FACTS) - self.k, 1)))
 
     @property
@@ -260,6 +261,8 @@ def fit_hypothesis(definition: str, names: tuple[str, ...], fins: Fins | None = 
         return np.where(np.isfinite(r), r, 1e3)
 
     if names:
+        from scipy import optimize
+
         first = next(iter(spaces.values()))
         zlo, zhi = first.z_bounds
         best = None
