@@ -608,9 +608,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     import time
 
     from ..bags import BagError
-    from ..diagnosis.attribute import diagnose, summary_json
     from ..diagnosis.data import DataError, from_bags, from_csv
-    from ..diagnosis.report import text, write
     from ..physics.amplifier import AmplifierError, load_amplifier
 
     fin = _load(args.fin, None)
@@ -664,6 +662,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
             for line in skipped:
                 print(f"skipped {line}", file=sys.stderr)
         say(f"{len(trials)} trials; checking each stage, then fitting the candidate effects")
+        # (the fits' modules, scipy.stats and .optimize, a second: after the data, so that a file
+        # refused is refused at once)
+        from ..diagnosis.attribute import diagnose, summary_json
+        from ..diagnosis.report import text, write
+
         d = diagnose(trials, fin, progress=say)
     except (BagError, DataError) as exc:
         raise UsageError(str(exc)) from None

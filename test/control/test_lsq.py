@@ -28,6 +28,7 @@ def scipy_solve(fun: Any, x0: Any, lower: Any, upper: Any, scale: Any, max_nfev:
     return Solution(r.x, r.fun, float(r.cost), int(r.nfev), str(r.status))
 
 
+@pytest.mark.fast_cases("a fish, more drag")  # (each case 4-6 s: the others in the whole suite)
 @pytest.mark.parametrize(
     ("plant", "settings_"),
     [
