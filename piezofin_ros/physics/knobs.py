@@ -26,7 +26,7 @@ FloatArray = NDArray[Any]
 #: equations above).  An effect that sets one of these alone (its ``target``) leaves the amplitude
 #: as it was, so :func:`~piezofin_ros.physics.model.steady_knobs` reuses the amplitude it solved
 #: without it (a fit's columns in the capacitance, the losses and the load cell's gain).
-#: ``test_model.py`` holds each to it.
+#: ``test/physics/test_solved.py`` holds each to it.
 UNREAD_BY_AMPLITUDE = frozenset(
     {
         "capacitance",
