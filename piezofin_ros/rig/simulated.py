@@ -33,6 +33,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import signal
 
 from ..config import HARD_VOLTAGE_PP_MAX, HARD_VOLTAGE_WINDOW_V, setting
 from ..errors import RigError
@@ -449,8 +450,6 @@ class SimulatedRig:
         fs = self.config.sample_rate_hz
         wc = 2 * math.pi * self.config.loadcell_fn_hz
         num, den = [wc**2], [1.0, 2 * self.config.loadcell_zeta * wc, wc**2]
-        from scipy import signal  # (a second: here, so that a node refusing its settings exits at once)
-
         bz, az, _ = signal.cont2discrete((num, den), 1.0 / fs, method="bilinear")
         self._lc_b, self._lc_a = np.ravel(bz), np.ravel(az)
         self._lc_zi = np.zeros(2)
@@ -622,8 +621,6 @@ class SimulatedRig:
             # the offset the baselines miss comes with the burst: scaled by the drive's envelope
             on = np.minimum(amp_nodes[2 * substeps :: 2 * substeps] / (0.5 * self._knobs_at[1]), 1.0)
             reading = reading + float(kn.thrust_bias_n) * on
-        from scipy import signal  # (imported by the constructor: a lookup)
-
         force_filtered, self._lc_zi = signal.lfilter(self._lc_b, self._lc_a, reading, zi=self._lc_zi)
         x = force_filtered / cfg.loadcell_stiffness + cfg.loadcell_drift_m_per_s * (t - self._t0)
         rng = self._rng
