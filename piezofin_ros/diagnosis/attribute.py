@@ -44,7 +44,7 @@ from scipy import optimize, stats
 
 from ..physics.effects import LIBRARY, effect_class
 from ..physics.fin import Fin
-from ..physics.model import Model
+from ..physics.model import Model, for_many_predictions
 from .data import CHANNELS, Trials, conventions
 from .space import ParamSpace
 from .stages import Resonance, StageGap, resonances, stage_gaps
@@ -635,6 +635,7 @@ def diagnose(
         material_sigma,
     )
     w = Work(trials, fin, settings, progress or (lambda _msg: None))
+    for_many_predictions()
     for _name, step in PIPELINE:
         step(w)
     return Diagnosis(

@@ -26,7 +26,7 @@ import functools
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,7 @@ from ..errors import DiagnosisError
 from ..physics.amplifier import PAPER_BENCH
 from ..physics.effects import LIBRARY, effect_class
 from ..physics.fin import Fin, load_fin
-from ..physics.model import Model, Prediction
+from ..physics.model import Model, Prediction, for_many_predictions
 from ..workers import run_tasks
 from .space import ParamSpace
 
@@ -172,9 +172,12 @@ def quantities(models: dict[str, Model], definition: str, fins: Fins) -> dict[st
     bands: dict[str, float] = {}
     p_res: dict[str, float] = {}
     for nm, model in models.items():
-        f = fins.grid(nm)
+        f, fl = fins.grid(nm), fins.low_grid(nm)
+        # one prediction for the sweep at 800 Vpp and the low drive's (100 Vpp) around resonance:
+        # a model's cost is mostly per call, not per point
+        both = model.predict(np.concatenate([f, fl]), np.repeat([800.0, 100.0], [f.size, fl.size]))
+        p, low = _part(both, slice(0, f.size)), _part(both, slice(f.size, None))
         v = np.full(f.size, 800.0)
-        p = model.predict(f, v)
         power = power_of(p, v)
         tpw = np.divide(p.thrust_n, power, out=np.zeros(f.size), where=power > 0)
         f_res = _peak(f, np.asarray(p.tip_velocity_rms))
@@ -184,8 +187,6 @@ def quantities(models: dict[str, Model], definition: str, fins: Fins) -> dict[st
         lo, hi = half_max_band(f, tpw)
         bands[nm] = (hi - lo) / _peak(f, tpw) if math.isfinite(lo) else math.nan
         # c_m: the in-water resonance at a low drive (100 Vpp) against the nominal model's
-        fl = fins.low_grid(nm)
-        low = model.predict(fl, np.full(fl.size, 100.0))
         out[f"c_m_{nm}"] = _peak(fl, np.asarray(low.tip_velocity_rms)) / fins.low_peak(nm)
     for nm in ("M8528-P1", "M8514-P1"):
         out[f"power_ratio_{nm}"] = p_res[nm] / p_res["M8507-P1"] if p_res["M8507-P1"] > 0 else math.inf
@@ -197,6 +198,12 @@ def quantities(models: dict[str, Model], definition: str, fins: Fins) -> dict[st
         else 1.0  # no peak of T/P inside the band: no band to order
     )
     return out
+
+
+def _part(p: Prediction, part: slice) -> Prediction:
+    """The prediction at a slice of its points."""
+    arrays = {f.name: getattr(p, f.name) for f in fields(p)}
+    return replace(p, **{name: x[part] for name, x in arrays.items() if x is not None})
 
 
 def _residuals(q: dict[str, float]) -> FloatArray:
@@ -248,6 +255,7 @@ class Hypothesis:
 def fit_hypothesis(definition: str, names: tuple[str, ...], fins: Fins | None = None) -> Hypothesis:
     """The effects' parameters (shared by the three fins) that best reproduce every fact."""
     fins = fins or _fins()
+    for_many_predictions()
     spaces = {nm: ParamSpace(fin, names) for nm, fin in fins.fins.items()}
 
     def evaluate(z: FloatArray) -> dict[str, float]:

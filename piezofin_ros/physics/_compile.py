@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import os
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -42,4 +43,18 @@ def njit(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     return decorate
 
 
-__all__ = ["NUMBA", "njit"]
+def compiled_newton() -> bool:
+    """Whether the steady amplitude's Newton iteration runs compiled: where numba is already loaded in
+    this process (a command line that called a compiled loop, or :func:`load`), never in a node that
+    has not (numba costs it 60 MB).  Both paths give the same amplitudes, bit for bit."""
+    return NUMBA and "numba" in sys.modules
+
+
+def load() -> None:
+    """Load numba now (for a long computation: the steady amplitude's Newton iteration then runs
+    compiled, :func:`compiled_newton`)."""
+    if NUMBA:
+        import numba  # noqa: F401
+
+
+__all__ = ["NUMBA", "compiled_newton", "load", "njit"]

@@ -52,7 +52,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import PhysicsError
-from ._compile import NUMBA, njit
+from ._compile import NUMBA, compiled_newton, njit
 from .fin import Fin
 from .knobs import Knobs
 from .modeshape import phi_hat
@@ -236,6 +236,11 @@ def solve_amplitude(
     live = force > 0
     amp = np.where(live, amp, 0.0)
     aa = a * a
+    if compiled_newton():
+        out = np.array(amp, dtype=float)  # (a copy, C-ordered, of its shape: 0-d stays 0-d)
+        flat = out.reshape(-1)  # (a view: the kernel writes into out)
+        _newton_kernel(*(np.ravel(x) for x in (aa, c0, k, force, live)), flat, max_iter)
+        return out
     for _ in range(max_iter):
         d = c0 + k * amp
         s = aa + d * d
@@ -247,6 +252,36 @@ def solve_amplitude(
         if not np.any(np.abs(step) > 1e-15 * amp):
             break
     return amp
+
+
+@njit(cache=True)
+def _newton_kernel(
+    aa: FloatArray,
+    c0: FloatArray,
+    k: FloatArray,
+    force: FloatArray,
+    live: Any,
+    amp: FloatArray,
+    max_iter: int,
+) -> None:  # pragma: no cover - compiled; solve_amplitude's loop, step for step and stopped as it stops
+    n = amp.size
+    step = np.zeros(n)
+    for _ in range(max_iter):
+        going = False
+        for p in range(n):
+            if live[p]:
+                d = c0[p] + k[p] * amp[p]
+                s = aa[p] + d * d
+                g = amp[p] * amp[p] * s - force[p] * force[p]
+                gp = 2.0 * amp[p] * (s + amp[p] * d * k[p])
+                step[p] = g / gp
+            else:
+                step[p] = 0.0
+            amp[p] = amp[p] - step[p]
+            if abs(step[p]) > 1e-15 * amp[p]:
+                going = True
+        if not going:
+            break
 
 
 @njit(cache=True)
