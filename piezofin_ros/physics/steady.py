@@ -52,7 +52,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import PhysicsError
-from ._compile import NUMBA, compiled_newton, njit
+from ._compile import compiled_newton, njit
 from .fin import Fin
 from .knobs import Knobs
 from .modeshape import phi_hat
@@ -341,7 +341,9 @@ def harmonic_balance(
     ``frequency_hz`` and ``voltage_pp`` broadcast (e.g. a column of frequencies against a
     row of voltages gives the whole map).  ``U`` is the swimming speed used in Eq. (19).
     ``compiled=False`` uses the numpy implementation (:func:`solve_amplitude`) instead of the
-    numba loop; both run the same Newton iteration and agree to round-off.
+    numba loop; both run the same Newton iteration and agree to round-off.  The loop runs compiled
+    only where numba is already loaded (:func:`~._compile.compiled_newton`): loading it costs
+    0.75 s, and numpy solves a sweep of ten thousand points in milliseconds.
     """
     if harmonics < 1:
         raise PhysicsError(f"harmonics must be >= 1, got {harmonics}")
@@ -355,7 +357,7 @@ def harmonic_balance(
     omega = 2.0 * np.pi * f
     amp_v = 0.5 * vpp
     force = fin.theta * amp_v
-    if compiled and NUMBA:
+    if compiled and compiled_newton():
         h0, h1 = np.empty(f.shape), np.empty(f.shape)  # Fin validation guarantees zeta > 0
         _single_term_kernel(
             np.ravel(omega),

@@ -121,7 +121,10 @@ def test_multi_harmonic_reduces_to_single_term_without_drag(paper_fin: Fin) -> N
     assert_allclose(three.b[..., 1:], 0.0, atol=1e-18)
 
 
+@pytest.mark.skipif(not NUMBA, reason="numba is not installed: only the numpy path exists")
 def test_compiled_and_numpy_paths_agree(paper_fin: Fin) -> None:
+    _compile.load()  # (compiled where numba is loaded)
+    assert _compile.compiled_newton()
     fast = harmonic_balance(paper_fin, BAND, VOLTAGES)
     slow = harmonic_balance(paper_fin, BAND, VOLTAGES, compiled=False)
     assert_allclose(fast.a, slow.a, rtol=1e-13, atol=1e-13 * np.max(np.abs(slow.a)))
