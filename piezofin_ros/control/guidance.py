@@ -5,8 +5,11 @@ ch. 10.3): on the leg from waypoint ``p_k`` to ``p_k+1`` (its angle ``a_k``), th
 lies ``s`` along the leg and ``e`` across it (to port positive).  It steers for a point a lookahead
 ``D`` ahead on the leg: the heading asked is ``a_k - atan(e / D)``, and the yaw rate asked turns the
 heading error ``wrap(psi_d - psi)`` away at the gain ``k`` (1/s), within the yaw rate the fish can
-give each way.  A waypoint is reached within the acceptance radius, or once the fish is past it
-along its leg; then the next leg.  The course's last waypoint reached, it is done.
+give each way.  A waypoint is reached within the acceptance radius (at least the tightest turn to
+port, where the turn's arc begins), widened by the distance the fish swims in ``turn_lead_s`` (its
+heading answers the rate asked with a lag of about ``1 / k``: the turn begins that much later), or
+once the fish is past it along its leg; then the next leg.  The course's last waypoint reached, it is
+done.
 """
 
 from __future__ import annotations
@@ -55,6 +58,10 @@ class LineOfSight:
     gain_per_s: float = 0.1
     port_radius_m: float = 2.5  # the tightest turn asked each way, m (module docstring)
     starboard_radius_m: float = 20.0
+    #: (half the heading's lag at the default gain: a 20 m square swum 0.16-0.19 m off RMS by the
+    #: twins, 0.23-0.28 m with no lead; the whole lag, 10 s, overshot M8528-P1's corners inward,
+    #: benchmarks/bench_course.py)
+    turn_lead_s: float = 5.0
     leg: int = 1  # heading for waypoints[leg], from waypoints[leg - 1]
     done: bool = False
     _lengths: list[float] = field(init=False, repr=False)
@@ -75,6 +82,9 @@ class LineOfSight:
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
                 raise GuidanceError(f"{name} = {x!r} must be a finite number > 0")
+        x = self.turn_lead_s
+        if not (isinstance(x, (int, float)) and math.isfinite(x) and x >= 0):
+            raise GuidanceError(f"turn_lead_s = {x!r} must be a finite number >= 0")
         self.waypoints = [(float(x), float(y)) for x, y in points]
         self._lengths = [math.dist(self.waypoints[k - 1], self.waypoints[k]) for k in range(1, len(points))]
 
@@ -112,7 +122,7 @@ class LineOfSight:
         the last)."""
         if not all(math.isfinite(v) for v in (x, y, heading_rad, speed_m_s)):
             raise GuidanceError(f"the fish at ({x!r}, {y!r}) heading {heading_rad!r}: not a pose")
-        accept = max(self.acceptance_m, self.port_radius_m)
+        accept = max(self.acceptance_m, self.port_radius_m) + self.turn_lead_s * abs(speed_m_s)
         while not self.done:
             here = self.where(x, y)
             past = here.along_m >= self._lengths[self.leg - 1]

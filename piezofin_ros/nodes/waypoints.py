@@ -84,6 +84,13 @@ class WaypointsConfig:
         0.01,
         1e4,
     )
+    turn_lead_s: float = setting(
+        5.0,
+        "each turn begins earlier by the distance swum in this time, s (the heading's lag: half of "
+        "1 / gain_per_s)",
+        0.0,
+        1e3,
+    )
     rate_hz: float = setting(10.0, "how often cmd_vel is sent, Hz (node clock)", 0.5, 100.0)
     frame_id: str = setting("odom", "the frame of the course and the markers")
 
@@ -165,7 +172,13 @@ class WaypointsNode(Node):
     def _course(self, points: list[tuple[float, float]]) -> LineOfSight:
         c = self.config
         return LineOfSight(
-            points, c.lookahead_m, c.acceptance_m, c.gain_per_s, c.port_radius_m, c.starboard_radius_m
+            points,
+            c.lookahead_m,
+            c.acceptance_m,
+            c.gain_per_s,
+            c.port_radius_m,
+            c.starboard_radius_m,
+            c.turn_lead_s,
         )
 
     def _path_course(self, msg: Any) -> LineOfSight:

@@ -41,6 +41,13 @@ def test_a_setting_that_is_none_is_refused_naming_it(field: str, value: float) -
         LineOfSight(square(10.0), **{field: value})
 
 
+@pytest.mark.parametrize("value", [-1.0, math.nan, math.inf, "5"])
+def test_a_turn_lead_that_is_none_is_refused_naming_it(value: object) -> None:
+    with pytest.raises(GuidanceError, match="turn_lead_s"):
+        LineOfSight(square(10.0), turn_lead_s=value)  # type: ignore[arg-type]
+    assert LineOfSight(square(10.0), turn_lead_s=0.0).turn_lead_s == 0.0  # (no lead: the turn at R)
+
+
 def test_the_line_of_sight_is_the_legs_angle_less_the_offset_over_the_lookahead() -> None:
     los = LineOfSight([(0.0, 0.0), (10.0, 0.0), (10.0, 10.0)], lookahead_m=2.0, gain_per_s=0.1)
     leg = los.where(3.0, 1.0)  # 3 m along, 1 m to port
@@ -50,7 +57,9 @@ def test_the_line_of_sight_is_the_legs_angle_less_the_offset_over_the_lookahead(
     assert rate == pytest.approx(-0.1 / 20.0)  # (to starboard: as tight as its 20 m radius allows)
     rate, _ = los.update(3.0, -0.1, 0.0, speed_m_s=0.1)
     assert rate == pytest.approx(0.1 * math.atan(0.05))  # (a small error: the gain's)
-    los.update(8.5, 0.0, 0.0, speed_m_s=0.1)  # within the 2.5 m port radius of the corner: next leg
+    los.update(6.9, 0.0, 0.0, speed_m_s=0.1)  # 3.1 m before the corner: at 10 cm/s the turn begins at 3
+    assert los.leg == 1
+    los.update(6.9, 0.0, 0.0, speed_m_s=0.2)  # at 20 cm/s, the 2.5 m turn begins 1 m earlier: next leg
     assert los.leg == 2 and not los.done
     rate, _ = los.update(10.0, 9.0, math.pi / 2, speed_m_s=0.1)
     assert los.done and rate == 0.0
