@@ -71,8 +71,8 @@ def test_a_fish_steered_by_its_offset_swims_a_square_within_a_body_length() -> N
     """The issue's goal on a 20 m square (about ten turning radii; a smaller one cannot be held: a
     corner cut on a 2.5 m circle lies 1 m off): the fish swims it, steered by its fin's offset alone,
     off the course by less than its 25 cm length RMS, at the paper's point (5.5 Hz, 800 Vpp: 5.5 cm/s;
-    0.19 m RMS, and 1.28 J/m of the amplifier's draw, as benchmarks/bench_course.py's fixed drives
-    measure it)."""
+    0.16 m RMS, 0.19 m with no turn lead, and 1.27 J/m of the amplifier's draw, as
+    benchmarks/bench_course.py's fixed drives measure it)."""
     fin, body = load_fin("M8528-P1"), load_body("mfc-fish")
     amplifier, drive = load_amplifier("fish-switching"), FixedDrive(5.5, 800.0)
     run = swim_course(Model(fin), body, amplifier, LineOfSight(square(20.0)), drive)
