@@ -14,7 +14,6 @@ from __future__ import annotations
 import functools
 import importlib.util
 import os
-import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -43,18 +42,26 @@ def njit(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     return decorate
 
 
+#: set by :func:`load`: a long computation asked for the compiled steady solutions
+_ASKED = False
+
+
 def compiled_newton() -> bool:
-    """Whether the steady amplitude's Newton iteration runs compiled: where numba is already loaded in
-    this process (a command line that called a compiled loop, or :func:`load`), never in a node that
-    has not (numba costs it 60 MB).  Both paths give the same amplitudes, bit for bit."""
-    return NUMBA and "numba" in sys.modules
+    """Whether the steady amplitude's Newton iterations run compiled: once a long computation asked
+    for them (:func:`load`), never otherwise.  Numba loaded for the time-domain loop alone (``fin_sim``)
+    does not switch them: a first call compiles for up to a second, which a live node must not spend
+    in its loop.  Both paths give the same amplitudes, bit for bit."""
+    return NUMBA and _ASKED
 
 
 def load() -> None:
-    """Load numba now (for a long computation: the steady amplitude's Newton iteration then runs
-    compiled, :func:`compiled_newton`)."""
+    """Load numba now and run the steady solutions compiled from here on (:func:`compiled_newton`),
+    for a long computation: a diagnosis, the paper's fits."""
+    global _ASKED
     if NUMBA:
         import numba  # noqa: F401
+
+        _ASKED = True
 
 
 __all__ = ["NUMBA", "compiled_newton", "load", "njit"]

@@ -296,8 +296,8 @@ _SOLVED = _Solved()
 
 def for_many_predictions() -> None:
     """Before a long run of predictions (a diagnosis's or the paper's fits): the steady amplitude's
-    Newton iteration then runs compiled (numba, loaded now: 60 MB and under a second), a quarter
-    less time per fit, the same amplitudes bit for bit.  A node never calls it."""
+    Newton iteration then runs compiled in this process (numba, loaded now: 60 MB and under a second),
+    a quarter less time per fit, the same amplitudes bit for bit.  A node never calls it."""
     _load_compiler()
 
 

@@ -342,8 +342,8 @@ def harmonic_balance(
     row of voltages gives the whole map).  ``U`` is the swimming speed used in Eq. (19).
     ``compiled=False`` uses the numpy implementation (:func:`solve_amplitude`) instead of the
     numba loop; both run the same Newton iteration and agree to round-off.  The loop runs compiled
-    only where numba is already loaded (:func:`~._compile.compiled_newton`): loading it costs
-    0.75 s, and numpy solves a sweep of ten thousand points in milliseconds.
+    only once a long computation asked for it (:func:`~._compile.compiled_newton`): loading numba
+    costs 0.75 s, and numpy solves a sweep of ten thousand points in milliseconds.
     """
     if harmonics < 1:
         raise PhysicsError(f"harmonics must be >= 1, got {harmonics}")
