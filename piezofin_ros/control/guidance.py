@@ -5,11 +5,14 @@ ch. 10.3): on the leg from waypoint ``p_k`` to ``p_k+1`` (its angle ``a_k``), th
 lies ``s`` along the leg and ``e`` across it (to port positive).  It steers for a point a lookahead
 ``D`` ahead on the leg: the heading asked is ``a_k - atan(e / D)``, and the yaw rate asked turns the
 heading error ``wrap(psi_d - psi)`` away at the gain ``k`` (1/s), within the yaw rate the fish can
-give each way.  A waypoint is reached within the acceptance radius (at least the tightest turn to
-port, where the turn's arc begins), widened by the distance the fish swims in ``turn_lead_s`` (its
-heading answers the rate asked with a lag of about ``1 / k``: the turn begins that much later), or
-once the fish is past it along its leg; then the next leg.  The course's last waypoint reached, it is
-done.
+give each way.  ``k`` is ``gain_per_s``, or the speed over ``heading_distance_m`` where that is more:
+a fast fish turns its heading within the same distance swum as a slow one, not within the same
+time (at 0.1/s a fish at 18 cm/s swam 1.8 m per time constant, finished each corner 0.6 m outside the
+next leg and took 8 m to come back).  A waypoint is reached within the acceptance radius (at least
+the tightest turn to port, where the turn's arc begins), widened by ``turn_lead`` of the distance the
+fish swims in ``1 / k`` (its heading answers the rate asked with that lag: the turn begins that much
+later), or once the fish is past it along its leg; then the next leg.  The course's last waypoint
+reached, it is done.
 """
 
 from __future__ import annotations
@@ -58,10 +61,12 @@ class LineOfSight:
     gain_per_s: float = 0.1
     port_radius_m: float = 2.5  # the tightest turn asked each way, m (module docstring)
     starboard_radius_m: float = 20.0
-    #: (half the heading's lag at the default gain: a 20 m square swum 0.16-0.19 m off RMS by the
-    #: twins, 0.23-0.28 m with no lead; the whole lag, 10 s, overshot M8528-P1's corners inward,
-    #: benchmarks/bench_course.py)
-    turn_lead_s: float = 5.0
+    #: (0.75 m: the distance a 7.5 cm/s fish swims in 1 / gain_per_s at the default gain; a fixed
+    #: 0.2/s instead left the slow twins 0.43-0.64 m off a 20 m square, benchmarks/bench_course.py)
+    heading_distance_m: float = 0.75
+    #: (half the heading's lag: a 20 m square swum 0.16-0.19 m off RMS by the twins, 0.23-0.28 m with
+    #: no lead; the whole lag overshot M8528-P1's corners inward, 0.19 m)
+    turn_lead: float = 0.5
     leg: int = 1  # heading for waypoints[leg], from waypoints[leg - 1]
     done: bool = False
     _lengths: list[float] = field(init=False, repr=False)
@@ -78,13 +83,13 @@ class LineOfSight:
         for k in range(1, len(points)):
             if math.dist(points[k - 1], points[k]) < 1e-6:
                 raise GuidanceError(f"waypoints[{k}] = {points[k]!r} repeats the point before it: no leg")
-        for name in ("lookahead_m", "acceptance_m", "gain_per_s", "port_radius_m", "starboard_radius_m"):
+        positive = ("lookahead_m", "acceptance_m", "gain_per_s", "port_radius_m", "starboard_radius_m")
+        for name in (*positive, "heading_distance_m", "turn_lead"):
             x = getattr(self, name)
-            if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
-                raise GuidanceError(f"{name} = {x!r} must be a finite number > 0")
-        x = self.turn_lead_s
-        if not (isinstance(x, (int, float)) and math.isfinite(x) and x >= 0):
-            raise GuidanceError(f"turn_lead_s = {x!r} must be a finite number >= 0")
+            number = isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            if not (number and (x > 0 if name in positive or name == "heading_distance_m" else x >= 0)):
+                least = "> 0" if name != "turn_lead" else ">= 0"
+                raise GuidanceError(f"{name} = {x!r} must be a finite number {least}")
         self.waypoints = [(float(x), float(y)) for x, y in points]
         self._lengths = [math.dist(self.waypoints[k - 1], self.waypoints[k]) for k in range(1, len(points))]
 
@@ -105,6 +110,10 @@ class LineOfSight:
             best = min(best, math.hypot(x - (x0 + u * (x1 - x0)), y - (y0 + u * (y1 - y0))))
         return best
 
+    def gain_at(self, speed_m_s: float) -> float:
+        """The yaw rate asked per radian of heading error at ``speed_m_s``, 1/s (module docstring)."""
+        return max(self.gain_per_s, abs(speed_m_s) / self.heading_distance_m)
+
     def where(self, x: float, y: float) -> Leg:
         """The fish at ``(x, y)`` against its present leg."""
         (x0, y0), (x1, y1) = self.waypoints[self.leg - 1], self.waypoints[self.leg]
@@ -122,7 +131,8 @@ class LineOfSight:
         the last)."""
         if not all(math.isfinite(v) for v in (x, y, heading_rad, speed_m_s)):
             raise GuidanceError(f"the fish at ({x!r}, {y!r}) heading {heading_rad!r}: not a pose")
-        accept = max(self.acceptance_m, self.port_radius_m) + self.turn_lead_s * abs(speed_m_s)
+        gain = self.gain_at(speed_m_s)
+        accept = max(self.acceptance_m, self.port_radius_m) + self.turn_lead * abs(speed_m_s) / gain
         while not self.done:
             here = self.where(x, y)
             past = here.along_m >= self._lengths[self.leg - 1]
@@ -135,6 +145,6 @@ class LineOfSight:
         here = self.where(x, y)
         if self.done:
             return 0.0, here
-        rate = self.gain_per_s * wrap(here.heading_rad - heading_rad)
+        rate = gain * wrap(here.heading_rad - heading_rad)
         u = max(abs(speed_m_s), 0.01)  # (from rest: as at 1 cm/s)
         return min(max(rate, -u / self.starboard_radius_m), u / self.port_radius_m), here

@@ -71,7 +71,9 @@ class WaypointsConfig:
     acceptance_m: float = setting(
         2.0, "a waypoint is reached within this distance (about the turning radius), m", 0.01, 1e4
     )
-    gain_per_s: float = setting(0.1, "the yaw rate asked per radian of heading error, 1/s", 1e-4, 100.0)
+    gain_per_s: float = setting(
+        0.1, "the yaw rate asked per radian of heading error, 1/s (at least)", 1e-4, 100.0
+    )
     port_radius_m: float = setting(
         2.5,
         "the tightest turn to port asked, m (the paper's twin turns on 1.8 m at its offset's edge)",
@@ -84,12 +86,19 @@ class WaypointsConfig:
         0.01,
         1e4,
     )
-    turn_lead_s: float = setting(
-        5.0,
-        "each turn begins earlier by the distance swum in this time, s (the heading's lag: half of "
-        "1 / gain_per_s)",
+    heading_distance_m: float = setting(
+        0.75,
+        "a faster fish turns its heading error away within this distance swum: the gain is at least "
+        "the speed over it, m",
+        0.01,
+        1e4,
+    )
+    turn_lead: float = setting(
+        0.5,
+        "each turn begins earlier by this share of the distance the fish swims in 1 / the gain (its "
+        "heading's lag)",
         0.0,
-        1e3,
+        10.0,
     )
     rate_hz: float = setting(10.0, "how often cmd_vel is sent, Hz (node clock)", 0.5, 100.0)
     frame_id: str = setting("odom", "the frame of the course and the markers")
@@ -178,7 +187,8 @@ class WaypointsNode(Node):
             c.gain_per_s,
             c.port_radius_m,
             c.starboard_radius_m,
-            c.turn_lead_s,
+            c.heading_distance_m,
+            c.turn_lead,
         )
 
     def _path_course(self, msg: Any) -> LineOfSight:

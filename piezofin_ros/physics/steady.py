@@ -254,7 +254,7 @@ def solve_amplitude(
     return amp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")  # (a division by zero gives inf, as numpy's, not an exception)
 def _newton_kernel(
     aa: FloatArray,
     c0: FloatArray,
