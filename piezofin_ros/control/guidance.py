@@ -62,7 +62,8 @@ class LineOfSight:
     port_radius_m: float = 2.5  # the tightest turn asked each way, m (module docstring)
     starboard_radius_m: float = 20.0
     #: (0.75 m: the distance a 7.5 cm/s fish swims in 1 / gain_per_s at the default gain; a fixed
-    #: 0.2/s instead left the slow twins 0.43-0.64 m off a 20 m square, benchmarks/bench_course.py)
+    #: 0.2/s instead put M8507-P1 0.43 m and M8514-P1 up to 0.64 m off a 20 m square,
+    #: benchmarks/bench_course.py)
     heading_distance_m: float = 0.75
     #: (half the heading's lag: a 20 m square swum 0.16-0.19 m off RMS by the twins, 0.23-0.28 m with
     #: no lead; the whole lag overshot M8528-P1's corners inward, 0.19 m)
