@@ -133,7 +133,7 @@ def test_compiled_and_numpy_paths_agree(paper_fin: Fin, monkeypatch: pytest.Monk
 
 @pytest.mark.skipif(not NUMBA, reason="numba is not installed: only the numpy path exists")
 def test_the_compiled_newton_gives_the_numpy_amplitudes_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``solve_amplitude``'s compiled loop (used where numba is loaded: ``for_many_predictions``) stops
+    """``solve_amplitude``'s compiled loop (once a long computation asks: ``for_many_predictions``) stops
     where the numpy loop stops and computes each step in the same order: the same bits, in every
     shape, with and without a guess, at zero drive, against a stiffness-, damping- or drag-free point;
     and so the same predictions of a model whose effects depend on the amplitude."""
