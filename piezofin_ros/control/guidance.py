@@ -84,13 +84,16 @@ class LineOfSight:
         for k in range(1, len(points)):
             if math.dist(points[k - 1], points[k]) < 1e-6:
                 raise GuidanceError(f"waypoints[{k}] = {points[k]!r} repeats the point before it: no leg")
-        positive = ("lookahead_m", "acceptance_m", "gain_per_s", "port_radius_m", "starboard_radius_m")
-        for name in (*positive, "heading_distance_m", "turn_lead"):
+        positive = (
+            "lookahead_m", "acceptance_m", "gain_per_s", "port_radius_m", "starboard_radius_m",
+            "heading_distance_m",
+        )  # fmt: skip
+        for name in (*positive, "turn_lead"):
             x = getattr(self, name)
             number = isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-            if not (number and (x > 0 if name in positive or name == "heading_distance_m" else x >= 0)):
-                least = "> 0" if name != "turn_lead" else ">= 0"
-                raise GuidanceError(f"{name} = {x!r} must be a finite number {least}")
+            least = ">" if name in positive else ">="
+            if not (number and (x > 0 if name in positive else x >= 0)):
+                raise GuidanceError(f"{name} = {x!r} must be a finite number {least} 0")
         self.waypoints = [(float(x), float(y)) for x, y in points]
         self._lengths = [math.dist(self.waypoints[k - 1], self.waypoints[k]) for k in range(1, len(points))]
 

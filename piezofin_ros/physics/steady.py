@@ -264,21 +264,16 @@ def _newton_kernel(
     amp: FloatArray,
     max_iter: int,
 ) -> None:  # pragma: no cover - compiled; solve_amplitude's loop, step for step and stopped as it stops
-    n = amp.size
-    step = np.zeros(n)
     for _ in range(max_iter):
         going = False
-        for p in range(n):
+        for p in range(amp.size):
+            step = 0.0
             if live[p]:
                 d = c0[p] + k[p] * amp[p]
                 s = aa[p] + d * d
-                g = amp[p] * amp[p] * s - force[p] * force[p]
-                gp = 2.0 * amp[p] * (s + amp[p] * d * k[p])
-                step[p] = g / gp
-            else:
-                step[p] = 0.0
-            amp[p] = amp[p] - step[p]
-            if abs(step[p]) > 1e-15 * amp[p]:
+                step = (amp[p] * amp[p] * s - force[p] * force[p]) / (2.0 * amp[p] * (s + amp[p] * d * k[p]))
+            amp[p] = amp[p] - step
+            if abs(step) > 1e-15 * amp[p]:
                 going = True
         if not going:
             break
