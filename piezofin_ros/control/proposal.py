@@ -116,7 +116,7 @@ def candidate(opt: ProposalInputs, inc: Point | None = None) -> Point | None:
     """The best point whose one trial meets the task and would beat the incumbent, if any, and
     that the map does not expect to beat by more than 5 % (the map's choice is tried first)."""
     best = opt.best_counted()
-    cap = math.inf if opt.demand_n is None else opt.demand_n * (1.0 + opt.overshoot_limit)
+    cap = math.inf if opt.demand_n is None else opt.demand_n * (1.0 + opt.overshoot_limit / 2)
     better = [c for c in opt.candidates if (best is None or c.score > best.score) and c.thrust_n <= cap]
     if not better or opt.choice is None:
         return None

@@ -13,8 +13,11 @@ a loop gain of 1/2, stable behind the optimising controller, which meets a new d
 trials, tens of seconds) and an integral that removes what the drag law gets wrong, winding only
 while the fin gives what is asked (the estimator's thrust at least 85 % of the demand), or, where no
 estimate has come in ``unjudged_after_s`` of its first set-point (a stack with no estimator, or a
-drive that never rests long enough for an estimator's window), as any PI loop winds.  Safe
-whatever it is fed:
+drive that never rests long enough for an estimator's window), as any PI loop winds.  Cautious by
+design (an integral time of 30 s behind trials of tens of seconds), the integral removes a drag law
+30 % off in 90-110 s; it winds ``steady_boost`` times faster while the speed's own trend would
+still leave it more than 2 % off (its lag is past: what is left is the drag law's error), which
+leaves a right drag law's steps as they were.  Safe whatever it is fed:
 
 * the demand stays within ``[min_demand_n, max_demand_n]`` while there is a set-point (the
   integral stops winding at either end; a demand never falls to 0, which the optimiser would read
@@ -33,7 +36,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..config import setting
+from ..config import setting, settings_of
 from ..errors import ControlError
 from ..physics.swim import SPEED_MOST_M_S, Body
 
@@ -73,6 +76,23 @@ class SpeedLoopConfig:
         3600.0,
     )
 
+    steady_boost: float = setting(
+        4.0,
+        "the integral winds this many times faster while the fish swims at a steady speed more than "
+        "2 % off its set-point with the fin giving what is asked: the speed's lag is past, what is "
+        "left is the drag law's error, which the cautious integral alone took 80-110 s to remove "
+        "(1: never)",
+        1.0,
+        20.0,
+    )
+    steady_s: float = setting(
+        10.0,
+        "a speed is steady while its reading low-passed over this long is within 1.5 % of the "
+        "set-point of the reading low-passed over filter_s, s",
+        1.0,
+        600.0,
+    )
+
     widen_after_s: float = setting(
         60.0,
         "saturated this long while the fin gives what is asked (by its estimate) and the fish is short "
@@ -106,6 +126,11 @@ class SpeedLoopConfig:
             raise ControlError(
                 f"speed loop: kp_n_per_m_s = {self.kp_n_per_m_s!r} must be >= 0 (0: the body's)"
             )
+        for f, _, s in settings_of(type(self)):  # (every other setting within its declared range)
+            x = getattr(self, f.name)
+            lo, hi = s.lo if s.lo is not None else -math.inf, s.hi if s.hi is not None else math.inf
+            if not (math.isfinite(x) and lo <= x <= hi):
+                raise ControlError(f"speed loop: {f.name} = {x!r} must be finite, within [{lo:g}, {hi:g}]")
 
 
 @dataclass
@@ -125,6 +150,8 @@ class SpeedLoop:
     _last_t: float = math.nan
     _first_t: float = math.nan  # (the first update with a set-point)
     _speed: float = math.nan
+    _speed_slow: float = math.nan  # (the reading low-passed over steady_s: is the speed steady?)
+    _off_since: float = math.nan  # (since when its trend leaves it off: see _boost)
     _speed_t: float = -math.inf
     _disagree_since: float = math.nan
     _thrust: float = math.nan  # the fin's estimated thrust (what it gives), N
@@ -168,11 +195,16 @@ class SpeedLoop:
         if not math.isfinite(speed_m_s) or not math.isfinite(t) or abs(speed_m_s) > SPEED_MOST_M_S:
             return False
         dt = t - self._speed_t
-        if self.config.filter_s > 0 and 0 <= dt <= self.config.sensor_timeout_s:
-            # (first order; a reading after a silence starts it afresh)
-            self._speed += dt / (self.config.filter_s + dt) * (float(speed_m_s) - self._speed)
+        x = float(speed_m_s)
+        fresh = 0 <= dt <= self.config.sensor_timeout_s  # (a reading after a silence starts afresh)
+        if fresh and self.config.filter_s > 0:  # (first order)
+            self._speed += dt / (self.config.filter_s + dt) * (x - self._speed)
         else:
-            self._speed = float(speed_m_s)
+            self._speed = x
+        if fresh:
+            self._speed_slow += dt / (self.config.steady_s + dt) * (x - self._speed_slow)
+        else:
+            self._speed_slow = x
         self._speed_t = float(t)
         return True
 
@@ -231,11 +263,25 @@ class SpeedLoop:
             self._first_t = t
         unjudged = not math.isfinite(self._thrust_t) and t - self._first_t >= cfg.unjudged_after_s
         if (delivered or unjudged) and (raw < cap or e < 0) and (raw > cfg.min_demand_n or e > 0):
-            self.integral_n += kp / cfg.ti_s * e * dt
+            self.integral_n += kp / cfg.ti_s * e * dt * self._boost(t, e)
         self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cap)
         self.kind, self.state = self._judge(t, e)
         self._widen(t, e, delivered)
         return self.demand_n
+
+    def _boost(self, t: float, e: float) -> float:
+        """How many times faster the integral winds now: ``steady_boost`` where the speed's trend,
+        carried on for twice ``steady_s``, still leaves it more than 2 % off on the same side (the
+        speed's lag is past: what is left is the drag law's), else 1."""
+        cfg = self.config
+        rate = (self._speed - self._speed_slow) / max(cfg.steady_s - cfg.filter_s, 1.0)
+        ahead = e - rate * 2.0 * cfg.steady_s
+        if not (abs(ahead) > 0.02 * self.setpoint_m_s and ahead * e > 0):
+            self._off_since = math.nan
+            return 1.0
+        if math.isnan(self._off_since):
+            self._off_since = t
+        return cfg.steady_boost if t - self._off_since >= cfg.steady_s else 1.0
 
     def _widen(self, t: float, e: float, delivered: bool) -> None:
         """A loop saturated while the fin gives what it asks (by the estimates) and the fish is still
