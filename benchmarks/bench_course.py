@@ -147,11 +147,11 @@ def table(results: list[dict[str, Any]]) -> str:
         least = min(fixed) if fixed else math.nan
         for r in rows:
             c: CourseRun = r["run"]
+            vs = f"{c.joules_per_m_all / least - 1:+.1%}" if fixed else "no fixed drive run"
             lines.append(
                 f"| {name} | {r['drive']} | {r['point']} | {'yes' if c.done else 'no'} | {c.time_s:.0f} s | "
                 f"{c.speed_m_s * 100:.1f} cm/s | {c.off_course_rms_m:.2f} m / {c.off_course_max_m:.2f} m | "
-                f"{c.joules_per_m:.2f} J/m | {c.joules_per_m_all:.2f} J/m "
-                f"({c.joules_per_m_all / least - 1:+.1%}) | "
+                f"{c.joules_per_m:.2f} J/m | {c.joules_per_m_all:.2f} J/m ({vs}) | "
                 f"{c.range_m / 1000:.2f} km |"
             )
     return "\n".join(lines)

@@ -81,7 +81,7 @@ from .thrustmap import Choice, OperatingBox, Surface, best, frontier, surface
 from .tuning import Tuning
 
 #: Trials the corrected model must fit before it calibrates an estimator's self-sensing (a wrong prior
-#: is dropped at the fourth at the earliest: ``Optimiser._check_prior``).
+#: may be dropped earlier: ``Tuning.prior_drop_after``, ``Optimiser._check_prior``).
 CALIBRATES_AFTER = 4
 
 __all__ = [  # (the rooms' types the optimiser's users meet, re-exported)
@@ -287,7 +287,7 @@ class Optimiser:
     def _check_prior(self) -> None:
         """Drop a given ``model`` the trials contradict (``prior_drop_ratio``), saying so once."""
         n = len(self.observations)
-        if self.model is None or n < 4 or self.fit.chi2 <= 1.0:
+        if self.model is None or n < self.tuning.prior_drop_after or self.fit.chi2 <= 1.0:
             return  # (within the noise: nothing contradicts it)
         plain = replace(self.problem, base=None).fit(self.observations, Correction())
         if plain.chi2 * self.tuning.prior_drop_ratio < self.fit.chi2:

@@ -89,15 +89,21 @@ def test_a_fish_steered_by_its_offset_swims_a_square_within_a_body_length() -> N
 
 
 @pytest.mark.slow
-def test_the_optimiser_ranking_by_range_swims_the_square_as_cheaply_as_the_best_fixed_drive() -> None:
-    """Issue 42's range goal on the M8528-P1 twin (benchmarks/bench_course.py's runs): the optimising
-    controller, on the drive's voltage and current alone and ranking by speed per watt with the
-    battery's fixed draw (the cost of transport), swims the 20 m square within a body length at a
-    battery energy per metre within 5 % of the best fixed drive in truth (an oracle's point, chosen
-    on the fish in truth swimming straight; measured: +0.8 %), its exploration included."""
+@pytest.mark.parametrize("fish", ["M8528-P1", "stranger 2"])
+def test_the_optimiser_ranking_by_range_swims_the_square_as_cheaply_as_the_best_fixed_drive(
+    fish: str,
+) -> None:
+    """Issue 42's range goal (benchmarks/bench_course.py's runs): the optimising controller, on the
+    drive's voltage and current alone and ranking by speed per watt with the battery's fixed draw
+    (the cost of transport), swims the 20 m square within a body length at a battery energy per metre
+    within 5 % of the best fixed drive in truth (an oracle's point, chosen on the fish in truth
+    swimming straight), its exploration included. Measured: the M8528-P1 twin +0.9 %; stranger 2,
+    given the twin (its fin resonating at 9.3 Hz where the twin says 5.5), +4.9 %: +8.5 % while the
+    twin was dropped only at the fourth trial (``Tuning.prior_drop_after``), the fish at 4.6 Hz and
+    7 cm/s for its first 55 s."""
     from benchmarks.bench_course import BEST, RANGE, run
 
-    ours, best = (run(("M8528-P1", d, 20.0))["run"] for d in (RANGE, BEST))
+    ours, best = (run((fish, d, 20.0))["run"] for d in (RANGE, BEST))
     for r in (ours, best):
         assert r.done and r.off_course_rms_m <= 0.25, (r.done, r.off_course_rms_m)
     cost = (ours.joules_per_m_all, best.joules_per_m_all)
