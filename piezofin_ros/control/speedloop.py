@@ -78,17 +78,18 @@ class SpeedLoopConfig:
 
     steady_boost: float = setting(
         4.0,
-        "the integral winds this many times faster while the fish swims at a steady speed more than "
-        "2 % off its set-point with the fin giving what is asked: the speed's lag is past, what is "
-        "left is the drag law's error, which the cautious integral alone took 80-110 s to remove "
-        "(1: never)",
+        "the integral winds this many times faster while the speed's own trend would still leave it "
+        "more than 2 % off its set-point (steady_s), the fin giving what is asked: the speed's lag is "
+        "past, what is left is the drag law's error, which the cautious integral alone took 80-110 s "
+        "to remove (1: never)",
         1.0,
         20.0,
     )
     steady_s: float = setting(
         10.0,
-        "a speed is steady while its reading low-passed over this long is within 1.5 % of the "
-        "set-point of the reading low-passed over filter_s, s",
+        "the speed's trend is its reading low-passed over filter_s against the same over this long; "
+        "the integral winds steady_boost times faster once that trend, carried on for twice this "
+        "long, has left the speed more than 2 % off on the same side for this long, s",
         1.0,
         600.0,
     )
