@@ -16,6 +16,7 @@ the estimator's windows), which a node declares under a prefix (``rig.*``, ``lim
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import Field, dataclass, field, fields
 from typing import Any
@@ -41,6 +42,11 @@ class Setting:
     choices: tuple[str, ...] = ()  # the values a string may take
     items: type | None = None  # element type of a tuple (float or str): a ROS array parameter
     read_only: bool = False
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        """The inclusive range of a number, an open end infinite."""
+        return (-math.inf if self.lo is None else self.lo, math.inf if self.hi is None else self.hi)
 
 
 def setting(

@@ -129,7 +129,7 @@ class SpeedLoopConfig:
             )
         for f, _, s in settings_of(type(self)):  # (every other setting within its declared range)
             x = getattr(self, f.name)
-            lo, hi = s.lo if s.lo is not None else -math.inf, s.hi if s.hi is not None else math.inf
+            lo, hi = s.bounds
             if not (math.isfinite(x) and lo <= x <= hi):
                 raise ControlError(f"speed loop: {f.name} = {x!r} must be finite, within [{lo:g}, {hi:g}]")
 

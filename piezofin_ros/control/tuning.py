@@ -35,7 +35,7 @@ class Tuning:
     #: from this many trials on (the quiet identification trial and one more): at 4, stranger 2 of
     #: ``bench_course.py``, its fin resonating at 9.3 Hz where the twin given says 5.5, swam its first
     #: 55 s at 4.6 Hz (6.9 cm/s against 17.7) and paid 8.5 % more per metre than the best fixed drive;
-    #: at 2 it leaves 4.6 Hz at 29 s (+5 %).  No fish under a demand of ``bench_fish.py`` (the twins,
+    #: at 2 it leaves 4.6 Hz at 29 s (+4.9 %).  No fish under a demand of ``bench_fish.py`` (the twins,
     #: the 9 with an effect not told, the strangers) drops its prior otherwise than at 4
     prior_drop_after: int = 2
     #: a calibrating trial is taken when it shrinks the calibration's variance at the map's choice to

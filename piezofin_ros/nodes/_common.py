@@ -337,8 +337,7 @@ def declare(node: Node, cls: type[T], prefix: str = "", base: T | None = None) -
         name = f"{prefix}.{f.name}" if prefix else f.name
         if base is not None:
             default = getattr(base, f.name)
-        lo = -math.inf if s.lo is None else s.lo
-        hi = math.inf if s.hi is None else s.hi
+        lo, hi = s.bounds
         if isinstance(default, bool):
             value: Any = bool_param(node, name, default, s.description)
         elif isinstance(default, int):
