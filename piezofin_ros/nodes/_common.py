@@ -998,6 +998,7 @@ def run_node(
         executor = built = node = close = None  # (each holds a node: the loops' variables too)
         nodes.clear()
         gc.collect()
+        context.destroy()  # (the context's middleware state, watched here rather than at the exit)
         watchdog.cancel()
         stop.restore()
         _ARGV.pop(id(context), None)

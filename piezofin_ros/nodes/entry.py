@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import logging
 import os
 import signal
 import sys
 from functools import partial
 from types import FrameType
+from typing import NoReturn
 
 
 def _interrupted(signum: int, frame: FrameType | None) -> None:
@@ -26,17 +28,36 @@ def _interrupted(signum: int, frame: FrameType | None) -> None:
     with contextlib.suppress(OSError, ValueError):
         said = f"{name}: interrupted while starting ({signal.Signals(signum).name}): nothing started"
         print(said, file=sys.stderr)
+    _flush()
+    os._exit(0)
+
+
+def _flush() -> None:
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError, ValueError):  # (a closed or broken pipe: nothing to say)
             stream.flush()
-    os._exit(0)
+
+
+def finish(code: int) -> NoReturn:
+    """End a node's process with ``code`` once its ``main`` has returned, without the interpreter's
+    finalisation.
+
+    By then what matters is done and watched (:func:`~._common.run_node`: the drive ramped down, the
+    bag closed, the ROS entities and the context torn down).  What finalisation still ran was the
+    middleware's destructors, and under a CI run's load ``fin_sims`` hung there over 6 s after a clean
+    teardown: ``ros2 launch`` escalated to SIGTERM and the backstop ended it with status 1, failing the
+    two-fin launch test's clean exit.  Python's own buffers are flushed first (``logging`` and the
+    standard streams); ``atexit`` handlers do not run (the nodes register none)."""
+    logging.shutdown()
+    _flush()
+    os._exit(code)
 
 
 def _run(module: str, function: str = "main") -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _interrupted)  # (replaced by the node's StopFlag once rclpy is up)
     main = getattr(importlib.import_module(f"{__package__}.{module}"), function)
-    return int(main())
+    finish(int(main()))
 
 
 #: Every executable of the package, ``ros2 run piezofin_ros <name>``: the module of this package that

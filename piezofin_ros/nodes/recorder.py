@@ -274,10 +274,11 @@ class Recorder(Node):
         self._polled.append(topic)
         return self._helper.create_subscription(cls, topic, never, qos, raw=True)
 
-    def _poll(self) -> None:
+    def _poll(self, drain: bool = False) -> None:
+        """A look at each polled topic; ``drain``: take everything waiting (the last look, at close)."""
         for topic in self._polled:
             sub = self._subs[topic]
-            for _ in range(self._most(topic)):
+            for _ in range(self._most(topic) if not drain else 2 * SAMPLED_DEPTH):  # (bounded: a flood)
                 with sub.handle:
                     taken = sub.handle.take_message(sub.msg_type, True)
                 if taken is None:
@@ -382,6 +383,7 @@ class Recorder(Node):
             "path": str(self.path),
             "recording": not self.bag.closed,
             "messages": sum(self.bag.counts.values()),
+            "per_topic": dict(sorted(self.bag.counts.items())),
             "lost_samples": dict(sorted(self.gaps.lost.items())),
             "holes": sum(self.gaps.holes.values()),
             "thinned": dict(sorted(self._thinned.items())),  # topics that came faster than kept
@@ -411,6 +413,7 @@ class Recorder(Node):
     def close(self) -> None:
         if not self.bag.closed:
             try:
+                self._poll(drain=True)  # what came since the last look is kept too
                 for topic, data in self._early:  # the clock never started: keep them at time 0
                     self._record(topic, 0, data)
                 self.bag.set_custom("lost_samples", json.dumps(dict(sorted(self.gaps.lost.items()))))

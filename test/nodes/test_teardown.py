@@ -85,3 +85,23 @@ def test_an_exit_that_hangs_holding_the_interpreter_still_ends() -> None:
     assert out.returncode == 1 and took < 40, (out.returncode, took, out.stderr[-2000:])
     assert "tearing down the ROS entities" not in out.stderr, out.stderr[-2000:]  # (the exit hung)
     assert "Timeout (0:00:08)!" in out.stderr, out.stderr[-2000:]  # (the backstop: twice the teardown's)
+
+
+def test_a_console_script_ends_with_its_status_without_the_interpreters_finalisation() -> None:
+    """``ros2 run``'s executables end through ``entry.finish`` once ``main`` returned: a finalisation
+    that hangs (the middleware's destructors did, over 6 s, in a CI run's two-fin launch) is never
+    waited for, and what the node said is not lost."""
+    probe = """
+import atexit, logging, sys, time
+from piezofin_ros.nodes.entry import finish
+atexit.register(lambda: time.sleep(30))  # (a finalisation that hangs)
+print("said on stdout")
+logging.basicConfig(stream=sys.stderr)
+logging.getLogger("probe").warning("said through logging")
+finish(3)
+"""
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    took = time.monotonic() - t0
+    assert out.returncode == 3 and took < 20, (out.returncode, took, out.stderr[-2000:])
+    assert out.stdout == "said on stdout\n" and "said through logging" in out.stderr, (out.stdout, out.stderr)
