@@ -18,6 +18,7 @@ from __future__ import annotations
 import ast
 import builtins
 import re
+import shutil
 from pathlib import Path
 
 import pytest
@@ -25,9 +26,6 @@ import pytest
 import piezofin_ros
 from piezofin_ros import errors
 
-#: One test worker for the module: the checker's own test writes a violating module into the package
-#: for a moment, which the other checks would read if they ran beside it.
-pytestmark = pytest.mark.xdist_group("layering")
 PACKAGE = Path(piezofin_ros.__file__).parent
 LAYERS = (
     "base",
@@ -53,18 +51,19 @@ ROS_CLIENT = (
 )
 
 
-def _modules() -> list[Path]:
-    return sorted(p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts)
+def _modules(root: Path = PACKAGE) -> list[Path]:
+    return sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts)
 
 
-def _layer_of(path: Path) -> str:
-    rel = path.relative_to(PACKAGE)
+def _layer_of(path: Path, root: Path = PACKAGE) -> str:
+    rel = path.relative_to(root)
     return rel.parts[0] if len(rel.parts) > 1 else "base"  # errors.py, config.py, workers.py: the bottom
 
 
-def _imports(path: Path) -> list[tuple[int, str]]:
-    """(line, absolute dotted name) of every import in the module, relative ones resolved."""
-    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+def _imports(path: Path, root: Path = PACKAGE) -> list[tuple[int, str]]:
+    """(line, absolute dotted name) of every import in the module (of the package at ``root``),
+    relative ones resolved."""
+    rel = path.relative_to(root.parent).with_suffix("")
     package = list(rel.parts[:-1])  # the package a relative import starts from
     out = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
@@ -100,18 +99,23 @@ def test_every_package_says_what_it_is_for(layer: str) -> None:
     assert doc is not None and len(doc.split()) >= 25, f"{layer}/__init__.py needs a paragraph"
 
 
-def test_nothing_imports_from_a_layer_above_it() -> None:
+def _imports_from_above(root: Path = PACKAGE) -> list[str]:
+    """Every import of a module of the package at ``root`` from a layer above its own."""
     bad = []
-    for path in _modules():
-        own = LAYERS.index(_layer_of(path))
-        for line, name in _imports(path):
+    for path in _modules(root):
+        own = LAYERS.index(_layer_of(path, root))
+        for line, name in _imports(path, root):
             parts = name.split(".")
             if parts[0] != "piezofin_ros" or len(parts) < 2:
                 continue
             target = parts[1]
             if target in LAYERS and LAYERS.index(target) > own:  # errors and config are "base" modules
-                bad.append(f"{path.relative_to(PACKAGE)}:{line} imports {name}")
-    assert bad == []
+                bad.append(f"{path.relative_to(root)}:{line} imports {name}")
+    return bad
+
+
+def test_nothing_imports_from_a_layer_above_it() -> None:
+    assert _imports_from_above() == []
 
 
 def _module_name(path: Path) -> str:
@@ -229,29 +233,31 @@ def test_each_topic_is_declared_once_and_documented() -> None:
     assert recorded == {**SUITE_TOPICS, **GLOBAL_TOPICS}
 
 
-def test_only_the_nodes_import_ros_client_code() -> None:
+def _ros_outside_the_nodes(root: Path = PACKAGE) -> list[str]:
+    """Every import of ROS client code by a module of the package at ``root`` outside ``nodes/``."""
     bad = []
-    for path in _modules():
-        if _layer_of(path) == "nodes":
+    for path in _modules(root):
+        if _layer_of(path, root) == "nodes":
             continue
-        for line, name in _imports(path):
+        for line, name in _imports(path, root):
             if name.split(".")[0] in ROS_CLIENT:
-                bad.append(f"{path.relative_to(PACKAGE)}:{line} imports {name}")
-    assert bad == []
+                bad.append(f"{path.relative_to(root)}:{line} imports {name}")
+    return bad
+
+
+def test_only_the_nodes_import_ros_client_code() -> None:
+    assert _ros_outside_the_nodes() == []
 
 
 def test_the_layering_check_sees_a_violation(tmp_path: Path) -> None:
-    # the checker itself: a physics module importing the controller is reported
-    fake = PACKAGE / "physics" / "_layering_probe.py"
-    try:
-        fake.write_text("from ..control import optimise\nimport rclpy\n")
-        assert (2, "rclpy") in _imports(fake) and (1, "piezofin_ros.control") in _imports(fake)
-        with pytest.raises(AssertionError):
-            test_nothing_imports_from_a_layer_above_it()
-        with pytest.raises(AssertionError):
-            test_only_the_nodes_import_ros_client_code()
-    finally:
-        fake.unlink()
+    """The checker itself: a physics module importing the controller and rclpy is reported, in a copy
+    of the package (the package itself is never written: other tests read it beside this one)."""
+    copy = tmp_path / "piezofin_ros"
+    shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.so", "*.pyc"))
+    assert _imports_from_above(copy) == [] and _ros_outside_the_nodes(copy) == []  # (as the package)
+    (copy / "physics" / "_layering_probe.py").write_text("from ..control import optimise\nimport rclpy\n")
+    assert _imports_from_above(copy) == ["physics/_layering_probe.py:1 imports piezofin_ros.control"]
+    assert _ros_outside_the_nodes(copy) == ["physics/_layering_probe.py:2 imports rclpy"]
 
 
 def test_every_error_raised_on_purpose_derives_from_the_base() -> None:
