@@ -53,6 +53,9 @@ class Fit:
     covariance: FloatArray | None = None
     chi2: float = 0.0
     chi2_noise: float = 0.0
+    #: how far the fitted parameters lie from the prior's, in its sigmas squared and summed (the
+    #: penalty the fit paid beside its misfit)
+    prior_cost: float = 0.0
 
     def sigma(self, log_value: Callable[[Correction], FloatArray], skip: str = "") -> FloatArray:
         """Standard deviation of ``log_value(correction)`` from the parameters' covariance (first
@@ -222,7 +225,8 @@ class FitProblem:
         n_data = 2 * len(obs) + sum(o.has_admittance for o in obs)
         chi2 = float(np.sum(np.asarray(best.fun)[: 3 * len(obs)] ** 2)) / max(n_data, 1)
         covariance, chi2_noise = self._covariance(best.x, obs, n_data)
-        return Fit(correction_of(best.x, self.base), covariance, chi2, chi2_noise)
+        prior_cost = float(np.sum((np.asarray(best.x, float) / prior) ** 2))
+        return Fit(correction_of(best.x, self.base), covariance, chi2, chi2_noise, prior_cost)
 
     def _covariance(
         self, x: FloatArray, obs: Sequence[Observation], n_data: int

@@ -285,19 +285,38 @@ class Optimiser:
 
     # --- the fit ----------------------------------------------------------------------------------
     def _check_prior(self) -> None:
-        """Drop a given ``model`` the trials contradict (``prior_drop_ratio``), saying so once."""
-        n = len(self.observations)
-        if self.model is None or n < self.tuning.prior_drop_after or self.fit.chi2 <= 1.0:
-            return  # (within the noise: nothing contradicts it)
+        """Drop a given ``model`` the trials contradict, saying so once: its corrected fit misses them
+        beyond the noise where the fin file's fits them ``prior_drop_ratio`` times better, or it fits
+        them only by moving its parameters so far that its whole cost exceeds the fin file's by
+        ``prior_drop_cost`` (:class:`~.tuning.Tuning`)."""
+        n, tuning = len(self.observations), self.tuning
+        if self.model is None or n < tuning.prior_drop_after:
+            return
+        n_data = 2 * n + sum(o.has_admittance for o in self.observations)
+        cost = self.fit.chi2 * n_data + self.fit.prior_cost
+        if self.fit.chi2 <= 1.0 and cost <= tuning.prior_drop_cost:
+            return  # (within the noise, near its own parameters: nothing contradicts it)
         plain = replace(self.problem, base=None).fit(self.observations, Correction())
-        if plain.chi2 * self.tuning.prior_drop_ratio < self.fit.chi2:
-            self.prior_dropped = (
-                f"the model it was given misses the {n} trials by {math.sqrt(self.fit.chi2):.1f} sigma "
-                f"(RMS) however corrected; the fin file alone, corrected, by {math.sqrt(plain.chi2):.1f}: "
-                "the model is dropped, the fin file is the prior from now on"
+        plain_cost = plain.chi2 * n_data + plain.prior_cost
+        chi, plain_chi = math.sqrt(self.fit.chi2), math.sqrt(plain.chi2)
+        if self.fit.chi2 > 1.0 and plain.chi2 * tuning.prior_drop_ratio < self.fit.chi2:
+            why = (
+                f"misses the {n} trials by {chi:.1f} sigma (RMS) however corrected; the fin file alone, "
+                f"corrected, by {plain_chi:.1f}"
             )
-            self.said.append(self.prior_dropped)
-            self.model, self.fit = None, plain
+        elif cost - plain_cost > tuning.prior_drop_cost:
+            why = (
+                f"fits the {n} trials ({chi:.1f} sigma RMS) only with its parameters "
+                f"{math.sqrt(self.fit.prior_cost):.1f} sigma from its own (cost {cost:.1f}); the fin file "
+                f"alone, corrected, fits them ({plain_chi:.1f} sigma) at {plain_cost:.1f}"
+            )
+        else:
+            return
+        self.prior_dropped = (
+            f"the model it was given {why}: the model is dropped, the fin file is the prior from now on"
+        )
+        self.said.append(self.prior_dropped)
+        self.model, self.fit = None, plain
 
     def _bound(self) -> float:
         """2 sigma (relative) of the thrust estimate's calibration at the latest trial: the fitted
