@@ -83,6 +83,9 @@ from .tuning import Tuning
 #: Trials the corrected model must fit before it calibrates an estimator's self-sensing (a wrong prior
 #: may be dropped earlier: ``Tuning.prior_drop_after``, ``Optimiser._check_prior``).
 CALIBRATES_AFTER = 4
+#: A given model is weighed by its whole cost against the fin file's (``Tuning.prior_drop_cost``) over
+#: this many first trials (the strangers of ``bench_fish.py`` drop theirs at the second and third)
+PRIOR_COST_TRIALS = 8
 
 __all__ = [  # (the rooms' types the optimiser's users meet, re-exported)
     "MISFIT_CHI2",
@@ -294,7 +297,10 @@ class Optimiser:
             return
         n_data = 2 * n + sum(o.has_admittance for o in self.observations)
         cost = self.fit.chi2 * n_data + self.fit.prior_cost
-        if self.fit.chi2 <= 1.0 and cost <= tuning.prior_drop_cost:
+        # (the cost is weighed over the first trials only: a right model's summed misfit grows with
+        # the trials, about 0.1 a trial, and the fin file's fit each trial would cost the controller)
+        early = n <= PRIOR_COST_TRIALS
+        if self.fit.chi2 <= 1.0 and (cost <= tuning.prior_drop_cost or not early):
             return  # (within the noise, near its own parameters: nothing contradicts it)
         plain = replace(self.problem, base=None).fit(self.observations, Correction())
         plain_cost = plain.chi2 * n_data + plain.prior_cost
@@ -304,7 +310,7 @@ class Optimiser:
                 f"misses the {n} trials by {chi:.1f} sigma (RMS) however corrected; the fin file alone, "
                 f"corrected, by {plain_chi:.1f}"
             )
-        elif cost - plain_cost > tuning.prior_drop_cost:
+        elif early and cost - plain_cost > tuning.prior_drop_cost:
             why = (
                 f"fits the {n} trials ({chi:.1f} sigma RMS) only with its parameters "
                 f"{math.sqrt(self.fit.prior_cost):.1f} sigma from its own (cost {cost:.1f}); the fin file "

@@ -36,13 +36,14 @@ class Tuning:
     #: ``bench_course.py``, its fin resonating at 9.3 Hz where the twin given says 5.5, swam its first
     #: 55 s at 4.6 Hz (6.9 cm/s against 17.7) and paid 8.5 % more per metre than the best fixed drive;
     #: at 2 it leaves 4.6 Hz at 29 s (+4.9 %).  No fish under a demand of ``bench_fish.py`` (the twins,
-    #: the 9 with an effect not told, the strangers) drops its prior otherwise than at 4
+    #: the 9 with an effect not told, the strangers) dropped its prior by the misfit otherwise than at 4
     prior_drop_after: int = 2
     #: ... or, within the noise, when the fit's whole cost (its weighed misfit and how far its
     #: parameters left their prior, squared sigmas summed: twice the negative log posterior) exceeds
     #: the fin file's by more than this: a wrong model fits a few trials only by moving its
     #: parameters far (the strangers' twin: 5.8 and 13.2 against the fin file's 1.8 and 0.9 after two
-    #: and three trials; a right one costs 0.0-1.0 where the fin file costs 3-14)
+    #: and three trials; a right one costs 0.0-1.0 where the fin file costs 3-14), over the first
+    #: ``optimise.PRIOR_COST_TRIALS`` trials
     prior_drop_cost: float = 3.0
     #: a calibrating trial is taken when it shrinks the calibration's variance at the map's choice to
     #: less than this fraction of what one more trial at the choice would
