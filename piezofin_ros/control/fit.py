@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -34,6 +34,7 @@ from .correction import (
 from .evidence import Observation, same_point
 from .lsq import Solution, least_squares
 from .response import EstimateNoise
+from .tuning import Tuning
 
 #: ``solve(fun, x0, lower, upper, scale, max_nfev)``: a bounded least-squares solver
 Residuals = Callable[[FloatArray], FloatArray]
@@ -248,3 +249,42 @@ class FitProblem:
             return np.asarray(np.linalg.inv(jac.T @ jac) * max(1.0, chi2)), chi2
         except np.linalg.LinAlgError:
             return None, chi2
+
+
+#: A given model is weighed by its whole cost against the fin file's (``Tuning.prior_drop_cost``) over
+#: this many first trials (the strangers of ``bench_fish.py`` drop theirs at the second and third): a
+#: right model's summed misfit grows about 0.1 a trial, and the fin file's fit each trial would cost
+#: the controller
+PRIOR_COST_TRIALS = 8
+
+
+def weigh_prior(
+    problem: FitProblem, given: Fit, obs: Sequence[Observation], tuning: Tuning
+) -> tuple[str, Fit] | None:
+    """Whether the trials ``obs`` contradict the given model that ``given`` corrects (the base of
+    ``problem``): why, and the fin file's own fit to them, or None.  They do where the given model's
+    corrected fit misses them beyond the noise and the fin file's fits them ``prior_drop_ratio``
+    times better, or, over the first :data:`PRIOR_COST_TRIALS`, where it fits them only with its
+    parameters so far from its own that its whole cost (weighed misfit and distance from the prior,
+    twice the negative log posterior) exceeds the fin file's by ``prior_drop_cost``."""
+    n = len(obs)
+    n_data = 2 * n + sum(o.has_admittance for o in obs)
+    cost = given.chi2 * n_data + given.prior_cost
+    early = n <= PRIOR_COST_TRIALS
+    if given.chi2 <= 1.0 and (cost <= tuning.prior_drop_cost or not early):
+        return None  # (within the noise, near its own parameters: nothing contradicts it)
+    plain = replace(problem, base=None).fit(obs, Correction())
+    plain_cost = plain.chi2 * n_data + plain.prior_cost
+    chi, plain_chi = math.sqrt(given.chi2), math.sqrt(plain.chi2)
+    if given.chi2 > 1.0 and plain.chi2 * tuning.prior_drop_ratio < given.chi2:
+        return (
+            f"misses the {n} trials by {chi:.1f} sigma (RMS) however corrected; the fin file alone, "
+            f"corrected, by {plain_chi:.1f}"
+        ), plain
+    if early and cost - plain_cost > tuning.prior_drop_cost:
+        return (
+            f"fits the {n} trials ({chi:.1f} sigma RMS) only with its parameters "
+            f"{math.sqrt(given.prior_cost):.1f} sigma from its own (cost {cost:.1f}); the fin file "
+            f"alone, corrected, fits them ({plain_chi:.1f} sigma) at {plain_cost:.1f}"
+        ), plain
+    return None

@@ -72,7 +72,7 @@ from ..physics.fin import Fin
 from ..physics.model import Model
 from .correction import Correction, FloatArray
 from .evidence import Counted, Observation, Task, close, count
-from .fit import MODEL_ERROR, Fit, FitProblem
+from .fit import MODEL_ERROR, Fit, FitProblem, weigh_prior
 from .gp import ResidualGP
 from .objective import THRUST_PER_WATT, Objective
 from .proposal import RULES, Mode, Proposal, is_quiet, mode_of, propose, trimmed
@@ -83,9 +83,6 @@ from .tuning import Tuning
 #: Trials the corrected model must fit before it calibrates an estimator's self-sensing (a wrong prior
 #: may be dropped earlier: ``Tuning.prior_drop_after``, ``Optimiser._check_prior``).
 CALIBRATES_AFTER = 4
-#: A given model is weighed by its whole cost against the fin file's (``Tuning.prior_drop_cost``) over
-#: this many first trials (the strangers of ``bench_fish.py`` drop theirs at the second and third)
-PRIOR_COST_TRIALS = 8
 
 __all__ = [  # (the rooms' types the optimiser's users meet, re-exported)
     "MISFIT_CHI2",
@@ -288,41 +285,17 @@ class Optimiser:
 
     # --- the fit ----------------------------------------------------------------------------------
     def _check_prior(self) -> None:
-        """Drop a given ``model`` the trials contradict, saying so once: its corrected fit misses them
-        beyond the noise where the fin file's fits them ``prior_drop_ratio`` times better, or it fits
-        them only by moving its parameters so far that its whole cost exceeds the fin file's by
-        ``prior_drop_cost`` (:class:`~.tuning.Tuning`)."""
-        n, tuning = len(self.observations), self.tuning
-        if self.model is None or n < tuning.prior_drop_after:
+        """Drop a given ``model`` the trials contradict (:func:`.fit.weigh_prior`), saying so once."""
+        if self.model is None or len(self.observations) < self.tuning.prior_drop_after:
             return
-        n_data = 2 * n + sum(o.has_admittance for o in self.observations)
-        cost = self.fit.chi2 * n_data + self.fit.prior_cost
-        # (the cost is weighed over the first trials only: a right model's summed misfit grows with
-        # the trials, about 0.1 a trial, and the fin file's fit each trial would cost the controller)
-        early = n <= PRIOR_COST_TRIALS
-        if self.fit.chi2 <= 1.0 and (cost <= tuning.prior_drop_cost or not early):
-            return  # (within the noise, near its own parameters: nothing contradicts it)
-        plain = replace(self.problem, base=None).fit(self.observations, Correction())
-        plain_cost = plain.chi2 * n_data + plain.prior_cost
-        chi, plain_chi = math.sqrt(self.fit.chi2), math.sqrt(plain.chi2)
-        if self.fit.chi2 > 1.0 and plain.chi2 * tuning.prior_drop_ratio < self.fit.chi2:
-            why = (
-                f"misses the {n} trials by {chi:.1f} sigma (RMS) however corrected; the fin file alone, "
-                f"corrected, by {plain_chi:.1f}"
+        verdict = weigh_prior(self.problem, self.fit, self.observations, self.tuning)
+        if verdict is not None:
+            why, self.fit = verdict
+            self.prior_dropped = (
+                f"the model it was given {why}: the model is dropped, the fin file is the prior from now on"
             )
-        elif early and cost - plain_cost > tuning.prior_drop_cost:
-            why = (
-                f"fits the {n} trials ({chi:.1f} sigma RMS) only with its parameters "
-                f"{math.sqrt(self.fit.prior_cost):.1f} sigma from its own (cost {cost:.1f}); the fin file "
-                f"alone, corrected, fits them ({plain_chi:.1f} sigma) at {plain_cost:.1f}"
-            )
-        else:
-            return
-        self.prior_dropped = (
-            f"the model it was given {why}: the model is dropped, the fin file is the prior from now on"
-        )
-        self.said.append(self.prior_dropped)
-        self.model, self.fit = None, plain
+            self.said.append(self.prior_dropped)
+            self.model = None
 
     def _bound(self) -> float:
         """2 sigma (relative) of the thrust estimate's calibration at the latest trial: the fitted

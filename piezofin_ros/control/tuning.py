@@ -43,7 +43,7 @@ class Tuning:
     #: the fin file's by more than this: a wrong model fits a few trials only by moving its
     #: parameters far (the strangers' twin: 5.8 and 13.2 against the fin file's 1.8 and 0.9 after two
     #: and three trials; a right one costs 0.0-1.0 where the fin file costs 3-14), over the first
-    #: ``optimise.PRIOR_COST_TRIALS`` trials
+    #: ``fit.PRIOR_COST_TRIALS`` trials
     prior_drop_cost: float = 3.0
     #: a calibrating trial is taken when it shrinks the calibration's variance at the map's choice to
     #: less than this fraction of what one more trial at the choice would

@@ -254,10 +254,21 @@ def tpw_field(watt: str, source: str = "vibrometer") -> str:
     return base if watt_of(watt).is_fin else f"{base}_{watt}"
 
 
+#: A watt below this share of the apparent watt (``v_rms i_rms``) is rounding, not a loss: no piezo's
+#: loss tangent is within orders of it (an MFC's is about 0.01-0.05).  A thrust per such a watt is no
+#: figure: a lossless drive's mean(v i) of 1e-20 W once gave a thrust per watt of 1e15 N/W
+#: (``test_inbox.py``'s capacitive fin, its sign and size set by the samples' rounding).
+ROUNDING_WATT = 1e-9
+
+
 def per_watt_field(record: dict[str, float], watt: str, source: str = "vibrometer") -> float:
+    """Thrust of ``source`` per ``watt`` from an estimate's fields: NaN where the watt is not positive
+    beyond rounding (:data:`ROUNDING_WATT`) or the thrust is not finite."""
     thrust = record[source_of(source).thrust_field]
     power = record.get(watt_of(watt).field, math.nan)
-    return thrust / power if power > 0 and math.isfinite(thrust) else math.nan
+    apparent = record.get("power_apparent_w", math.nan)
+    floor = ROUNDING_WATT * apparent if math.isfinite(apparent) and apparent > 0 else 0.0
+    return thrust / power if power > floor and math.isfinite(thrust) else math.nan
 
 
 def with_watts(record: dict[str, float]) -> dict[str, float]:
@@ -388,7 +399,7 @@ def analyse_window(
         return math.sqrt(ms_u), thrust, c_tau
 
     def per_watt(thrust: float) -> float:
-        return thrust / power if power > 0 else math.nan
+        return thrust / power if power > ROUNDING_WATT * v_rms * i_rms else math.nan
 
     u_self, thrust_self, _ = lighthill(self_sensed_tip(fin, I_, V, orders * w, calibration))
     admittance = I_[0] / V[0] if abs(V[0]) > 0 else complex(math.nan, math.nan)

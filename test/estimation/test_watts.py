@@ -220,3 +220,27 @@ def test_each_thrust_source_is_declared_once_in_its_registry() -> None:
     assert Observation(0, 6, 400, 1e-3, 0.1, "loadcell").load_cell
     with pytest.raises(PiezofinError, match="unknown thrust source 'laser'"):
         source_of("laser")
+
+
+@pytest.mark.parametrize("phase_error", [0.0, 1e-15, -1e-15, 1e-12])
+def test_a_drive_that_draws_no_real_power_has_no_thrust_per_watt(phase_error: float) -> None:
+    """A purely capacitive drive (the current a quarter period ahead of the voltage, within rounding):
+    its mean(v i) is rounding, of either sign, and a thrust per it is no figure.  The estimator once
+    published 1e15 N/W for it (``test_inbox.py``'s real fin after the attack, a CI run); every per-watt
+    field of the fin's watt is now NaN, and the apparent and supply watts keep theirs."""
+    from piezofin_ros.estimation.estimator import analyse_window
+
+    fin = load_fin("M8528-P1")
+    t = np.arange(1000) * 1e-3  # 5 periods of 5 Hz
+    v = 200.0 * np.sin(2 * np.pi * 5 * t)
+    i = 1e-5 * np.cos(2 * np.pi * 5 * t + phase_error)
+    r = analyse_window(fin, t, v, i, 5.0)
+    assert abs(r["power_w"]) <= 1e-9 * r["power_apparent_w"]
+    assert math.isnan(r["thrust_per_watt_self"]) and math.isnan(r[tpw_field("fin", "self")])
+    assert math.isfinite(r["thrust_per_watt_self_apparent"]) and math.isfinite(
+        r["thrust_per_watt_self_supply"]
+    )
+    record = {k: v for k, v in r.items() if math.isfinite(v) and abs(v) < 1e12}
+    assert set(r) - set(record) <= {
+        k for k in r if k.startswith(("thrust_per_watt", "thrust_n", "c_tau", "tip_"))
+    }
