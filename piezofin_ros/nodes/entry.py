@@ -57,6 +57,9 @@ def _run(module: str, function: str = "main") -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _interrupted)  # (replaced by the node's StopFlag once rclpy is up)
     main = getattr(importlib.import_module(f"{__package__}.{module}"), function)
+    from . import _common
+
+    _common.ENDS_AFTER_RUN = True  # (the process ends at finish: run_node's teardown leaves out the rest)
     finish(int(main()))
 
 
