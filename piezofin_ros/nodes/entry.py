@@ -43,7 +43,7 @@ def finish(code: int) -> NoReturn:
     finalisation.
 
     By then what matters is done and watched (:func:`~._common.run_node`: the drive ramped down, the
-    bag closed, the ROS entities and the context torn down).  What finalisation still ran was the
+    bag closed, the ROS entities destroyed and the context shut down).  What finalisation still ran was the
     middleware's destructors, and under a CI run's load ``fin_sims`` hung there over 6 s after a clean
     teardown: ``ros2 launch`` escalated to SIGTERM and the backstop ended it with status 1, failing the
     two-fin launch test's clean exit.  Python's own buffers are flushed first (``logging`` and the
