@@ -223,7 +223,7 @@ class FitProblem:
             if best is None or res.cost < best.cost:
                 best = res
         assert best is not None
-        n_data = 2 * len(obs) + sum(o.has_admittance for o in obs)
+        n_data = data_points(obs)
         chi2 = float(np.sum(np.asarray(best.fun)[: 3 * len(obs)] ** 2)) / max(n_data, 1)
         covariance, chi2_noise = self._covariance(best.x, obs, n_data)
         prior_cost = float(np.sum((np.asarray(best.x, float) / prior) ** 2))
@@ -251,6 +251,11 @@ class FitProblem:
             return None, chi2
 
 
+def data_points(obs: Sequence[Observation]) -> int:
+    """How many numbers the trials ``obs`` give a fit: thrust and power each, and an admittance."""
+    return 2 * len(obs) + sum(o.has_admittance for o in obs)
+
+
 #: A given model is weighed by its whole cost against the fin file's (``Tuning.prior_drop_cost``) over
 #: this many first trials (the strangers of ``bench_fish.py`` drop theirs at the second and third): a
 #: right model's summed misfit grows about 0.1 a trial, and the fin file's fit each trial would cost
@@ -268,7 +273,7 @@ def weigh_prior(
     parameters so far from its own that its whole cost (weighed misfit and distance from the prior,
     twice the negative log posterior) exceeds the fin file's by ``prior_drop_cost``."""
     n = len(obs)
-    n_data = 2 * n + sum(o.has_admittance for o in obs)
+    n_data = data_points(obs)
     cost = given.chi2 * n_data + given.prior_cost
     early = n <= PRIOR_COST_TRIALS
     if given.chi2 <= 1.0 and (cost <= tuning.prior_drop_cost or not early):

@@ -398,9 +398,6 @@ def analyse_window(
         c_tau = thrust / denom if denom > 0 else math.nan
         return math.sqrt(ms_u), thrust, c_tau
 
-    def per_watt(thrust: float) -> float:
-        return thrust / power if power > ROUNDING_WATT * v_rms * i_rms else math.nan
-
     u_self, thrust_self, _ = lighthill(self_sensed_tip(fin, I_, V, orders * w, calibration))
     admittance = I_[0] / V[0] if abs(V[0]) > 0 else complex(math.nan, math.nan)
     out = {
@@ -416,7 +413,7 @@ def analyse_window(
         "c_tau": math.nan,
         "tip_velocity_rms_self": u_self,
         "thrust_self_n": thrust_self,
-        "thrust_per_watt_self": per_watt(thrust_self),
+        "thrust_per_watt_self": math.nan,  # (every thrust per watt: with_watts, below)
         "swim_speed_m_s": swim_speed_m_s,
         "tip_phase_rad": math.nan,
         "admittance_re": float(admittance.real),
@@ -432,7 +429,6 @@ def analyse_window(
             out.update(
                 tip_velocity_rms=u_rms,
                 thrust_n=thrust,
-                thrust_per_watt=per_watt(thrust),
                 c_tau=c_tau,
                 tip_phase_rad=float(np.angle(Uk[0] / V[0])) if abs(V[0]) > 0 else math.nan,
             )
