@@ -435,6 +435,11 @@ def analyse_window(
     return with_watts(out)
 
 
+def _upward_crossings(v: FloatArray, since: int) -> list[int]:
+    """The indices ``k > since`` where ``v`` crosses zero upward (``v[k-1] < 0 <= v[k]``)."""
+    return (np.flatnonzero((v[since:-1] < 0) & (v[since + 1 :] >= 0)) + since + 1).tolist()
+
+
 def _baseline_at(baselines: list[tuple[float, float]], t: float) -> float:
     """The load cell's zero at time ``t`` from (mean time, mean deflection) of its baselines:
     the line through two of them (a linear drift cancels), or the value of one."""
@@ -564,6 +569,7 @@ class StreamEstimator:
         self._period_s = math.nan  # the last period's length, s (how long a crossing may be awaited)
         self._moments = [0.0, 0.0, 0.0]  # the period so far: count, sum, sum of squares (relative to _mid)
         self._last_cross = math.nan
+        self._partial = False  # (the next crossing is a new middle's first: _restart_timing)
         self._segment: _Segment | None = None
         self._pending: list[_Pending] = []
         self._last_final: _Pending | None = None  # ended by a change, may still get a post baseline
@@ -681,7 +687,8 @@ class StreamEstimator:
                 self._mid_since = first_above  # (a middle is looked for from here)
                 self._on_event(first_above)
             self._last_above = float(t[len(above) - 1 - np.argmax(above[::-1])])
-        # Upward zero crossings with hysteresis (v must have gone below -h since the last one); of
+        # Upward zero crossings with hysteresis (v must have gone above h and below -h since the last
+        # one: a middle moved just after a crossing does not time a second one at once); of
         # the drive's middle where an offset holds it off zero (``_mid``, :meth:`_new_middle`).
         h = 0.5 * cfg.on_threshold_v
         t_prev, v_prev = self._prev
@@ -689,40 +696,56 @@ class StreamEstimator:
         vv = (np.concatenate([[v_prev], v]) if math.isfinite(t_prev) else v) - self._mid
         if not math.isfinite(self._mid_since):
             self._mid_since = float(tt[0])
-        cand = np.flatnonzero((vv[:-1] < 0) & (vv[1:] >= 0)) + 1
-        start = 0
-        for k in cand.tolist():
+        start, cand, i = 0, _upward_crossings(vv, 0), 0
+        while i < len(cand):
+            k, i = cand[i], i + 1
             seg = vv[start:k]
             if seg.size:
                 self._vmin = min(self._vmin, float(seg.min()))
                 self._vmax = max(self._vmax, float(seg.max()))
                 self._gather(seg)
             start = k
-            if self._vmin >= -h:
+            if self._vmin >= -h or self._vmax <= h:  # (a crossing ends a swing above and below)
                 continue
-            tc = tt[k - 1] - vv[k - 1] * (tt[k] - tt[k - 1]) / (vv[k] - vv[k - 1])
-            if math.isfinite(self._last_cross) and self._on:
-                self._period_s = float(tc) - self._last_cross
-                self._on_period(self._last_cross, float(tc), self._swing())
-            self._last_cross = float(tc)
+            tc = float(tt[k - 1] - vv[k - 1] * (tt[k] - tt[k - 1]) / (vv[k] - vv[k - 1]))
+            swing = self._swing()
+            if self._partial:  # (a new middle's first crossing: from the move to it is no period)
+                self._partial = False
+            elif math.isfinite(self._last_cross) and self._on:
+                self._period_s = tc - self._last_cross
+                self._on_period(self._last_cross, tc, swing)
             if self._mid != 0.0:  # (offset: the middle followed period by period)
-                self._new_middle(float(tc))
-                vv = vv - (self._mid - self._mid_old)
+                self._new_middle(tc)
+                shift = self._mid - self._mid_old
+                if shift != 0.0:  # (the crossings after k: of the new middle)
+                    vv -= shift
+                    cand, i = _upward_crossings(vv, k), 0
+                    self._restart_timing(shift, swing)
+            self._last_cross = math.nan if self._partial else tc
             self._vmin, self._vmax = math.inf, -math.inf
             self._moments = [0.0, 0.0, 0.0]
-            self._mid_since = float(tc)
+            self._mid_since = tc
         rest = vv[start:]
         if rest.size:
             self._vmin = min(self._vmin, float(rest.min()))
             self._vmax = max(self._vmax, float(rest.max()))
             self._gather(rest)
-        # (no crossing for 2.5 periods of the last, or MID_S before the first: the level left the swing)
+        # (no crossing for 2.5 periods of the last, or MID_S before the first, and the swing since
+        # not across the middle: the level left the swing; a swing across it will cross it)
         wait = min(self.MID_S, 2.5 * self._period_s) if math.isfinite(self._period_s) else self.MID_S
-        if self._on and float(tt[-1]) - self._mid_since > wait and self._vmax - self._vmin > 2.0 * h:
+        across = self._vmin < -h and self._vmax > h
+        if (
+            self._on
+            and float(tt[-1]) - self._mid_since > wait
+            and self._vmax - self._vmin > 2.0 * h
+            and not across
+        ):
+            swing = self._vmax - self._vmin
             self._new_middle(float(tt[-1]))  # (no crossing while on: a drive held off zero)
+            self._restart_timing(self._mid - self._mid_old, swing)
         self._prev = (float(t[-1]), float(v[-1]))
         if self._on and float(t[-1]) - self._last_above > cfg.off_hold_s:
-            self._on = False
+            self._on, self._partial = False, False
             self._last_cross = math.nan
             self._mid, self._period_s = 0.0, math.nan
             if self._segment is not None:
@@ -765,6 +788,23 @@ class StreamEstimator:
         self._vmin, self._vmax = math.inf, -math.inf
         self._moments = [0.0, 0.0, 0.0]
         self._mid_since = t
+
+    def _restart_timing(self, shift: float, swing: float) -> None:
+        """After the middle moved by ``shift`` (V) on a sine of ``swing`` (V peak-to-peak): where that
+        moves a crossing by more than the tolerance of a period (``shift / (pi swing)``: a step of
+        the offset, not the drift a yaw loop gives it; a period so far off would split the segment
+        anyway), no period is timed across the move:
+        the segment ends, and timing starts again at the new middle's first crossing (whose swing,
+        above and below it, sets the middle again).  Timing across a step once gave a period of
+        26 ms, whose swing set a wrong middle, and the next; no estimate came while the offset
+        stayed."""
+        if abs(shift) <= self.config.tolerance * math.pi * swing:
+            return
+        self._partial, self._last_cross, self._period_s = True, math.nan, math.nan
+        if self._segment is not None:
+            pre = self._segment.pre if not self._segment.periods else None
+            self._end_segment(self._mid_since, by_off=False)
+            self._segment = _Segment(pre)
 
     def _on_event(self, t_on: float) -> None:
         cfg = self.config

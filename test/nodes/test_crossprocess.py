@@ -242,7 +242,7 @@ def test_recorder_killed_with_sigkill_loses_at_most_the_last_flush(tmp_path: Pat
 
 def _drive_then_kill_the_controller(timeout_s: float) -> tuple[np.ndarray, np.ndarray, float, str]:
     """fin_sim with a ``timeout_s`` watchdog, a controller driving 800 Vpp, SIGKILLed 1 s after the
-    drive is there: the drive's samples (time, V), the wall time of the kill, fin_sim's output."""
+    drive is there: the drive's samples (time, V), the kill in fin_sim's time, fin_sim's output."""
     sim = start(
         "fin_sim",
         "-r",
@@ -267,7 +267,9 @@ def _drive_then_kill_the_controller(timeout_s: float) -> tuple[np.ndarray, np.nd
             g.spin_until(lambda: peak() > 390.0, timeout=60.0, what="the controller driving 800 Vpp")
             g.spin_for(1.0)
             ctl.send_signal(signal.SIGKILL)
-            killed_at = time.time()  # fin_sim's sample times follow its clock: the wall clock here
+            # the kill in fin_sim's time: its latest sample received (its clock starts once its
+            # consumers are there, so it lags the wall clock by as long as it waited for them)
+            killed_at = float(drive[-1]["t_s"][-1])
             ctl.wait(timeout=10)
             g.spin_for(2.5)
     finally:

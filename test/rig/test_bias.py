@@ -182,3 +182,41 @@ def test_the_estimator_reads_a_biased_drive_as_the_same_sine(m8528: Fin) -> None
         t, _, _, supply = samples
         inside = (t > b.t_start) & (t <= b.t_end)
         assert b.power_supply_w == pytest.approx(float(np.mean(supply[inside])), rel=1e-2)
+
+
+@pytest.mark.parametrize("offset_slew", [0.0, 55.0, 157.0, 5000.0])
+def test_the_estimator_follows_an_offset_through_a_change_of_the_drive(
+    m8528: Fin, offset_slew: float
+) -> None:
+    """A turning fish's drive moves from 6.25 Hz, 444 Vpp to 2.2 Hz, 800 Vpp under a 600 V offset, which
+    then moves to the window's edge (1,100 V) at ``offset_slew`` V/s (0: it stays; 55: the yaw loop's
+    1 % of the new sine's slope; 157: of the old one's; 5,000: a step).  Every running estimate is of
+    the drive as it was, and they come on: the first of the new point within the drive's ramp, the
+    offset's move, the estimator's settling and window, and four periods of the new sine (to find the
+    middle of a swing that left it, to time from it, to end the settling, and one spare).
+
+    In the live turn (test_cmd_vel) no estimate came for 20 s after such a change and the controller
+    ramped the drive down: timing a period across the middle's step gave one of 26 ms, whose swing
+    set a wrong middle, and the next, as long as the offset stayed."""
+    rig, est = SimulatedRig(m8528, seed=1), StreamEstimator(m8528)
+    out: list[Estimate] = []
+    bias = 600.0
+    for k in range(800):  # 40 s
+        t = 0.05 * k
+        f, v = (6.25, 444.0) if t < 20.0 else (2.2, 800.0)
+        if t >= 20.0:
+            bias = min(bias + offset_slew * 0.05, 1100.0)
+        rig.command(f, v, 1, bias)
+        b = rig.step(50)
+        out += est.add_drive(b.t, b.voltage, b.current)
+    before = [e for e in out if e.t_end <= 20.0 + 1e-6]
+    after = [e for e in out if e.t_start >= 20.0]
+    assert len(before) >= 3 and len(before) + len(after) == len(out)  # (none across the change)
+    assert all(e.frequency_hz == pytest.approx(6.25, rel=2e-3) for e in before[1:])
+    moved = 500.0 / offset_slew if offset_slew else 0.0
+    due = 20.0 + 356.0 / 4000.0 + moved + est.config.settle_s + est.config.window_s + 4.0 / 2.2
+    assert after and after[0].t_end <= due, [(e.t_start, e.t_end) for e in after]
+    assert len(after) >= int((40.0 - due) / (est.config.window_s + 1.0))
+    for e in after:
+        assert e.frequency_hz == pytest.approx(2.2, rel=2e-3)
+        assert e.voltage_pp == pytest.approx(800.0, rel=2e-2)
