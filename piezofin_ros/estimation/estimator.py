@@ -60,6 +60,7 @@ baseline of the load cell has been recorded.
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
 from collections import deque
 from collections.abc import Callable
@@ -321,26 +322,35 @@ class EstimatorConfig:
 PERIOD_POINTS = 256
 
 
-def _harmonic_fit(t: FloatArray, t_ref: float, omega: float, orders: FloatArray, x: FloatArray) -> FloatArray:
-    """Complex amplitudes ``X_k`` of each column of ``x``: ``x ~ c + sum_k Re(X_k e^{j k w (t - t_ref)})``.
+def _lock_in(phase: FloatArray, orders: FloatArray, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The constant ``c`` of each column of ``x`` (a drive's offset, a leak's DC current) and its
+    complex amplitudes ``X_k`` (``(len(orders), n_columns)``): ``x ~ c + sum_k Re(X_k e^{j k phase})``
+    at each sample's ``phase`` (rad).
 
     Least squares on ``[1, cos, sin]``; over whole periods of uniform samples this is the
     Fourier projection (a lock-in), and it still works on a window that is a sample short.
-    Returns an array ``(len(orders), n_columns)``.
     """
-    return _lock_in(t, t_ref, omega, orders, x)[1]
-
-
-def _lock_in(
-    t: FloatArray, t_ref: float, omega: float, orders: FloatArray, x: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """:func:`_harmonic_fit`'s constant ``c`` of each column (a drive's offset, a leak's DC current)
-    and its complex amplitudes."""
-    ph = np.outer(t - t_ref, omega * orders)
-    basis = np.column_stack([np.ones_like(t), np.cos(ph), np.sin(ph)])
+    ph = np.outer(phase, orders)
+    basis = np.column_stack([np.ones_like(phase), np.cos(ph), np.sin(ph)])
     coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
     m = len(orders)
     return coef[0], coef[1 : 1 + m] - 1j * coef[1 + m :]
+
+
+def drive_phase(t: FloatArray, crossings: FloatArray) -> FloatArray:
+    """The drive's phase at ``t`` (rad, 0 at ``crossings[0]``), ``2 pi`` more at each of its upward
+    crossings: linear between them, and beyond them at the nearest period's rate."""
+    c = np.asarray(crossings, dtype=float)
+    k = np.interp(t, c, np.arange(c.size, dtype=float))
+    k = np.where(t < c[0], (t - c[0]) / (c[1] - c[0]), k)
+    k = np.where(t > c[-1], c.size - 1 + (t - c[-1]) / (c[-1] - c[-2]), k)
+    return 2.0 * math.pi * k
+
+
+#: The phase (rad) by which a window's timed periods may slip from its mean frequency before its
+#: lock-in follows them: a noisy crossing's jitter is ``noise / amplitude`` (2.5 mrad for 1 V on
+#: 400 V), and 50 mrad costs a fixed-frequency lock-in 0.13 % of the amplitude.
+PHASE_SLIP_RAD = 0.05
 
 
 def analyse_window(
@@ -356,8 +366,15 @@ def analyse_window(
     harmonics: int = 3,
     calibration: Calibration = NOMINAL,
     amplifier: Amplifier = PAPER_BENCH,
+    crossings: ArrayLike | None = None,
 ) -> dict[str, float]:
     """Estimates over one window of drive samples that spans whole periods of ``frequency_hz``.
+
+    ``crossings``, the drive's upward crossings that bound the window's periods (at least two), lock
+    the harmonics to the periods as timed (:func:`drive_phase`) where they slip from
+    ``frequency_hz`` by more than :data:`PHASE_SLIP_RAD`: a drive whose frequency moved within the
+    window by less than the estimator's tolerance (a controller's step of 2 %, held 42 s: 5 periods
+    of phase slip) read 84 Vpp for 446.
 
     ``tip_velocity`` may have its own sample times ``tip_t`` (default: ``t``).  Returns the
     fields of :class:`Estimate` that a window determines (not the window bookkeeping or the
@@ -373,7 +390,20 @@ def analyse_window(
         )
     w = 2.0 * math.pi * frequency_hz
     orders = np.arange(1, 2 * harmonics, 2, dtype=float)
-    (v0, _), harmonics_vi = _lock_in(t, t[0], w, orders, np.column_stack([v, i]))
+    cross = None if crossings is None else np.asarray(crossings, dtype=float)
+    if cross is not None and (
+        cross.size < 2 or np.any(np.diff(cross) <= 0) or not np.all(np.isfinite(cross))
+    ):
+        raise EstimationError("crossings must be at least two finite times, increasing")
+
+    if cross is not None:  # (the periods as timed, where they slipped from the mean frequency)
+        slip = w * (cross - cross[0]) - 2.0 * math.pi * np.arange(cross.size)
+        cross = cross if float(np.max(np.abs(slip))) > PHASE_SLIP_RAD else None
+
+    def phase(times: FloatArray) -> FloatArray:
+        return w * (times - t[0]) if cross is None else drive_phase(times, cross)
+
+    (v0, _), harmonics_vi = _lock_in(phase(t), orders, np.column_stack([v, i]))
     V, I_ = harmonics_vi.T
     # Parseval: mean(v i) over a period, of the sine's harmonics.  A drive's offset V0 times the
     # current's DC is left out: a current monitor's offset (microamperes) times hundreds of volts
@@ -424,7 +454,7 @@ def analyse_window(
         u = np.asarray(tip_velocity, dtype=float)
         ok = np.isfinite(u)
         if np.count_nonzero(ok) >= 2 * len(orders) + 1:
-            Uk = _harmonic_fit(tu[ok], t[0], w, orders, u[ok])
+            Uk = _lock_in(phase(tu[ok]), orders, u[ok])[1]
             u_rms, thrust, c_tau = lighthill(Uk)
             out.update(
                 tip_velocity_rms=u_rms,
@@ -433,6 +463,14 @@ def analyse_window(
                 tip_phase_rad=float(np.angle(Uk[0] / V[0])) if abs(V[0]) > 0 else math.nan,
             )
     return with_watts(out)
+
+
+def _bounds(periods: list[tuple[float, float, float]]) -> tuple[float, ...]:
+    """The crossings that bound ``periods`` ((t0, t1, vpp) each); none where they are not contiguous
+    (the window is then locked to its mean frequency)."""
+    if any(a != b for (_, a, _), (b, _, _) in itertools.pairwise(periods)):
+        return ()
+    return (periods[0][0], *(b for _, b, _ in periods))
 
 
 def _upward_crossings(v: FloatArray, since: int) -> list[int]:
@@ -504,6 +542,7 @@ class _Pending:
     post: tuple[float, float] | None = None
     post_open: bool = False  # the post baseline may still be cut short by a restart
     await_off: bool = False  # ended by a change: a stop that follows soon still gives a post baseline
+    crossings: tuple[float, ...] = ()  # the drive's upward crossings that bound its periods
 
 
 @dataclass
@@ -846,7 +885,14 @@ class StreamEstimator:
             self._last_final = None
         if settled and settled[-1][1] - settled[0][0] >= cfg.window_s and len(settled) >= cfg.min_periods:
             self._pending.append(
-                _Pending(settled[0][0], settled[-1][1], len(settled), final=False, pre=seg.pre)
+                _Pending(
+                    settled[0][0],
+                    settled[-1][1],
+                    len(settled),
+                    final=False,
+                    pre=seg.pre,
+                    crossings=_bounds(settled),
+                )
             )
             seg.next_window = len(seg.periods)
 
@@ -881,6 +927,7 @@ class StreamEstimator:
             post=post,
             post_open=post is not None,
             await_off=not by_off,
+            crossings=_bounds(settled),
         )
         self._pending.append(pending)
         if self._last_final is not None:
@@ -960,6 +1007,7 @@ class StreamEstimator:
             harmonics=self.config.harmonics,
             calibration=cal,
             amplifier=self.amplifier,
+            crossings=p.crossings or None,
         )
         if self.medium == "air":  # Lighthill's thrust needs a fluid: in air it means nothing
             r.update(dict.fromkeys(("thrust_n", "thrust_self_n", "c_tau"), math.nan))

@@ -172,3 +172,25 @@ def test_channels_that_lag_or_never_come(m8528: Fin) -> None:
     assert len(finals) == 1
     assert math.isnan(finals[0].thrust_loadcell_n)
     assert finals[0].thrust_self_n > 0
+
+
+def test_a_trial_whose_frequency_moved_within_the_tolerance_keeps_its_amplitude(paper_fin: Fin) -> None:
+    """A controller moves the drive 2 % in frequency (6.25 to 6.13 Hz at 446 Vpp: within the 3 % that
+    splits a trial) and holds it 35 s: the trial's final estimate spans both, and its lock-in follows
+    the periods as timed.  Locked to the window's mean frequency instead, 5 periods of phase slip
+    averaged the sine away: the live fish read 84 Vpp for 446 and fed that to its optimiser."""
+    rig, est = SimulatedRig(paper_fin, seed=2), StreamEstimator(paper_fin)
+    finals: list[Estimate] = []
+    for k in range(1000):  # 50 s
+        f = 6.25 if k < 200 else 6.13
+        rig.command(f, 446.0, 1 if k < 900 else 0)
+        b = rig.step(50)
+        finals += [e for e in est.add_drive(b.t, b.voltage, b.current) if e.final]
+    finals += [e for e in est.flush() if e.final]
+    assert len(finals) == 1
+    e = finals[0]
+    assert e.t_start < 10.0 and e.t_end > 40.0 and 6.13 < e.frequency_hz < 6.25
+    assert e.voltage_pp == pytest.approx(446.0, rel=5e-3)
+    t, vi = est.drive.slice(e.t_start, e.t_end)
+    fixed = analyse_window(paper_fin, t, vi[:, 0], vi[:, 1], e.frequency_hz)
+    assert fixed["voltage_pp"] < 0.5 * 446.0  # (the mean frequency alone: the sine averaged away)
