@@ -30,6 +30,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, String
 
+from ..bags.blocks import COMMAND_FIELDS, COMMAND_OPTIONAL
 from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.odometry import UNKNOWN, DeadReckoning
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
@@ -42,6 +43,7 @@ from ..physics.planar import slender_planar
 from ..physics.swim import SPEED_MOST_M_S, load_body
 from ._common import (
     TOPIC_BIAS,
+    TOPIC_CMD,
     TOPIC_CMD_VEL,
     TOPIC_DEMAND,
     TOPIC_ESTIMATE,
@@ -68,6 +70,9 @@ from ._diagnostics import OK, STALE, WARN, Diagnostics, Report
 FREQUENCY_MOST_HZ = 1000.0
 #: The fastest yaw rate any fish's command may ask, rad/s (either way): beyond, it is no command.
 YAW_RATE_MOST_RAD_S = 100.0
+#: The controller's ``cmd`` is the drive's point for this long (node clock, s; its heartbeat is 10 Hz):
+#: after, the latest estimate's.
+CMD_FRESH_S = 1.0
 
 
 def _in_plane(xx: float, xy: float, yy: float, heading_var: float) -> list[float]:
@@ -99,6 +104,22 @@ def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
             f"angular.z = {yaw!r} rad/s is no fish's turn (within +-{YAW_RATE_MOST_RAD_S:g})"
         )
     return forward, yaw
+
+
+def drive_point(msg: Any) -> tuple[float, float]:
+    """The door's check of the controller's ``cmd``: the drive's peak-to-peak voltage and frequency
+    it asks (0 V while it asks the drive off), within the hard cap and what a fin is driven at."""
+    cmd = msg_block(msg, expect=COMMAND_FIELDS, optional=COMMAND_OPTIONAL)
+    if cmd.n != 1:
+        raise MessageRefused(f"a command holds one sample, got {cmd.n}")
+    f, vpp, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
+    if on not in (0.0, 1.0):
+        raise MessageRefused(f"on = {on!r} is neither 0 nor 1")
+    if not (math.isfinite(vpp) and 0.0 <= vpp <= HARD_VOLTAGE_PP_MAX):
+        raise MessageRefused(f"a drive of {vpp!r} Vpp is beyond the hard cap ({HARD_VOLTAGE_PP_MAX:g})")
+    if not (math.isfinite(f) and 0.0 < f <= FREQUENCY_MOST_HZ):
+        raise MessageRefused(f"a drive at {f!r} Hz is no fin's (within (0, {FREQUENCY_MOST_HZ:g}] Hz)")
+    return (vpp if on == 1.0 else 0.0), f
 
 
 def fin_thrust(msg: Any) -> tuple[float, float, float]:
@@ -203,6 +224,8 @@ class SpeedLoopNode(Node):
         self._turns = body.fins == 1
         # (the latest estimate's thrust, voltage and frequency: the yaw loop's plant)
         self._thrust_n = self._voltage_pp = self._frequency_hz = math.nan
+        # (the drive's point as the controller asks it, and when: the offset's room and slew)
+        self._asked: tuple[float, float, float] = (math.nan, math.nan, -math.inf)
         freeze_parameters(self, "speed_m_s", self._on_setpoint)
         self._pub = self.create_publisher(*endpoint(TOPIC_DEMAND))
         self._status = self.create_publisher(*endpoint(TOPIC_LOOP_STATUS))
@@ -214,6 +237,7 @@ class SpeedLoopNode(Node):
         )
         # the IMU's yaw rate: the yaw loop's feedback; its offset goes to the controller's drive
         self.inbox.latest(endpoint(TOPIC_IMU)[0], TOPIC_IMU, self._on_imu, imu_reading)
+        self.inbox.latest(endpoint(TOPIC_CMD)[0], TOPIC_CMD, self._on_cmd, drive_point)
         self._bias_pub = self.create_publisher(*endpoint(TOPIC_BIAS))
         # a fish stack's velocity command (teleop, nav2): its forward speed is the set-point
         self._cmd_vel_timeout_s = own.cmd_vel_timeout_s
@@ -369,13 +393,27 @@ class SpeedLoopNode(Node):
         self.odometry.turn(heading, var)
         self.odometry.spin(rate, rate_var)
 
+    def _on_cmd(self, point: tuple[float, float]) -> None:
+        self._asked = (*point, self._now())
+
+    def _drive_now(self, t: float) -> tuple[float, float]:
+        """The drive's peak-to-peak voltage and frequency for the yaw loop: as the controller asks
+        them (within the last :data:`CMD_FRESH_S`), else as the latest estimate read them.  An
+        estimate comes a window (8 s) after the drive changed: turning, the controller moved from
+        6.25 Hz, 444 Vpp to 2.2 Hz, 800 Vpp, and the loop, on the estimate's point, moved the offset
+        at 2.8 % of the new sine's slope and placed the window's edge 180 V beyond the drive's."""
+        vpp, f, at = self._asked
+        if t - at <= CMD_FRESH_S:
+            return vpp, f
+        return (self._voltage_pp if math.isfinite(self._voltage_pp) else 0.0), self._frequency_hz
+
     def _steer(self, t: float) -> None:
         """The offset the yaw loop asks now, on ``bias_demand`` (V; 0 while the fish swims straight),
         and once per edge of the window what turn it cannot give."""
         if not self._turns:
             return
-        vpp = self._voltage_pp if math.isfinite(self._voltage_pp) else 0.0
-        bias = self.yaw.update(t, self._thrust_n, self.loop.speed_m_s, vpp, self._frequency_hz)
+        vpp, f = self._drive_now(t)
+        bias = self.yaw.update(t, self._thrust_n, self.loop.speed_m_s, vpp, f)
         self._bias_pub.publish(Float64(data=bias))
         if self.yaw.edge:
             self._say_once(

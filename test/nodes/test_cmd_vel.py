@@ -132,6 +132,59 @@ def test_odometry_is_dead_reckoned_from_the_speed_sensor_with_its_covariance() -
     assert last.twist.covariance[0] == pytest.approx(0.002**2)
 
 
+@pytest.mark.slow
+def test_the_yaw_loop_moves_the_offset_for_the_drive_the_controller_asks() -> None:
+    """The controller has moved the drive to 2.2 Hz, 800 Vpp; the latest estimate still reads the
+    last window's 6.25 Hz, 444 Vpp.  A turn beyond the fin's asks the offset to the window's edge: it
+    stops at the edge of the drive asked (1,500 - 400 V), not the estimate's (1,278 V), and moves
+    at the share of the asked sine's slope (5 %: 276 V/s), not of the estimate's (436 V/s), which
+    had split the estimator's periods."""
+    from sensor_msgs.msg import Imu
+
+    from piezofin_ros.bags.blocks import Block
+    from piezofin_ros.nodes._common import block_msg, imu_msg, record_msg
+
+    proc = start("speed_loop", "-r", "__ns:=/room", "-p", "rate_hz:=20.0", "-p", "yaw.period_shift:=0.05")
+    biases: list[tuple[float, float]] = []
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("stack", namespace="room", context=g.context))
+            pubs = {
+                "cmd_vel": node.create_publisher(Twist, "cmd_vel", QOS_COMMAND),
+                "swim_speed": node.create_publisher(data_type("swim_speed"), "swim_speed", QOS_SENSOR),
+                "imu": node.create_publisher(Imu, "imu", QOS_SENSOR),
+                "estimate": node.create_publisher(data_type("estimate"), "estimate", QOS_DATA),
+                "cmd": node.create_publisher(data_type("cmd"), "cmd", QOS_COMMAND),
+            }
+            node.create_subscription(
+                Float64, "bias_demand", lambda m: biases.append((time.monotonic(), m.data)), QOS_COMMAND
+            )
+            g.spin_until(
+                lambda: all(p.get_subscription_count() > 0 for p in pubs.values()), 60.0, "the speed loop"
+            )
+            estimate = {"thrust_self_n": 1.5e-3, "voltage_pp": 444.0, "frequency_hz": 6.25}
+            cmd = block_msg(Block.from_record({"frequency_hz": 2.2, "voltage_pp_V": 800.0, "on": 1.0}))
+            t_end = time.monotonic() + 8.0
+            while time.monotonic() < t_end:  # (20 Hz: a fish stack's, the sensors', the controller's)
+                now = time.time()
+                pubs["cmd_vel"].publish(twist(0.05, yaw=0.3))
+                pubs["swim_speed"].publish(speed_msg(data_type("swim_speed"), 0.05, now))
+                pubs["imu"].publish(imu_msg(0.0, 0.0, 1e-4, 1e-3, now))
+                pubs["estimate"].publish(record_msg(data_type("estimate"), estimate, now))
+                pubs["cmd"].publish(cmd)
+                g.spin_for(0.05)
+    finally:
+        out = stop(proc)[0]
+    assert "Traceback" not in out, out[-3000:]
+    t = np.array([a for a, _ in biases])
+    b = np.array([x for _, x in biases])
+    assert b.max() == pytest.approx(1100.0, abs=1e-6), (b.max(), out[-2000:])  # (the asked drive's edge)
+    rising = (b > 50.0) & (b < 1000.0)
+    slope = np.polyfit(t[rising], b[rising], 1)[0]
+    asked = 0.05 * 400.0 * 2.0 * math.pi * 2.2
+    assert slope == pytest.approx(asked, rel=0.15), (slope, asked)
+
+
 #: the fish's stack for the turn, each node as ``ros2 run`` starts it with the fish's parameter file
 FISH_YAML = str(Path(__file__).resolve().parents[2] / "config" / "fish.yaml")
 

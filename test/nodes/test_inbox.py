@@ -28,6 +28,7 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 
 from piezofin_ros.bags.blocks import (
     CHANNEL_MOST,
+    COMMAND_FIELDS,
     DRIVE_CHANNELS,
     LOADCELL_CHANNELS,
     SUPPLY_CHANNELS,
@@ -113,6 +114,18 @@ def estimate_msgs() -> list[EstimateMsg]:
     return out
 
 
+def drive_commands() -> list[Float64MultiArray]:
+    """The controller's ``cmd`` as an attacker sends it: every hostile value (and NaN, -1) in each
+    field, labelled; too few and too many values, unlabelled."""
+    out = []
+    for x in [*HOSTILE, math.nan, -1.0]:
+        for name in COMMAND_FIELDS:
+            record = {"frequency_hz": 5.0, "voltage_pp_V": 400.0, "on": 1.0, name: x}
+            out.append(block_msg(Block.from_record(record)))
+    out += [Float64MultiArray(data=[5.0, 400.0]), Float64MultiArray(data=[5.0, 400.0, 1.0, 0.0, 0.0])]
+    return out
+
+
 def battery_states() -> list[BatteryState]:
     out = []
     for v, i in [(x, -0.1) for x in [*HOSTILE, math.nan, -7.4, 0.0, 1.5 * BATTERY_MOST_V]] + [
@@ -161,6 +174,7 @@ ATTACKS = {
         "swim_speed": (data_type("swim_speed"), QOS_SENSOR, speed_readings()),
         "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
         "imu": (Imu, QOS_SENSOR, imu_readings()),
+        "cmd": (Float64MultiArray, QOS_COMMAND, drive_commands()),
     },
     "controller": {
         "thrust_demand": (Float64, QOS_COMMAND, [Float64(data=x) for x in HOSTILE]),
