@@ -832,11 +832,10 @@ class StreamEstimator:
         """After the middle moved by ``shift`` (V) on a sine of ``swing`` (V peak-to-peak): where that
         moves a crossing by more than the tolerance of a period (``shift / (pi swing)``: a step of
         the offset, not the drift a yaw loop gives it; a period so far off would split the segment
-        anyway), no period is timed across the move:
-        the segment ends, and timing starts again at the new middle's first crossing (whose swing,
-        above and below it, sets the middle again).  Timing across a step once gave a period of
-        26 ms, whose swing set a wrong middle, and the next; no estimate came while the offset
-        stayed."""
+        anyway), no period is timed across the move.  The segment ends, and timing starts again at
+        the new middle's first crossing (whose swing, above and below it, sets the middle again).
+        Timing across a step once gave a period of 26 ms, whose swing set a wrong middle, and the
+        next; no estimate came while the offset stayed."""
         if abs(shift) <= self.config.tolerance * math.pi * swing:
             return
         self._partial, self._last_cross, self._period_s = True, math.nan, math.nan
