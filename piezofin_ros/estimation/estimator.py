@@ -46,7 +46,9 @@ Windows
 A drive period runs between two upward zero crossings of the voltage (with hysteresis against
 noise); where a DC offset holds the drive off zero (no crossing for 2.5 periods, or 2.5 s before the
 first), between upward crossings of its middle, followed period by period until zero lies inside the
-swing again.
+swing again; a crossing counts once the voltage has swung above and below the level since the last.
+A middle that steps (by more than ``tolerance`` of a period's timing: an offset's step, not its
+drift) ends the segment, and timing starts again at the new middle's first crossing.
 Consecutive periods of the same length and amplitude (within ``tolerance``) form a
 *segment* (a period that differs from the first one but not from the median of the last five
 continues it, so a ramp's tail or a slow drift does not split a trial); a burst of the paper's
@@ -54,7 +56,8 @@ protocol is one segment, and so is steady continuous driving.
 The first ``settle_s`` of a segment are skipped (the transient).  While a segment lasts, an
 estimate is emitted every ``window_s`` of settled periods (``final = 0``); when it ends (the drive
 stops or changes) one estimate over all its settled periods follows (``final = 1``), once the post
-baseline of the load cell has been recorded.
+baseline of the load cell has been recorded.  A window's lock-in follows its periods as timed where
+they slip from its mean frequency (:data:`PHASE_SLIP_RAD`).
 """
 
 from __future__ import annotations
