@@ -351,9 +351,12 @@ def drive_phase(t: FloatArray, crossings: FloatArray) -> FloatArray:
 
 
 #: The phase (rad) by which a window's timed periods may slip from its mean frequency before its
-#: lock-in follows them: a noisy crossing's jitter is ``noise / amplitude`` (2.5 mrad for 1 V on
-#: 400 V), and 50 mrad costs a fixed-frequency lock-in 0.13 % of the amplitude.
-PHASE_SLIP_RAD = 0.05
+#: lock-in follows them.  Below it, the crossings' own errors may be most of the slip: a noisy
+#: crossing's jitter is ``noise / amplitude`` (2.5 mrad for 1 V on 400 V), and a moving offset's
+#: middle, a period behind, moves each crossing by up to ``pi`` times the yaw loop's period shift
+#: (31-63 mrad); followed from 0.05-0.15 rad, the course's stranger 2 cost 0.8 % more energy per
+#: metre.  A slip of ``s`` costs a fixed-frequency lock-in about ``s^2 / 6`` of the amplitude (1.5 %).
+PHASE_SLIP_RAD = 0.3
 
 
 def analyse_window(
