@@ -77,7 +77,14 @@ class DriveProbe:
         rclpy.shutdown(context=self.context)
 
 
-@pytest.mark.parametrize("case", list(CASES))
+#: (two fins: seven processes; beside the other workers, in CI, the command line did not find a fin
+#: it had just listed: in phase 2)
+HEAVY = {"piezofin.launch.py, two fins"}
+
+
+@pytest.mark.parametrize(
+    "case", [pytest.param(c, marks=[pytest.mark.exclusive]) if c in HEAVY else c for c in CASES]
+)
 def test_an_operators_deactivate_holds_under_every_launch_file(
     ros_env: dict[str, str], tmp_path: Path, case: str
 ) -> None:
