@@ -115,11 +115,19 @@ def drive_point(msg: Any) -> tuple[float, float]:
     f, vpp, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
     if on not in (0.0, 1.0):
         raise MessageRefused(f"on = {on!r} is neither 0 nor 1")
-    if not (math.isfinite(vpp) and 0.0 <= vpp <= HARD_VOLTAGE_PP_MAX):
-        raise MessageRefused(f"a drive of {vpp!r} Vpp is beyond the hard cap ({HARD_VOLTAGE_PP_MAX:g})")
-    if not (math.isfinite(f) and 0.0 < f <= FREQUENCY_MOST_HZ):
-        raise MessageRefused(f"a drive at {f!r} Hz is no fin's (within (0, {FREQUENCY_MOST_HZ:g}] Hz)")
+    if math.isnan(vpp) or math.isnan(f):
+        raise MessageRefused(f"a command of {vpp!r} Vpp at {f!r} Hz")
+    _check_drive(vpp, f)
     return (vpp if on == 1.0 else 0.0), f
+
+
+def _check_drive(vpp: float, f: float) -> None:
+    """A drive's peak-to-peak voltage within the hard cap and its frequency within what a fin is
+    driven at (NaN: not given), or :class:`MessageRefused`."""
+    if not (math.isnan(vpp) or 0.0 <= vpp <= HARD_VOLTAGE_PP_MAX):
+        raise MessageRefused(f"a drive of {vpp!r} Vpp is beyond the hard cap ({HARD_VOLTAGE_PP_MAX:g})")
+    if not (math.isnan(f) or 0.0 < f <= FREQUENCY_MOST_HZ):
+        raise MessageRefused(f"a drive at {f!r} Hz is no fin's (within (0, {FREQUENCY_MOST_HZ:g}] Hz)")
 
 
 def fin_thrust(msg: Any) -> tuple[float, float, float]:
@@ -137,11 +145,8 @@ def fin_thrust(msg: Any) -> tuple[float, float, float]:
             f"a thrust of {thrust!r} N is beyond what any fin gives (within +-{THRUST_MOST_N:g})"
         )
     vpp = block.scalar("voltage_pp") if "voltage_pp" in names else math.nan
-    if not (math.isnan(vpp) or 0.0 <= vpp <= HARD_VOLTAGE_PP_MAX):
-        raise MessageRefused(f"a drive of {vpp!r} Vpp is beyond the hard cap ({HARD_VOLTAGE_PP_MAX:g})")
     f = block.scalar("frequency_hz") if "frequency_hz" in names else math.nan
-    if not (math.isnan(f) or 0.0 < f <= FREQUENCY_MOST_HZ):
-        raise MessageRefused(f"a drive at {f!r} Hz is no fin's (within (0, {FREQUENCY_MOST_HZ:g}] Hz)")
+    _check_drive(vpp, f)
     return thrust, vpp, f
 
 
