@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -57,6 +57,9 @@ class Fit:
     #: how far the fitted parameters lie from the prior's, in its sigmas squared and summed (the
     #: penalty the fit paid beside its misfit)
     prior_cost: float = 0.0
+    #: what the map derives from this fit alone, made once per fit and kept with it
+    #: (:func:`.thrustmap.tabled_sigma`'s tables)
+    derived: dict[Any, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def sigma(self, log_value: Callable[[Correction], FloatArray], skip: str = "") -> FloatArray:
         """Standard deviation of ``log_value(correction)`` from the parameters' covariance (first

@@ -137,6 +137,27 @@ def model_sigma(opt: MapInputs, f: Any, v: Any) -> FloatArray:
     return opt.fit.sigma(log_thrust, skip="" if source_of(opt.source).load_cell else "thrust_gain")
 
 
+#: Frequencies in the table of the model's uncertainty at one voltage (the first map's grid,
+#: ``Tuning.n_grid``: there the table is the value itself; between, a 2 % step in frequency).
+SIGMA_TABLE_POINTS = 160
+
+
+def tabled_sigma(opt: MapInputs, f: FloatArray, voltage_pp: float) -> FloatArray:
+    """:func:`model_sigma` at one voltage, interpolated in log frequency from a table over the
+    box's band made once per fit and voltage.  The frontier asks for it at every demand (a fish's
+    speed loop sends one every few seconds) and at each of its three maps: derived anew each time,
+    it was most of a map's cost (9 parameters' differences of the model on every grid)."""
+    lim = opt.limits
+    key = ("sigma", lim, float(voltage_pp), opt.source, id(opt.fin))
+    table = opt.fit.derived.get(key)
+    if table is None:
+        grid = np.geomspace(lim.frequency_min_hz, lim.frequency_max_hz, SIGMA_TABLE_POINTS)
+        sigma = model_sigma(opt, grid, np.full_like(grid, voltage_pp))
+        table = opt.fit.derived[key] = (np.log(grid), np.asarray(sigma, float), opt.fin)
+    log_f, sigma, _ = table  # (the fin kept with its id, so the id is never another's)
+    return np.interp(np.log(np.asarray(f, float)), log_f, sigma)
+
+
 def surface(opt: MapInputs, f: Any, v: Any, model_sigma: Any = 0.0) -> Surface:
     """The corrected model times the residual process's correction, with the demand's bound:
     the true thrust less ``z`` times the map's uncertainty (the residual process's, and the
@@ -172,13 +193,13 @@ def frontier(opt: MapInputs, f: FloatArray) -> tuple[Surface, FloatArray]:
     the least voltage whose thrust meets the demand with the margin.  Also: feasible there."""
     lim = opt.limits
     if opt.demand_n is None:
-        v = np.full_like(f, min(max(opt.voltage_pp, lim.voltage_pp_min), lim.voltage_pp_max))
-        s = surface(opt, f, v, model_sigma(opt, f, v))
+        at = min(max(opt.voltage_pp, lim.voltage_pp_min), lim.voltage_pp_max)
+        s = surface(opt, f, np.full_like(f, at), tabled_sigma(opt, f, at))
         return s, s.thrust_low_n >= opt.min_thrust_n  # (the least thrust, with the margin too)
     vmax = np.full_like(f, lim.voltage_pp_max)
     # the model's uncertainty in log thrust, taken at full voltage for every voltage of a frequency
     # (it barely changes with V, and a search that re-derived it would cost 8 maps a step)
-    sigma = np.broadcast_to(model_sigma(opt, f, vmax), f.shape)
+    sigma = tabled_sigma(opt, f, lim.voltage_pp_max)
     demand = float(opt.demand_n)
 
     def gap(at: FloatArray, v: FloatArray) -> FloatArray:  # log(thrust with the margin / demand)

@@ -202,10 +202,11 @@ class Controller(Node):
         # the fitted fin, once the corrected model fits its trials: an estimator's self-sensing follows it
         self._model_pub = self.create_publisher(*endpoint(TOPIC_MODEL)) if self.loop is not None else None
         self._model_sent: object = None  # (the correction last sent)
-        # every message from another process: its failure said, never fatal.  (Looked at 20 times a
-        # second, not 100, it cost 2 % of a core less, but the yaw loop's offset came up to 0.5 s of
-        # fish time late at x10: the turn fell 16 % short and the course went 1 m off its line.)
-        self.inbox = Inbox(self)
+        # every message from another process: its failure said, never fatal.  Looked at every 50 ms of
+        # the fish's time: 20 times a second on a fish, not 100, 2 % of a core less; and as often as
+        # 100 times a second of wall time at x10 (at 20, the yaw loop's offset came up to 0.5 s of
+        # fish time late: the turn fell 16 % short and the course went 1 m off its line).
+        self.inbox = Inbox(self, node_time_s=Inbox.NODE_TIME_S)
         # polled (a flood of estimates held the executor, and the heartbeat with it: the watchdog tripped)
         self.inbox.polled(
             endpoint(TOPIC_ESTIMATE)[0], TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20

@@ -234,7 +234,9 @@ class SpeedLoopNode(Node):
         freeze_parameters(self, "speed_m_s", self._on_setpoint)
         self._pub = self.create_publisher(*endpoint(TOPIC_DEMAND))
         self._status = self.create_publisher(*endpoint(TOPIC_LOOP_STATUS))
-        self.inbox = Inbox(self)  # every message from another process: its failure said, never fatal
+        # every message from another process: its failure said, never fatal (looked at every 50 ms
+        # of the fish's time)
+        self.inbox = Inbox(self, node_time_s=Inbox.NODE_TIME_S)
         # the newest reading only, polled: a flood costs one reading per look
         self.inbox.latest(endpoint(TOPIC_SPEED)[0], TOPIC_SPEED, self._on_speed, speed_reading)
         self.inbox.polled(

@@ -98,9 +98,10 @@ class ThrustEstimatorConfig:
 MODEL_MESSAGE_MOST = 4096
 
 
-#: How often the inbox is looked at, s of wall time: 40 times a second (each look wakes the executor:
-#: at 100 a second the estimator took 9-11 % of a core at 1 kHz; its windows last seconds, so a block
-#: 25 ms late changes nothing).
+#: How often the inbox is looked at, s of wall time, at the most often: 40 times a second (each look
+#: wakes the executor: at 100 a second the estimator took 9-11 % of a core at 1 kHz; its windows last
+#: seconds, so a block 25 ms late changes nothing); and every 50 ms of the fin's time
+#: (:data:`Inbox.NODE_TIME_S`): 20 times a second on a fish in real time (8.6-9.5 % of a core at 40).
 POLL_S = 0.025
 #: Sample blocks taken from each sampled topic a look: 2,000 a second, where fin_sim at x40 sends 800
 #: (what a flood sends beyond is dropped from its own queue, never from the others').
@@ -137,7 +138,7 @@ class ThrustEstimator(Node):
         self._pub = self.create_publisher(*endpoint(TOPIC_ESTIMATE))
         self._estimate_type = self._pub.msg_type
         # every message from another process through one door: checked there, refused with the reason
-        self.inbox = inbox = Inbox(self, POLL_S)
+        self.inbox = inbox = Inbox(self, POLL_S, node_time_s=Inbox.NODE_TIME_S)
         # every sampled topic polled, each at most BLOCKS_A_LOOK blocks a look: a flood on one (a spoofed
         # supply at 10 kHz) cannot hold the executor from the others (it starved the drive's)
         for topic, handler, channels in (

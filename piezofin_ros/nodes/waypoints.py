@@ -163,7 +163,7 @@ class WaypointsNode(Node):
         self._cmd = self.create_publisher(*endpoint(TOPIC_CMD_VEL))
         self._status = self.create_publisher(*endpoint(TOPIC_WAYPOINT_STATUS))
         self._markers = self.create_publisher(*endpoint(TOPIC_WAYPOINT_MARKERS))
-        self.inbox = Inbox(self)
+        self.inbox = Inbox(self, node_time_s=Inbox.NODE_TIME_S)
         self.inbox.latest(Odometry, TOPIC_ODOM, self._on_odom, pose_of)
         self.inbox.latest(Path, TOPIC_WAYPOINT_PATH, self._on_path, self._path_course)
         self._stopped = False

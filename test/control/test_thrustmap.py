@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from piezofin_ros.bench.plants import Plant
 from piezofin_ros.control import thrustmap
 from piezofin_ros.control.optimise import Optimiser
 from piezofin_ros.control.thrustmap import BISECTIONS, least_root
@@ -15,7 +16,7 @@ from piezofin_ros.physics.amplifier import load_amplifier
 from piezofin_ros.physics.fin import Fin
 from piezofin_ros.physics.model import load_model
 
-from .test_optimise import LIMITS
+from .test_optimise import LIMITS, campaign
 
 
 def bisection(opt: Optimiser, f: np.ndarray) -> np.ndarray:
@@ -86,3 +87,35 @@ def test_the_least_root_is_the_least_voltage_seen_to_meet_it() -> None:
         lambda at, v: np.full(int(np.sum(at)), -1.0), np.zeros(3, bool), v_min, v_max, -np.ones(3)
     )
     assert np.all(out == v_max) and not math.isnan(float(out[0]))
+
+
+@pytest.mark.fast_cases("None")
+@pytest.mark.parametrize("given", [None, "paper-twin-M8528-P1"])
+def test_the_models_uncertainty_is_tabled_once_a_fit_and_read_where_it_was_derived(
+    m8528: Fin, given: str | None
+) -> None:
+    """After six trials on a plant off the model (a fitted covariance: a sigma that varies across
+    the band), the frontier's sigma at full voltage comes from one table a fit (each demand and each
+    of a demand's three maps derived it anew: most of a demand's cost on a fish): the value itself on
+    the first map's grid, within 3 % of it between (a 2 % step in frequency), and derived again
+    only after the next fit."""
+    model = None if given is None else load_model(given)
+    opt = Optimiser(m8528, LIMITS, demand_n=3e-3, model=model, amplifier=load_amplifier("fish-switching"))
+    campaign(opt, Plant(m8528, softening=0.3, resonance_scale=0.9, loss_tan_delta=0.1), 6)
+    vmax = LIMITS.voltage_pp_max
+    grid = np.geomspace(LIMITS.frequency_min_hz, LIMITS.frequency_max_hz, opt.tuning.n_grid)
+    exact = thrustmap.model_sigma(opt, grid, np.full_like(grid, vmax))
+    assert np.ptp(exact) > 0.2 * np.max(exact) > 0, exact  # (a sigma that varies: a table that may be wrong)
+    np.testing.assert_array_equal(thrustmap.tabled_sigma(opt, grid, vmax), exact)
+    between = np.sqrt(grid[1:] * grid[:-1])
+    want = thrustmap.model_sigma(opt, between, np.full_like(between, vmax))
+    np.testing.assert_allclose(thrustmap.tabled_sigma(opt, between, vmax), want, rtol=0.03)
+    derived = []
+    model_sigma = thrustmap.model_sigma
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(thrustmap, "model_sigma", lambda *a, **k: derived.append(1) or model_sigma(*a, **k))
+        for demand in (1e-3, 2e-3, 4e-3):
+            opt.set_demand(demand)
+        assert derived == []  # (three demands, nine maps: the table of this fit)
+        campaign(opt, Plant(m8528, softening=0.3, resonance_scale=0.9, loss_tan_delta=0.1), 1, seed=1, t0=1e3)
+        assert derived, "a new fit derives its table again"

@@ -91,3 +91,39 @@ def test_other_points_or_a_moved_fin_are_solved_again_and_the_cache_is_bounded()
     size = len(_SOLVED)
     model.predict(big, np.full_like(big, 500.0))
     assert len(_SOLVED) == size  # (too many points to key: solved, not kept)
+
+
+#: across the resonance at full voltage with a softening spring: where several amplitudes are
+#: steady (the fixed point does not settle, the lowest root is scanned for), the lowest must be the
+#: one a nearby model's amplitude leads to as well
+JUMP_F = np.linspace(3.0, 8.0, 41)
+JUMP_V = np.full_like(JUMP_F, 800.0)
+SOFT = (LIBRARY["stiffness_nonlinearity"].at([-300.0]), *MOVING)
+
+
+@pytest.mark.parametrize("effects", [MOVING, SOFT], ids=["moving", "softening"])
+def test_a_nearby_models_amplitude_starts_the_fixed_point_and_it_ends_where_rest_would(
+    effects: tuple[Effect, ...],
+) -> None:
+    """A fit's forward differences step one parameter by 1.5e-8: the fixed point starts from the
+    amplitude just solved (``_Solved.near``) and ends within 1e-9 of the amplitude solved from
+    rest, the lowest root where there are several; a model further than ``NEAR`` starts from rest."""
+    for k, e in enumerate(effects):
+        for j, q in enumerate(e.params):
+            values = list(e.values)
+            values[j] = min(values[j] + 1.5e-8 * max(1.0, abs(values[j])), q.upper)
+            nearby = (*effects[:k], type(e).at(values), *effects[k + 1 :])
+            _SOLVED.clear()
+            _, rest = steady_knobs(FIN, nearby, JUMP_F, JUMP_V)
+            _SOLVED.clear()
+            steady_knobs(FIN, effects, JUMP_F, JUMP_V)
+            starts = _SOLVED.starts
+            _, warm = steady_knobs(FIN, nearby, JUMP_F, JUMP_V)
+            assert _SOLVED.starts == starts + 1, (e.name, q.name)
+            np.testing.assert_allclose(warm, rest, rtol=1e-9, atol=0, err_msg=f"{e.name}.{q.name}")
+    _SOLVED.clear()
+    steady_knobs(FIN, effects, JUMP_F, JUMP_V)
+    far = (type(effects[0]).at([v * 1.01 + 1e-3 for v in effects[0].values]), *effects[1:])
+    starts = _SOLVED.starts
+    steady_knobs(FIN, far, JUMP_F, JUMP_V)
+    assert _SOLVED.starts == starts  # (a percent away: from rest)
