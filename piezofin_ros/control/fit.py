@@ -58,8 +58,9 @@ class Fit:
     #: penalty the fit paid beside its misfit)
     prior_cost: float = 0.0
     #: what the map derives from this fit alone, made once per fit and kept with it
-    #: (:func:`.thrustmap.tabled_sigma`'s tables)
-    derived: dict[Any, Any] = field(default_factory=dict, compare=False, repr=False)
+    #: (:func:`.thrustmap.tabled_sigma`'s tables; never passed on: a fit made from this one, by
+    #: ``dataclasses.replace``, starts without them)
+    derived: dict[Any, Any] = field(default_factory=dict, init=False, compare=False, repr=False)
 
     def sigma(self, log_value: Callable[[Correction], FloatArray], skip: str = "") -> FloatArray:
         """Standard deviation of ``log_value(correction)`` from the parameters' covariance (first

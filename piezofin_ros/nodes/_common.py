@@ -30,6 +30,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..bags.blocks import (
     CHANNEL_OF_FIELD,
+    COMMAND_FIELDS,
+    COMMAND_OPTIONAL,
     Block,
     check_samples,
     from_layout,
@@ -679,6 +681,19 @@ def helper_node(node: Node, role: str) -> Node:
 
 class MessageRefused(NodeError, ValueError):
     """A message from another process that is no reading of what its topic carries."""
+
+
+def drive_command(msg: Any) -> tuple[float, float, float, float]:
+    """A drive command as ``cmd`` carries it (:data:`~piezofin_ros.bags.blocks.COMMAND_FIELDS`, then
+    the optional offset): its frequency (Hz), peak-to-peak voltage, on (0/1) and offset (V, 0 when it
+    holds none), one sample; else ``BlockFormatError`` (not the layout) or :class:`MessageRefused`.
+    Its values are judged where it is read: by the drive's limits (``fin_sim``), by what a fin is
+    driven at (``speed_loop``'s ``drive_point``)."""
+    cmd = msg_block(msg, expect=COMMAND_FIELDS, optional=COMMAND_OPTIONAL)
+    if cmd.n != 1:
+        raise MessageRefused(f"a command holds one sample, got {cmd.n}")
+    f, vpp, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
+    return f, vpp, on, (cmd.scalar("bias_V") if "bias_V" in cmd.names else 0.0)
 
 
 def scalar(lo: float, hi: float, unit: str) -> Callable[[Any], float]:

@@ -52,7 +52,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64MultiArray
 
-from ..bags.blocks import COMMAND_FIELDS, COMMAND_OPTIONAL, Block, BlockFormatError
+from ..bags.blocks import Block, BlockFormatError
 from ..config import setting
 from ..physics.amplifier import AmplifierError, load_amplifier
 from ..physics.effects import ModelError
@@ -82,12 +82,13 @@ from ._common import (
     TOPIC_SUPPLY,
     TOPIC_TIP,
     Inbox,
+    MessageRefused,
     StartupError,
     declare,
+    drive_command,
     endpoint,
     freeze_parameters,
     imu_msg,
-    msg_block,
     named_msg,
     run_node,
     speed_msg,
@@ -420,15 +421,13 @@ class FinSim(LifecycleNode):
             self._log_command("ignored: the battery is empty (the drive stays at 0 V)")
             return
         try:
-            cmd = msg_block(msg, expect=COMMAND_FIELDS, optional=COMMAND_OPTIONAL)
+            f, v, on, bias = drive_command(msg)
         except BlockFormatError as exc:
             self._log_command(f"rejected: malformed command ({exc})")
             return
-        if cmd.n != 1:
-            self._log_command(f"rejected: a command holds one sample, got {cmd.n}")
+        except MessageRefused as exc:
+            self._log_command(f"rejected: {exc}")
             return
-        f, v, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
-        bias = cmd.scalar("bias_V") if "bias_V" in cmd.names else 0.0
         _, reason = self._rig.command(f, v, on, bias)
         if reason:
             self._log_command(reason)

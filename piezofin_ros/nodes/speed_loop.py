@@ -30,7 +30,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, String
 
-from ..bags.blocks import COMMAND_FIELDS, COMMAND_OPTIONAL
 from ..config import HARD_VOLTAGE_PP_MAX, setting
 from ..control.odometry import UNKNOWN, DeadReckoning
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
@@ -55,6 +54,7 @@ from ._common import (
     MessageRefused,
     StartupError,
     declare,
+    drive_command,
     endpoint,
     freeze_parameters,
     heading_of,
@@ -109,10 +109,7 @@ def velocity_command(msg: Twist | TwistStamped) -> tuple[float, float]:
 def drive_point(msg: Any) -> tuple[float, float]:
     """The door's check of the controller's ``cmd``: the drive's peak-to-peak voltage and frequency
     it asks (0 V while it asks the drive off), within the hard cap and what a fin is driven at."""
-    cmd = msg_block(msg, expect=COMMAND_FIELDS, optional=COMMAND_OPTIONAL)
-    if cmd.n != 1:
-        raise MessageRefused(f"a command holds one sample, got {cmd.n}")
-    f, vpp, on = (cmd.scalar(name) for name in COMMAND_FIELDS)
+    f, vpp, on, _ = drive_command(msg)
     if on not in (0.0, 1.0):
         raise MessageRefused(f"on = {on!r} is neither 0 nor 1")
     if math.isnan(vpp) or math.isnan(f):

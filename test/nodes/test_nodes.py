@@ -18,13 +18,21 @@ from rosbags.highlevel import AnyReader
 from std_msgs.msg import Float64MultiArray
 
 from piezofin_ros.bags import block_of, read_messages
-from piezofin_ros.bags.blocks import Block
+from piezofin_ros.bags.blocks import Block, BlockFormatError
 from piezofin_ros.estimation.estimator import Estimate
-from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, StartupError, block_msg
+from piezofin_ros.nodes._common import (
+    QOS_COMMAND,
+    QOS_DATA,
+    MessageRefused,
+    StartupError,
+    block_msg,
+    drive_command,
+)
 from piezofin_ros.nodes.controller import Controller
 from piezofin_ros.nodes.fin_sim import FinSim
 from piezofin_ros.nodes.player import Player
 from piezofin_ros.nodes.recorder import Recorder
+from piezofin_ros.nodes.speed_loop import drive_point
 from piezofin_ros.nodes.thrust_estimator import ThrustEstimator
 from piezofin_ros.physics.steady import harmonic_balance
 
@@ -327,6 +335,26 @@ def test_the_estimator_takes_a_diagnosed_model_for_its_self_sensing(tmp_path) ->
         assert ThrustEstimator(context=g.context, node_name="plain").core.calibrate is None
         with pytest.raises(StartupError, match=r"parameter model: .*bad\.yaml"):
             ThrustEstimator(context=g.context, node_name="e3", parameter_overrides=params(model=str(bad)))
+
+
+def test_a_drive_command_is_read_one_way_by_the_rig_and_the_speed_loop() -> None:
+    """``cmd`` as a person types it (three numbers, then the optional offset) or labelled, read by
+    one function (``drive_command``) for ``fin_sim`` and for the speed loop's door (``drive_point``,
+    which then judges the values); one sample only, a malformed one refused with the reason."""
+    assert drive_command(Float64MultiArray(data=[5.5, 800.0, 1.0])) == (5.5, 800.0, 1.0, 0.0)
+    assert drive_command(Float64MultiArray(data=[5.5, 400.0, 1.0, -120.0])) == (5.5, 400.0, 1.0, -120.0)
+    labelled = Block.from_columns(frequency_hz=[4.0], voltage_pp_V=[300.0], on=[0.0], bias_V=[50.0])
+    assert drive_command(block_msg(labelled)) == (4.0, 300.0, 0.0, 50.0)
+    assert drive_point(block_msg(labelled)) == (0.0, 4.0)  # (off: no voltage on the fin)
+    assert drive_point(Float64MultiArray(data=[5.5, 800.0, 1.0])) == (800.0, 5.5)
+    two = Block.from_columns(frequency_hz=[4.0, 5.0], voltage_pp_V=[300.0, 300.0], on=[1.0, 1.0])
+    for read in (drive_command, drive_point):
+        with pytest.raises(MessageRefused, match="one sample, got 2"):
+            read(block_msg(two))
+        with pytest.raises(BlockFormatError, match="must hold 3"):
+            read(Float64MultiArray(data=[5.5, 800.0]))
+    with pytest.raises(MessageRefused, match="hard cap"):
+        drive_point(Float64MultiArray(data=[5.5, 1e4, 1.0]))
 
 
 def test_inactive_fin_sim_drives_nothing_and_bad_commands_are_logged() -> None:
