@@ -476,7 +476,6 @@ class Inbox:
         self.node_time_s = node_time_s
         self._timer: Any = None
         self._rate_at: tuple[float, int] | None = None  # (time.monotonic, the node's clock in ns)
-        self.period_s = poll_s  # (the looks' period now, s of wall time)
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._said: dict[str, int] = {}
         self._helper: Node | None = None
@@ -541,25 +540,24 @@ class Inbox:
         self._polls.append((sub, topic, handler, check, most))
         return sub
 
-    def _follow_clock(self) -> None:
+    def _follow_clock(self, node_time_s: float) -> None:
         """The looks' period from the node's clock's rate against the wall (``node_time_s``)."""
         wall, now = time.monotonic(), self._node.get_clock().now().nanoseconds
         if self._rate_at is None:
             self._rate_at = (wall, now)
             return
-        if wall - self._rate_at[0] < self.RATE_S or self.node_time_s is None:
+        if wall - self._rate_at[0] < self.RATE_S:
             return
         rate = (now - self._rate_at[1]) * 1e-9 / (wall - self._rate_at[0])
         self._rate_at = (wall, now)
-        period = self.node_time_s / rate if rate > 0 else self.node_time_s
-        period = min(max(period, self.poll_s), self.node_time_s)
-        if abs(period - self.period_s) > 0.1 * self.period_s:
-            self.period_s = period
+        period = min(max(node_time_s / rate if rate > 0 else node_time_s, self.poll_s), node_time_s)
+        before = self._timer.timer_period_ns * 1e-9
+        if abs(period - before) > 0.1 * before:
             self._timer.timer_period_ns = int(period * 1e9)
 
     def _poll(self) -> None:
         if self.node_time_s is not None:
-            self._follow_clock()
+            self._follow_clock(self.node_time_s)
         if time.monotonic() - self._types_at >= self.TYPES_S:
             self._types_at = time.monotonic()
             self._check_types()

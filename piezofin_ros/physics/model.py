@@ -243,7 +243,7 @@ class _Solved:
 
     And where the effects that move it differ from the last solved at the same points by
     :attr:`NEAR` at most (relative, or absolute below 1): that amplitude, as the fixed point's start
-    (:meth:`near`).  A fit's forward differences step each parameter by 1.5e-8: from the amplitude
+    (:meth:`solved`).  A fit's forward differences step each parameter by 1.5e-8: from the amplitude
     just solved the fixed point settles in one or two turns, where from rest it took eight.
     """
 
@@ -286,57 +286,47 @@ class _Solved:
             self._amps.clear()
             self._last.clear()
 
-    def get(self, key: _Key | None) -> FloatArray | None:
+    def solved(self, key: _Key | None, solve: Callable[[FloatArray | None], FloatArray]) -> FloatArray:
+        """The amplitude kept for ``key``; else ``solve(near)``, kept (``near``: the amplitude last
+        solved at the same points for effects of the same kinds within :attr:`NEAR` of these, or
+        None).  ``key`` None: solved each time, nothing kept."""
         if key is None:
-            return None
+            return solve(None)
         with self._lock:
             amp = self._amps.get(key)
-            if amp is None:
-                self.misses += 1
-                return None
-            self._amps.move_to_end(key)
-            self.hits += 1
-        return amp.copy()
-
-    def put(self, key: _Key | None, amp: FloatArray) -> None:
-        if key is None:
-            return
+            if amp is not None:
+                self._amps.move_to_end(key)
+                self.hits += 1
+                return amp.copy()
+            self.misses += 1
         fin, moving, iterations, parts = key
-        kinds, values = _moving_values(moving)
+        where = (fin, iterations, parts)
+        kinds = tuple(type(e) for e in moving)
+        values = np.array([v for e in moving for v in e.values], float)
         with self._lock:
+            last = self._last.get(where)
+        near = None
+        if (
+            last is not None
+            and kinds == last[0]
+            and values.shape == last[1].shape
+            and np.all(np.abs(values - last[1]) <= self.NEAR * np.maximum(np.abs(last[1]), 1.0))
+        ):
+            near = last[2].copy()
+        amp = solve(near)
+        with self._lock:
+            self.starts += near is not None
             self._amps[key] = np.array(amp, dtype=float)
             while len(self._amps) > self.MOST:
                 self._amps.popitem(last=False)
-            self._last[(fin, iterations, parts)] = (kinds, values, np.array(amp, dtype=float))
-            self._last.move_to_end((fin, iterations, parts))
+            self._last[where] = (kinds, values, np.array(amp, dtype=float))
+            self._last.move_to_end(where)
             while len(self._last) > self.MOST:
                 self._last.popitem(last=False)
-
-    def near(self, key: _Key | None) -> FloatArray | None:
-        """The amplitude last solved at the same points for effects within :attr:`NEAR` of these
-        (the same kinds, in the same order), or None."""
-        if key is None:
-            return None
-        fin, moving, iterations, parts = key
-        with self._lock:
-            last = self._last.get((fin, iterations, parts))
-        if last is None:
-            return None
-        kinds, values = _moving_values(moving)
-        if kinds != last[0] or values.shape != last[1].shape:
-            return None
-        if not np.all(np.abs(values - last[1]) <= self.NEAR * np.maximum(np.abs(last[1]), 1.0)):
-            return None
-        with self._lock:
-            self.starts += 1
-        return last[2].copy()
+        return np.array(amp, dtype=float)
 
 
 _SOLVED = _Solved()
-
-
-def _moving_values(moving: tuple[Effect, ...]) -> tuple[tuple[type, ...], FloatArray]:
-    return tuple(type(e) for e in moving), np.array([v for e in moving for v in e.values], float)
 
 
 def for_many_predictions() -> None:
@@ -380,12 +370,9 @@ def steady_knobs(
         return solve_amplitude(*coefficients(fin, 2 * math.pi * ff, k), _force(fin, k, vv, mm), guess=amp)
 
     key = _SOLVED.key(fin, effects, (f, vpp, t_all, measured), iterations)
-    cached = _SOLVED.get(key)
-    if cached is not None:
-        amp = cached
-    else:
-        amp = _solve_steady(f, vpp, t_all, measured, amp_dep, iterations, solve, _SOLVED.near(key))
-        _SOLVED.put(key, amp)
+    amp = _SOLVED.solved(
+        key, lambda near: _solve_steady(f, vpp, t_all, measured, amp_dep, iterations, solve, near)
+    )
     k = knobs(f, vpp, t_all, phi * amp, None if measured is None else np.broadcast_to(measured, f.shape))
     kk = Knobs(
         **{n: np.broadcast_to(np.asarray(getattr(k, n), float), f.shape) for n in Knobs.__dataclass_fields__}
