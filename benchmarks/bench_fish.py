@@ -14,8 +14,10 @@ and current alone, ranking by the supply watt or by the fin's ``mean(v i)``; the
 loop's demand turned into a voltage through the model; the paper's grid measured in the tank, its
 cheapest point that meets the demand; the resonance at full voltage; the paper's 5.5 Hz / 800 Vpp.
 
-Per step, in truth: the speed's mean error over its second half, the settling time (the speed
-within 5 % of the set-point from then on), the battery's energy per metre and the range on one
+Per step, in truth: the speed's mean error over its second half, the settling time (``settle``:
+the speed within 5 % of the set-point from then on), the time from which it is held as a fish's goal
+asks (``held``: within 5 % then, every minute's mean after within 5 % and 95 % of the time after;
+:meth:`~piezofin_ros.bench.fishrun.Trace.held_s`), the battery's energy per metre and the range on one
 charge at that draw (the hotel load included), over the step's second half.  ``least`` is the
 fish's own bound: the range at the set-point's speed on the least supply power any point of the
 model gives it (:class:`~piezofin_ros.control.swimming.Fish`).
@@ -180,6 +182,7 @@ def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
                 "speed_m_s": u,
                 "error": u / u_set - 1.0,
                 "settling_s": trace.settling_s(t_step, t_end),
+                "held_s": trace.held_s(t_step, t_end),
                 "supply_w": supply,
                 "energy_per_m_j": trace.energy_per_m(mid, t_end),
                 "range_m": float(f.battery.range_m(supply, u)),
@@ -201,7 +204,7 @@ def table(results: list[dict[str, Any]]) -> str:
     for fin in dict.fromkeys(r["fin"] for r in results):
         lines.append(f"\n{fin}:")
         lines.append(
-            f"  {'strategy':34s} {'set cm/s':>8s} {'speed':>6s} {'err':>6s} {'settle s':>8s} "
+            f"  {'strategy':34s} {'set cm/s':>8s} {'speed':>6s} {'err':>6s} {'settle s':>8s} {'held s':>7s} "
             f"{'supply mW':>9s} {'least mW':>8s} {'J/m':>6s} {'range km':>8s} {'CoT':>5s}"
         )
         for r in (r for r in results if r["fin"] == fin):
@@ -209,7 +212,8 @@ def table(results: list[dict[str, Any]]) -> str:
                 name = r["strategy"] if k == 0 else ""
                 lines.append(
                     f"  {name:34s} {s['setpoint_m_s'] * 100:8.2f} {s['speed_m_s'] * 100:6.2f} "
-                    f"{s['error'] * 100:+5.1f}% {settled(s['settling_s']):>8s} {s['supply_w'] * 1e3:9.1f} "
+                    f"{s['error'] * 100:+5.1f}% {settled(s['settling_s']):>8s} {settled(s['held_s']):>7s} "
+                    f"{s['supply_w'] * 1e3:9.1f} "
                     f"{s['least_supply_w'] * 1e3:8.1f} {s['energy_per_m_j']:6.2f} {s['range_m'] / 1e3:8.2f} "
                     f"{s['cost_of_transport']:5.2f}"
                 )

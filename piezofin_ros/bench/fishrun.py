@@ -178,6 +178,32 @@ class Trace:
         last = int(np.flatnonzero(outside)[-1])
         return math.inf if last == len(t) - 1 else float(t[last + 1] - t_step)
 
+    def held_s(
+        self, t_step: float, t_end: float, band: float = 0.05, minute_s: float = 60.0, share: float = 0.95
+    ) -> float:
+        """Time from ``t_step`` until the speed is held as a fish's goal asks: within ``band`` of the
+        set-point then, its mean over every ``minute_s`` after within ``band``, and at least ``share``
+        of the time after within ``band`` (in truth, up to ``t_end``); inf if never.  Never earlier
+        than :meth:`settling_s`'s first entry into the band, and never later than
+        :meth:`settling_s` itself (from there every sample is within the band): a trial that puts the
+        speed 6 % off for 4 s after ten minutes within 1 % is no unsettled fish."""
+        sel = (self.t >= t_step) & (self.t < t_end)
+        t, u, s = self.t[sel], self.speed_m_s[sel], self.setpoint_m_s[sel]
+        n = len(t)
+        w = round(minute_s / float(t[1] - t[0])) if n > 1 else n + 1
+        if n < w:
+            return math.inf
+        err = u / np.maximum(s, 1e-12) - 1.0
+        inside = np.abs(err) <= band
+        c = np.concatenate([[0.0], np.cumsum(err)])
+        minutes = np.abs((c[w:] - c[:-w]) / w) <= band  # (the minute from each sample on)
+        bad = np.flatnonzero(~minutes)
+        first = 0 if bad.size == 0 else int(bad[-1]) + 1  # every minute from here on is within
+        after = np.cumsum(inside[::-1])[::-1] / np.arange(n, 0, -1)  # (share within, from each sample)
+        i = np.arange(n)
+        ok = np.flatnonzero(inside & (i >= first) & (i <= n - w) & (after >= share))
+        return math.inf if ok.size == 0 else float(t[ok[0]] - t_step)
+
     def mean(self, name: str, t0: float, t1: float) -> float:
         sel = (self.t >= t0) & (self.t < t1)
         return float(np.mean(getattr(self, name)[sel]))

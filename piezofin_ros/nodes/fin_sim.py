@@ -149,6 +149,11 @@ class FinSimConfig:
         "the fish's battery (preset or YAML, config/batteries), drained by the amplifier's supply power and "
         "read on the battery topic (sensor_msgs/BatteryState); the drive stops when it is empty; empty: none",
     )
+    lab_instruments: bool = setting(
+        True,
+        "publish the lab's instruments, the vibrometer (tip_velocity) and the load cell (loadcell); a "
+        "fish carries neither (config/fish.yaml: false), and its stack runs on the drive alone",
+    )
     speed_noise_m_s: float = setting(0.002, "the speed sensor's noise (a body only), m/s RMS", 0.0, 1.0)
     gyro_noise_rad_s: float = setting(
         0.002, "the IMU's yaw-rate noise (a body that turns: one fin), rad/s RMS per reading", 0.0, 1.0
@@ -194,6 +199,8 @@ class FinSim(LifecycleNode):
         self._wait_subscribers, self._wait_subscribers_s = c.wait_subscribers, c.wait_subscribers_s
         self._body, self._battery = _swimming(c)
         self._speed_noise = c.speed_noise_m_s
+        instruments = (TOPIC_TIP, TOPIC_LOADCELL) if c.lab_instruments else ()
+        self._data_topics = (TOPIC_DRIVE, TOPIC_SUPPLY, *instruments)
         self._gyro = (c.gyro_noise_rad_s, c.gyro_bias_rad_s)
         self._swimmer: FreeSwimmer | None = None
         self._battery_said_t = -math.inf
@@ -276,10 +283,7 @@ class FinSim(LifecycleNode):
             effects = ", ".join(f"{k} {v}" for k, v in model.parameters().items()) or "no effect"
             self.get_logger().info(f"augmented model {self._model_path}: {effects}")
         self._n_block = max(1, round(self._block_s * self._rig_config.sample_rate_hz))
-        self._pubs = {
-            name: self.create_lifecycle_publisher(*endpoint(name))
-            for name in (TOPIC_DRIVE, TOPIC_TIP, TOPIC_LOADCELL, TOPIC_SUPPLY)
-        }
+        self._pubs = {name: self.create_lifecycle_publisher(*endpoint(name)) for name in self._data_topics}
         self._clock_pub = self.create_publisher(*endpoint(TOPIC_CLOCK)) if self._publish_clock else None
         self._speed_pub = self._battery_pub = self._imu_pub = None
         if self._body is not None:
@@ -608,12 +612,13 @@ class FinSim(LifecycleNode):
             self._clock_pub.publish(Clock(clock=Time(nanoseconds=round(float(b.t[-1]) * 1e9)).to_msg()))
         blocks = {
             TOPIC_DRIVE: Block.from_columns(t_s=b.t, voltage_V=b.voltage, current_A=b.current),
-            TOPIC_TIP: Block.from_columns(t_s=b.t, tip_velocity_m_s=b.tip_velocity),
-            TOPIC_LOADCELL: Block.from_columns(t_s=b.t, displacement_m=b.displacement),
             TOPIC_SUPPLY: Block.from_columns(
                 t_s=b.t, supply_voltage_V=b.supply_voltage, supply_current_A=b.supply_current
             ),
         }
+        if TOPIC_TIP in self._pubs:  # (the lab's instruments: a fish carries neither)
+            blocks[TOPIC_TIP] = Block.from_columns(t_s=b.t, tip_velocity_m_s=b.tip_velocity)
+            blocks[TOPIC_LOADCELL] = Block.from_columns(t_s=b.t, displacement_m=b.displacement)
         for topic, block in blocks.items():
             pub = self._pubs[topic]
             pub.publish(named_msg(pub.msg_type, block))  # type: ignore[attr-defined]

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from piezofin_ros.bench.fishrun import MEASURED, STRATEGIES, FixedDrive, drive_for, swim_run
+from piezofin_ros.bench.fishrun import MEASURED, STRATEGIES, FixedDrive, Trace, drive_for, swim_run
 from piezofin_ros.bench.plants import Plant
 from piezofin_ros.control.driveloop import DriveLoop
 from piezofin_ros.control.optimise import Correction, OperatingBox, Optimiser, Tuning
@@ -31,6 +31,44 @@ def twin() -> tuple[Plant, object]:
     model = load_model("paper-twin-M8528-P1")
     amp = load_amplifier("fish-switching")
     return Plant(model.fin, effects=model.effects, amplifier=amp), model
+
+
+def _speed_trace(speed: np.ndarray, dt: float = 0.1) -> Trace:
+    """A trace at a set-point of 1 m/s with ``speed`` sampled every ``dt`` (the rest NaN)."""
+    n = speed.size
+    nan = np.full(n, np.nan)
+    return Trace(np.arange(n) * dt, np.ones(n), speed, *[nan] * 10)
+
+
+def test_a_speed_is_held_from_when_it_arrives_if_every_minute_after_and_95_percent_of_the_time_are() -> None:
+    """Issue 39's goal, held from a time: the speed within 5 % then, every minute's mean after within
+    5 %, and 95 % of the time after within 5 %; settling (within 5 % from then on) besides.  An
+    exponential approach (tau 5 s) enters the band at ``5 ln 20`` s."""
+    t = np.arange(6000) * 0.1
+    arrive = 5.0 * math.log(20.0)
+    approach = 1.0 - np.exp(-t / 5.0)
+    assert _speed_trace(approach).held_s(0.0, 600.0) == pytest.approx(arrive, abs=0.1)
+    assert _speed_trace(approach).settling_s(0.0, 600.0) == pytest.approx(arrive, abs=0.1)
+    # a dip to -7 % for 4 s at 300 s: its minute's mean -0.5 %, 99 % of the time within: held as before,
+    # settled only after it
+    dip = np.where((t >= 300.0) & (t < 304.0), 0.93, approach)
+    assert _speed_trace(dip).held_s(0.0, 600.0) == pytest.approx(arrive, abs=0.1)
+    assert _speed_trace(dip).settling_s(0.0, 600.0) == pytest.approx(304.0, abs=0.1)
+    # -6 % from 200 to 400 s: minutes off, held only from 400 s (settling the same)
+    slow = np.where((t >= 200.0) & (t < 400.0), 0.94, approach)
+    assert _speed_trace(slow).held_s(0.0, 600.0) == pytest.approx(400.0, abs=0.1)
+    # inside on average but 10 % of the time outside (a 10 s period, 1 s of it at -8 %): minutes within
+    # 5 %, the share not: never held (settled only after the last dip, 9 s before the end)
+    wobble = np.where((t > 30.0) & (t % 10.0 < 1.0), 0.92, 1.0)
+    assert math.isinf(_speed_trace(wobble).held_s(0.0, 600.0))
+    assert _speed_trace(wobble).settling_s(0.0, 600.0) == pytest.approx(591.0, abs=0.1)
+    # never within 5 %, or within it only in the last minute (too short to judge a minute): never held
+    assert math.isinf(_speed_trace(np.full(6000, 0.9)).held_s(0.0, 600.0))
+    late = np.where(t < 560.0, 0.9, 1.0)
+    assert math.isinf(_speed_trace(late).held_s(0.0, 600.0))
+    assert _speed_trace(late).settling_s(0.0, 600.0) == pytest.approx(560.0, abs=0.1)
+    # from a step at 100 s: times count from the step
+    assert _speed_trace(np.where(t < 100, 0.5, approach)).held_s(100.0, 600.0) == pytest.approx(0.0)
 
 
 def test_a_fixed_drive_swims_at_the_closed_form_speed_and_pays_its_joules_per_metre(twin) -> None:

@@ -31,8 +31,10 @@ from ..rosutil import Launch, errors_in
 # exclusive: the attacker must reach its rate (beside the parallel CPU-bound tests it sent 23,441 in 10 s)
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.exclusive, pytest.mark.alone]  # (10 kHz floods)
 FLOOD = Path(__file__).resolve().parents[1] / "flood.py"
-SAMPLED = ("drive", "tip_velocity", "loadcell", "supply")
-#: every topic the fish's nodes subscribe, and what the attacker floods it with
+#: the fish's sampled topics (no vibrometer, no load cell: config/fish.yaml's lab_instruments: false)
+SAMPLED = ("drive", "supply")
+#: every topic the fish's nodes subscribe, and what the attacker floods it with (the estimator still
+#: listens for a vibrometer and a load cell, which an attacker may publish where the fish has none)
 TOPICS = {
     "swim_speed": "speed",
     "thrust_demand": "demand",
@@ -79,7 +81,8 @@ def unsaid_holes(bag: Path) -> tuple[dict[str, int], dict[str, int], float]:
         name = m.topic.rsplit("/", 1)[-1]
         if m.topic == "/recorder/gaps":
             g = json.loads(decode(m.type_name, m.data).data)
-            said[g["topic"].rsplit("/", 1)[-1]].append((g["from_t_s"], g["to_t_s"], g["samples"]))
+            gap = (g["from_t_s"], g["to_t_s"], g["samples"])
+            said.setdefault(g["topic"].rsplit("/", 1)[-1], []).append(gap)
         elif m.topic.startswith("/fish/") and name in SAMPLED:
             b = block_of(m.type_name, m.data)
             t = b["t_s"]

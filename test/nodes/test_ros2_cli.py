@@ -245,7 +245,8 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
     speeds: list[float] = []
     speed_times: list[float] = []
     demands: list[float] = []
-    for m in read_messages(bag, ["/fish/swim_speed", "/fish/thrust_demand", "/fish/battery"]):
+    carried = ["/fish/swim_speed", "/fish/thrust_demand", "/fish/battery", "/fish/drive", "/fish/estimate"]
+    for m in read_messages(bag, [*carried, "/fish/tip_velocity", "/fish/loadcell"]):
         counts[m.topic] = counts.get(m.topic, 0) + 1
         if m.topic == "/fish/thrust_demand":
             demands.append(float(decode(m.type_name, m.data).data))
@@ -254,6 +255,10 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
             speed_times.append(m.log_time_ns * 1e-9)  # (fish time: the recorder runs on /clock)
     assert counts.get("/fish/swim_speed", 0) > 100 and counts.get("/fish/battery", 0) > 10, counts
     assert counts.get("/fish/thrust_demand", 0) > 3, counts
+    # a fish carries no vibrometer and no load cell (config/fish.yaml's lab_instruments: false): the
+    # stack estimated and swam on its drive's voltage and current alone
+    assert "/fish/tip_velocity" not in counts and "/fish/loadcell" not in counts, counts
+    assert counts.get("/fish/drive", 0) > 100 and counts.get("/fish/estimate", 0) > 10, counts
     assert max(speeds) > 0.005, max(speeds)  # it swam
     assert max(demands) <= 0.008 and max(demands) == pytest.approx(0.008), max(demands)  # asked, capped
     # and holds the new set-point: the speed sensor's mean over the last minute of fish time before
