@@ -183,10 +183,11 @@ class Trace:
     ) -> float:
         """Time from ``t_step`` until the speed is held as a fish's goal asks: within ``band`` of the
         set-point then, its mean over every ``minute_s`` after within ``band``, and at least ``share``
-        of the time after within ``band`` (in truth, up to ``t_end``); inf if never.  Never earlier
-        than :meth:`settling_s`'s first entry into the band, and never later than
-        :meth:`settling_s` itself (from there every sample is within the band): a trial that puts the
-        speed 6 % off for 4 s after ten minutes within 1 % is no unsettled fish."""
+        of the time after within ``band`` (in truth, up to ``t_end``, with a whole minute left to
+        judge); inf if never.  Never earlier than the speed's first entry into the band, and never
+        later than :meth:`settling_s` where a minute is left after it (from there every sample is
+        within the band): a trial that puts the speed 6 % off for 4 s after ten minutes within 1 % is
+        no unsettled fish."""
         sel = (self.t >= t_step) & (self.t < t_end)
         t, u, s = self.t[sel], self.speed_m_s[sel], self.setpoint_m_s[sel]
         n = len(t)

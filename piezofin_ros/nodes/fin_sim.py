@@ -182,7 +182,8 @@ def _swimming(c: FinSimConfig) -> tuple[Body | None, Battery | None]:
 
 
 class FinSim(LifecycleNode):
-    """Simulated MFC fin on its rig: publishes ``drive``, ``tip_velocity``, ``loadcell`` blocks."""
+    """Simulated MFC fin on its rig: publishes ``drive`` and ``supply`` blocks, and with
+    ``lab_instruments`` the vibrometer's ``tip_velocity`` and the load cell's ``loadcell``."""
 
     def __init__(
         self, *, context: Context | None = None, node_name: str = "fin_sim", **kwargs: object
