@@ -167,7 +167,7 @@ def main() -> int:
     print("|---|---|---|---|")
     for r in rows:
         print(r.row())
-    scale = speed_scale(rows)
+    scale = speed_scale(next(r.cpu_percent for r in rows if r.name == BASELINE_ROW))
     if scale < 1.0:
         print(
             f"(the bare subscriber read {BASELINE_QUIET / scale:.1f} %, {BASELINE_QUIET:g} % on this machine "
@@ -180,11 +180,10 @@ def main() -> int:
     return 0 if ok else 1
 
 
-def speed_scale(rows: list[Footprint]) -> float:
+def speed_scale(baseline_percent: float) -> float:
     """What the nodes' shares are multiplied by before they are judged: the quiet baseline over the
-    baseline measured in the same run, at most 1 (see :data:`BASELINE_QUIET`)."""
-    base = next(r.cpu_percent for r in rows if r.name == BASELINE_ROW)
-    return min(1.0, BASELINE_QUIET / base) if base > 0 else 1.0
+    bare subscriber's share measured in the same run, at most 1 (see :data:`BASELINE_QUIET`)."""
+    return min(1.0, BASELINE_QUIET / baseline_percent) if baseline_percent > 0 else 1.0
 
 
 if __name__ == "__main__":

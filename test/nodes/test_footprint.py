@@ -67,7 +67,7 @@ def test_the_nodes_of_a_fish_stay_within_a_tenth_of_a_core_and_120_mb() -> None:
     run where that reads more (CI's phase 2 once read it 3.4 % for 2.2, and the estimator 12.1 %
     for 8.0-8.8 % alone: ``bench_footprint.BASELINE_QUIET``)."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from bench_footprint import BASELINE_QUIET, CPU_GOAL, FISH_NODES, RSS_GOAL_MB
+    from bench_footprint import CPU_GOAL, FISH_NODES, RSS_GOAL_MB, speed_scale
 
     run = subprocess.run(
         [sys.executable, *TYPED[1:]], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False
@@ -80,7 +80,7 @@ def test_the_nodes_of_a_fish_stay_within_a_tenth_of_a_core_and_120_mb() -> None:
     assert set(FISH_NODES) <= set(rows), out[-3000:]
     base = re.search(r"^\| bare rclpy subscriber \(baseline\) \| ([\d.]+) % \|", run.stdout, re.M)
     assert base is not None and float(base[1]) > 0.1, out[-3000:]
-    scale = min(1.0, BASELINE_QUIET / float(base[1]))
+    scale = speed_scale(float(base[1]))
     print(f"baseline {base[1]} %: shares judged x{scale:.2f}")
     for name in FISH_NODES:
         cpu, peak = rows[name]
