@@ -59,7 +59,7 @@ from piezofin_ros.bench.plants import Plant, read
 from piezofin_ros.control.gp import ResidualGP
 from piezofin_ros.control.optimise import OperatingBox, Optimiser
 from piezofin_ros.physics.amplifier import (
-    WATTS,
+    WATT,
     Amplifier,
     LinearAmplifier,
     SwitchingAmplifier,
@@ -323,7 +323,7 @@ def main() -> int:
     ap.add_argument("--fins", nargs="+", default=["M8528-P1", "M8514-P1", "M8507-P1"])
     ap.add_argument("--sources", nargs="+", default=["loadcell", "vibrometer", "self"])
     ap.add_argument("--effects", nargs="+", default=list(OUTSIDE))
-    ap.add_argument("--watt", default="fin", choices=list(WATTS), help="the watt of the thrust per watt")
+    ap.add_argument("--watt", default="fin", choices=list(WATT), help="the watt of the thrust per watt")
     workers.add_arguments(ap)
     ap.add_argument("--plot", default="")
     args = ap.parse_args()

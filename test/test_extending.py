@@ -1,14 +1,15 @@
 """Worked examples: a new concept added in one place, and what follows by itself.
 
-Each test adds what docs/reference.md's "Extending" table says a newcomer adds (an amplifier kind, an
-objective, a drag law), here in the test instead of in the package, and shows the rest of the code
-taking it with no other line changed: the loader, the registry's property test, the optimiser, the
-fish's surge step.  Read one as the recipe; it fails if that recipe stops being enough.  A node's
-recipe, which needs rclpy and DDS, is ``test/nodes/test_extending_a_node.py``.
+Each test adds what docs/reference.md's "Extending" table says a newcomer adds (an amplifier kind, a
+watt, an objective, a drag law), here in the test instead of in the package, and shows the rest of the
+code taking it with no other line changed: the loader, the registry's property test, the estimator,
+the optimiser, the fish's surge step.  Read one as the recipe; it fails if that recipe stops being
+enough.  A node's recipe, which needs rclpy and DDS, is ``test/nodes/test_extending_a_node.py``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -17,19 +18,27 @@ import pytest
 from numpy.typing import ArrayLike
 from scipy import optimize
 
+from piezofin_ros.control.correction import Correction
 from piezofin_ros.control.objective import THRUST_PER_WATT
+from piezofin_ros.control.optimise import Optimiser
+from piezofin_ros.estimation.estimator import StreamEstimator
 from piezofin_ros.physics import amplifier as amplifiers
 from piezofin_ros.physics.amplifier import (
     Amplifier,
     AmplifierError,
+    SwitchingAmplifier,
+    Watt,
     amplifier_from_mapping,
     power_above_zero,
+    power_in,
 )
 from piezofin_ros.physics.fin import Fin
 from piezofin_ros.physics.swim import Body, bending_speed
 from piezofin_ros.rig.fish import FreeSwimmer
+from piezofin_ros.rig.simulated import SimulatedRig
 
-from .control.test_objective import choices_against_brute_force
+from .control.test_objective import BRUTE_F, choices_against_brute_force
+from .control.test_optimise import LIMITS
 from .physics.test_amplifier import test_the_closed_form_is_the_time_domain_law_on_a_sine as amplifier_law
 
 
@@ -77,6 +86,54 @@ def test_an_amplifier_kind_is_one_class_in_the_registry(monkeypatch: pytest.Monk
         amplifier_from_mapping({"kind": "transformer", "efficiency": 2.0})
     amplifier_law()  # the registry's own property test, every kind in it (hypothesis: 60 sines)
     assert amp.without_quiescent().quiescent_w == 0.0
+
+
+# ------------------------------------------------------------------------------ a watt
+#: A watt the package does not have: the amplifier's heat, what it draws and does not hand the fin (its
+#: supply's watt less the fin's), which a sealed hull must shed.  No estimate field records it: it is
+#: read from the two that do.
+HEAT = Watt(
+    "heat",
+    "the amplifier's heat: its draw less what the fin takes",
+    "the amplifier's heat",
+    field="",
+    law=lambda v, i, p, amp: amp.steady(v, i, p) - p,
+    derive=lambda r: r.get("power_supply_w", math.nan) - r.get("power_w", math.nan),
+)
+
+
+def test_a_watt_is_one_entry_in_the_registry(monkeypatch: pytest.MonkeyPatch, m8528: Fin) -> None:
+    """The recipe: a ``Watt`` in ``WATT`` (here patched in) with its law on the steady state and how an
+    estimate gives it (the field that records it, or a function of those there are).  By itself:
+    ``power_in`` is its law; the optimiser ranks by it (its choice is the brute force's best thrust
+    per heat watt over the same map, and another point than the fin's watt chooses); the stream
+    estimator's estimates read it and the thrust per it."""
+    monkeypatch.setitem(amplifiers.WATT, HEAT.name, HEAT)
+    amp = SwitchingAmplifier(efficiency=0.8, recovered=0.5, quiescent_w=0.05)
+    r = Correction().response(m8528, BRUTE_F, np.full_like(BRUTE_F, 400.0))
+    assert r.voltage_pp is not None and r.current_rms is not None
+    heat = power_in("heat", r.voltage_pp, r.current_rms, r.power_w, amp)
+    np.testing.assert_allclose(heat, amp.steady(r.voltage_pp, r.current_rms, r.power_w) - r.power_w)
+    assert np.all(heat > 0)  # (80 % efficient: a fifth of what it moves, and its quiescent draw)
+    chosen = {}
+    for watt in ("heat", "fin"):
+        opt = Optimiser(m8528, LIMITS, voltage_pp=400.0, watt=watt, amplifier=amp, identify=False)
+        assert opt.choice is not None
+        chosen[watt] = opt.choice
+    ok = np.asarray(r.thrust_n) >= 1e-3
+    best = float(np.max(np.asarray(r.thrust_n)[ok] / heat[ok]))
+    c = chosen["heat"]
+    assert c.thrust_n / c.power_w >= 0.98 * best  # (the Choice's power is in the watt it ranks by)
+    assert abs(c.frequency_hz / chosen["fin"].frequency_hz - 1) > 0.05, chosen
+    rig, est = SimulatedRig(m8528, seed=4, amplifier=amp), StreamEstimator(m8528, amplifier=amp)
+    out = []
+    for _ in range(200):  # (8 s of a steady drive)
+        rig.command(6.0, 800.0, 1)
+        b = rig.step(50)
+        out += est.add_drive(b.t, b.voltage, b.current)
+    e = [e for e in out if not e.final][-1]
+    assert e.power("heat") == pytest.approx(e.power_supply_w - e.power_w, rel=1e-12) and e.power("heat") > 0
+    assert e.thrust_per("heat", "self") == pytest.approx(e.thrust_self_n / e.power("heat"), rel=1e-12)
 
 
 # ------------------------------------------------------------------------------ an objective

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import PiezofinError
 from ..files import save_figure
-from ..physics.amplifier import WATTS_SHORT, Amplifier, load_amplifier, power_in
+from ..physics.amplifier import Amplifier, load_amplifier, power_in, watt_of
 from ..physics.fin import load_fin
 from ..physics.model import Model, load_model
 from .args import PLOT_SUFFIXES, UsageError, add_fins, parse_frequencies, writable_path
@@ -127,7 +127,7 @@ def table(r: dict[str, Any]) -> str:
         lines.append("* no point of this fin gives the least thrust: its best point of all")
     amps = [x[len("supply (") : -1] for x in labels if x.startswith("supply")]
     lines.append(
-        f"watts: fin: {WATTS_SHORT['fin']}; apparent: {WATTS_SHORT['apparent']}; supply (amplifier): "
+        f"watts: fin: {watt_of('fin').short}; apparent: {watt_of('apparent').short}; supply (amplifier): "
         f"the amplifier's draw from its supply ({', '.join(amps)}: config/amplifiers/)"
     )
     return "\n".join(lines)

@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from ..estimation.estimator import source_of, tpw_field
+from ..estimation.estimator import per_watt_field, source_of, tpw_field
 from ..files import save_figure
-from ..physics.amplifier import PAPER_BENCH, POWER_FIELDS, WATTS_SHORT, Amplifier, power_in, watt_of
+from ..physics.amplifier import PAPER_BENCH, Amplifier, power_in, watt_of
 from ..physics.model import Model
 
 
@@ -24,8 +24,15 @@ def _fmt(x: float | None, scale: float, digits: int) -> str:
 
 
 def _tpw(r: dict[str, float], watt: str, source: str) -> float | None:
-    """A record's thrust per watt in ``watt`` of ``source`` (NaN-safe: records of older bags lack it)."""
+    """A record's thrust per watt in ``watt`` of ``source`` (None where records of older bags lack it;
+    a watt no estimate field records, from its thrust and its power)."""
+    if not watt_of(watt).field:
+        return per_watt_field(r, watt, source)
     return r.get(tpw_field(watt, source))
+
+
+def _or_nan(x: float | None) -> float:
+    return math.nan if x is None else float(x)
 
 
 def trial_table(
@@ -42,7 +49,7 @@ def trial_table(
         head += f" {'P_' + w + ' [mW]':>{max(13, len(w) + 8)}} {'T/P_' + w:>{max(10, len(w) + 4)}}"
     lines = [
         f"(T/P in mN/W of the {'self-sensed' if source_of(source).self_sensed else source} thrust; "
-        + "; ".join(f"{w}: {WATTS_SHORT[w]}" for w in watts)
+        + "; ".join(f"{w}: {watt_of(w).short}" for w in watts)
         + ")",
         head,
         "-" * len(head),
@@ -56,7 +63,7 @@ def trial_table(
         )
         for w in watts:
             row += (
-                f" {_fmt(r.get(POWER_FIELDS[w]), 1e3, 3):>{max(13, len(w) + 8)}}"
+                f" {_fmt(watt_of(w).read(r), 1e3, 3):>{max(13, len(w) + 8)}}"
                 f" {_fmt(_tpw(r, w, source), 1e3, 1):>{max(10, len(w) + 4)}}"
             )
         lines.append(row + mark)
@@ -112,21 +119,24 @@ def plot_trials(
         power = power_in(watt, pred.voltage_pp_drive, pred.current_rms, pred.power_w, amplifier)
         rs = [r for r in records if r["voltage_pp"] == v and "thrust_n" in r]
         f = [r["frequency_hz"] for r in rs]
-        for ax, key, mkey, scale in (
-            (axes[0], "thrust_n", pred.thrust_n, 1e3),
-            (axes[1], POWER_FIELDS[watt], power, 1e3),
-            (axes[2], tpw_field(watt), np.asarray(pred.thrust_n) / power, 1e3),
-        ):
+        readers: tuple[Callable[[dict[str, float]], float | None], ...] = (
+            lambda r: r["thrust_n"],
+            watt_of(watt).read,
+            lambda r: _tpw(r, watt, "vibrometer"),
+        )
+        models = (pred.thrust_n, power, np.asarray(pred.thrust_n) / power)
+        scale = 1e3  # (mN, mW, mN/W)
+        for ax, read, mkey in zip(axes, readers, models, strict=True):
             ax.plot(f_dense, np.asarray(mkey) * scale, color=c, lw=1, alpha=0.6, label=f"{name}, {v:.0f} Vpp")
-            ys = [r.get(key, math.nan) * scale for r in rs]
+            ys = [_or_nan(read(r)) * scale for r in rs]
             ax.plot(f, ys, "o", color=c, label=f"measured {v:.0f} Vpp")
-            if key == "thrust_n":
+            if ax is axes[0]:
                 cell = [r["thrust_loadcell_n"] * scale for r in rs]
                 ax.plot(f, cell, "x", color=c, label=f"load cell {v:.0f} Vpp")
     if chosen is not None and "thrust_n" in chosen:
         axes[2].plot(
             chosen["frequency_hz"],
-            chosen.get(tpw_field(watt), math.nan) * 1e3,
+            _or_nan(_tpw(chosen, watt, "vibrometer")) * 1e3,
             "*",
             ms=16,
             color="k",

@@ -102,7 +102,7 @@ class TrialStrategy:
     min_thrust_n: float = 1e-3
     max_missing: int = 2
     after: str = "stop"  # stop (0 V) or hold (drive the chosen point)
-    watt: str = "fin"  # the watt of the thrust per watt that chooses (physics/amplifier.py, WATTS)
+    watt: str = "fin"  # the watt of the thrust per watt that chooses (physics/amplifier.py, WATT)
     objective: Objective = THRUST_PER_WATT  # what chooses, in that watt (control/objective.py)
     takes_demand: bool = False
     finished: bool = False

@@ -192,7 +192,7 @@ def choose(
     objective: Objective = THRUST_PER_WATT,
 ) -> TrialResult | None:
     """The trial with the best ``objective`` (thrust per watt unless told, :mod:`.objective`) in
-    ``watt`` (:data:`~piezofin_ros.physics.amplifier.WATTS`) among those giving at least
+    ``watt`` (:data:`~piezofin_ros.physics.amplifier.WATT`) among those giving at least
     ``min_thrust_n``.
 
     If none reaches ``min_thrust_n``, the one with the most thrust.  ``None`` without results.

@@ -75,7 +75,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..config import setting
 from ..errors import EstimationError
-from ..physics.amplifier import PAPER_BENCH, WATTS, Amplifier, watt_of
+from ..physics.amplifier import PAPER_BENCH, WATT, Amplifier, watt_of
 from ..physics.fin import MEDIA, Fin
 from ..physics.swim import SPEED_MOST_M_S
 from .selfsense import NOMINAL, Calibration, self_sensed_tip
@@ -111,7 +111,7 @@ class Estimate:
     tip_phase_rad: float = math.nan  # phase of the fundamental tip velocity relative to the voltage's
     admittance_re: float = math.nan  # S, the drive's fundamental I_1 / V_1: conductance
     admittance_im: float = math.nan  # S, and susceptance (what self-sensing is calibrated from)
-    # the other watts (physics/amplifier.py, WATTS): power_w above is the fin's, mean(v i)
+    # the other watts (physics/amplifier.py, WATT): power_w above is the fin's, mean(v i)
     power_apparent_w: float = math.nan  # W, Vrms x Irms
     power_supply_w: float = math.nan  # W, the amplifier's draw through its model
     power_supply_measured_w: float = math.nan  # W, the supply topic's mean(V I), or the battery's draw
@@ -128,8 +128,9 @@ class Estimate:
         return tuple(f.name for f in fields(cls))
 
     def power(self, watt: str) -> float:
-        """The power in ``watt`` (``fin``, ``apparent``, ``supply``, ``supply_measured``), W."""
-        return float(getattr(self, watt_of(watt).field))
+        """The power in ``watt`` (``fin``, ``apparent``, ``supply``, ``supply_measured``: any of
+        :data:`~piezofin_ros.physics.amplifier.WATT`), W."""
+        return watt_of(watt).read(self.__dict__)
 
     def thrust_per(self, watt: str, source: str = "vibrometer") -> float:
         """Thrust per watt in ``watt``, of the ``vibrometer`` or the ``self``-sensed thrust (NaN where the
@@ -269,15 +270,16 @@ def per_watt_field(record: dict[str, float], watt: str, source: str = "vibromete
     """Thrust of ``source`` per ``watt`` from an estimate's fields: NaN where the watt is not positive
     beyond rounding (:data:`ROUNDING_WATT`) or the thrust is not finite."""
     thrust = record[source_of(source).thrust_field]
-    power = record.get(watt_of(watt).field, math.nan)
+    power = watt_of(watt).read(record)
     apparent = record.get("power_apparent_w", math.nan)
     floor = ROUNDING_WATT * apparent if math.isfinite(apparent) and apparent > 0 else 0.0
     return thrust / power if power > floor and math.isfinite(thrust) else math.nan
 
 
 def with_watts(record: dict[str, float]) -> dict[str, float]:
-    """``record`` with every thrust per watt filled from its thrusts and powers."""
-    for watt in WATTS:
+    """``record`` with every thrust per watt an estimate records filled from its thrusts and powers (a
+    watt no estimate field records is read from the others when asked: ``Estimate.thrust_per``)."""
+    for watt in (name for name, w in WATT.items() if w.field):
         for source in THRUST_FIELDS:
             record[tpw_field(watt, source)] = per_watt_field(record, watt, source)
     return record

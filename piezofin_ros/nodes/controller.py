@@ -38,7 +38,7 @@ from ..control.strategy import ControllerMode, OptimiseStrategy, Strategy, Trial
 from ..control.trials import SOURCES, Mode, TrialPlan, TrialResult, TrialRunner
 from ..errors import PiezofinError
 from ..estimation.estimator import Estimate
-from ..physics.amplifier import WATTS, AmplifierError, load_amplifier
+from ..physics.amplifier import WATT, AmplifierError, load_amplifier
 from ..physics.effects import ModelError
 from ..physics.fin import load_fin
 from ..physics.model import load_model
@@ -96,7 +96,7 @@ class ControllerConfig:
         "supply",
         "the watt of the thrust per watt that ranks points: supply (what the battery pays, through the "
         "estimator's amplifier), supply_measured (the supply topic), fin (mean(v i)) or apparent",
-        choices=tuple(WATTS),
+        choices=tuple(WATT),
     )
     objective: str = setting(
         "thrust_per_watt",

@@ -4,7 +4,7 @@ Thrust per watt depends on which watt.  The fin takes ``mean(v i)`` (the paper's
 and what the fin dissipates), but an MFC is a capacitor: most of its current is reactive, and the
 amplifier that drives it draws far more from its supply than the fin keeps.  A fish's battery pays
 the amplifier; the paper's 60.7 mN/W is reproduced only by an amplifier's draw
-(``piezofin diagnose --paper``).  So every power is named by its watt (:data:`WATTS`) and the
+(``piezofin diagnose --paper``).  So every power is named by its watt (:data:`WATT`) and the
 amplifier is a component with its own parameters and its own law:
 
 * :class:`LinearAmplifier`: a class-B/AB stage from ``+-rail_v`` rails, as on a lab bench (a Trek
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, ClassVar
 
@@ -38,20 +38,42 @@ from .fin import preset_path, presets, read_yaml_file
 FloatArray = NDArray[Any]
 
 
+class AmplifierError(PhysicsError):
+    """An amplifier with impossible parameters, or a file that does not describe one."""
+
+
+#: A watt's law on the steady state: its power from the drive's peak-to-peak voltage, its RMS current,
+#: the fin's mean(v i) and the amplifier, W.
+WattLaw = Callable[[FloatArray, FloatArray, FloatArray, "Amplifier"], FloatArray]
+
+
 @dataclass(frozen=True)
 class Watt:
     """A watt a thrust per watt can be in, declared once (:data:`WATT`): its name, what it is (and in a
-    few words, for table headers), the estimate field that holds it, whether a meter measures it
-    (else a law of the steady state gives it) and the watt a model gives in its place."""
+    few words, for table headers), its law on the steady state (what a model gives), how it is read
+    from an estimate (the estimate field that holds it, or a function of the other fields for a watt
+    no estimate records), whether a meter measures it and the watt a model gives in its place.
+
+    Adding a watt is one entry in :data:`WATT` (``test/test_extending.py`` adds one): the optimiser
+    ranks by it (``watt``), an estimate reads it (:meth:`read`), a model predicts it (:meth:`steady`)."""
 
     name: str
     what: str
     short: str
-    field: str
+    field: str  # (the estimate field that records it; "": none, ``derive`` reads it from the others)
+    law: WattLaw | None = None  # (None: a measured watt, whose model is ``modelled_as``'s law)
+    derive: Callable[[Mapping[str, float]], float] | None = None
     measured: bool = False
     #: the watt a model (the map, a plant in truth) gives for this one: its own, or the modelled one
     #: a meter measures (``supply_measured`` is the ``supply`` a model predicts)
     modelled_as: str = ""
+
+    def __post_init__(self) -> None:
+        if (self.law is None) == (not self.modelled_as) or (not self.field) == (self.derive is None):
+            raise AmplifierError(
+                f"watt {self.name!r}: a law or the watt it is modelled as (one), and an estimate field "
+                "or a derive function (one)"
+            )
 
     @property
     def is_fin(self) -> bool:
@@ -66,17 +88,25 @@ class Watt:
     def steady(
         self, voltage_pp: ArrayLike, current_rms: ArrayLike, power_w: ArrayLike, amplifier: Amplifier
     ) -> FloatArray:
-        """The steady state's power in this watt (a measured one: its model's)."""
-        name = self.model.name
-        if name == "fin":
-            return np.asarray(power_w, float)
-        if name == "apparent":
-            return np.asarray(voltage_pp, float) / (2 * math.sqrt(2)) * np.asarray(current_rms, float)
-        return amplifier.steady(voltage_pp, current_rms, power_w)
+        """The steady state's power in this watt (a measured one: its model's), by its law."""
+        law = self.model.law
+        assert law is not None  # (__post_init__)
+        v, i, p = (np.asarray(x, float) for x in (voltage_pp, current_rms, power_w))
+        return np.asarray(law(v, i, p, amplifier), float)
+
+    def read(self, estimate: Mapping[str, float]) -> float:
+        """This watt in an estimate's fields (NaN where it holds none), W."""
+        if self.derive is not None:
+            return float(self.derive(estimate))
+        return float(estimate.get(self.field, math.nan))
 
 
 FIN = Watt(
-    "fin", "mean(v i): the power the fin takes (the paper's stated definition)", "mean(v i)", "power_w"
+    "fin",
+    "mean(v i): the power the fin takes (the paper's stated definition)",
+    "mean(v i)",
+    "power_w",
+    law=lambda v, i, p, amp: p,
 )
 #: The watts a thrust per watt can be in, by name.
 WATT: dict[str, Watt] = {
@@ -88,12 +118,14 @@ WATT: dict[str, Watt] = {
             "Vrms x Irms: what a power meter reads on a reactive load",
             "Vrms x Irms",
             "power_apparent_w",
+            law=lambda v, i, p, amp: v / (2 * math.sqrt(2)) * i,
         ),
         Watt(
             "supply",
             "the amplifier's draw from its supply, through the amplifier's model",
             "the amplifier's draw, modelled",
             "power_supply_w",
+            law=lambda v, i, p, amp: amp.steady(v, i, p),
         ),
         Watt(
             "supply_measured",
@@ -105,12 +137,6 @@ WATT: dict[str, Watt] = {
         ),
     )
 }
-#: name -> what it is (the registry's, as a plain mapping)
-WATTS: dict[str, str] = {name: w.what for name, w in WATT.items()}
-#: The same, in a few words (table headers).
-WATTS_SHORT: dict[str, str] = {name: w.short for name, w in WATT.items()}
-#: The watt each estimate field of power holds.
-POWER_FIELDS = {name: w.field for name, w in WATT.items()}
 
 
 def watt_of(name: str) -> Watt:
@@ -119,10 +145,6 @@ def watt_of(name: str) -> Watt:
         return WATT[name]
     except KeyError:
         raise AmplifierError(f"unknown watt {name!r}: one of {', '.join(WATT)}") from None
-
-
-class AmplifierError(PhysicsError):
-    """An amplifier with impossible parameters, or a file that does not describe one."""
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from piezofin_ros.estimation.estimator import Estimate, StreamEstimator, tpw_field
-from piezofin_ros.physics.amplifier import WATTS, LinearAmplifier, SwitchingAmplifier
+from piezofin_ros.physics.amplifier import WATT, LinearAmplifier, SwitchingAmplifier
 from piezofin_ros.physics.fin import load_fin
 from piezofin_ros.physics.model import Model
 from piezofin_ros.rig.simulated import SimulatedRig
@@ -47,7 +47,7 @@ def test_every_watt_of_a_window_against_the_model_and_the_meter(name: str) -> No
     assert e.power_supply_measured_w == pytest.approx(e.power_supply_w, rel=0.01)  # the meter agrees
     assert e.power_apparent_w == pytest.approx(e.voltage_pp / (2 * math.sqrt(2)) * e.current_rms, rel=0.01)
     assert e.power_w < e.power_apparent_w  # a capacitor: the fin keeps a small part of what flows
-    for watt in WATTS:
+    for watt in WATT:
         for source in ("vibrometer", "self"):
             thrust = e.thrust_n if source == "vibrometer" else e.thrust_self_n
             want = thrust / e.power(watt) if source == "self" else math.nan  # no vibrometer streamed
@@ -88,7 +88,7 @@ def test_in_air_no_thrust_is_estimated_only_motion_and_power() -> None:
         out += est.add_drive(b.t, b.voltage, b.current) + est.add_tip(b.t, b.tip_velocity)
     e = out[-1]
     assert math.isnan(e.thrust_n) and math.isnan(e.thrust_self_n) and math.isnan(e.c_tau)
-    assert all(math.isnan(getattr(e, tpw_field(w, s))) for w in WATTS for s in ("vibrometer", "self"))
+    assert all(math.isnan(getattr(e, tpw_field(w, s))) for w in WATT for s in ("vibrometer", "self"))
     assert e.tip_velocity_rms > 0 and e.power_w > 0 and e.power_supply_w > 0
     with pytest.raises(EstimationError, match="medium"):
         StreamEstimator(fin, medium="vacuum")
@@ -169,26 +169,34 @@ def test_the_fixed_draw_is_learnt_from_readings_that_come_before_the_drive_data(
 def test_each_watt_is_declared_once_in_its_registry() -> None:
     """Issue 40: the watts were strings in about ten places (three same-keyed dicts, ``watt != "fin"``
     in six modules, "supply_measured means supply" written three times).  Now one table: each watt's
-    estimate field is an Estimate field, a measured watt is modelled by one that is not, the plain
-    mappings are the table's, and ``power_in`` is each watt's own law (the measured one: its model's)."""
+    estimate field is an Estimate field that ``read`` returns, a measured watt is modelled by one that is
+    not, and ``power_in`` is each watt's own law (the measured one: its model's); a watt with neither
+    a law nor a model, or with neither a field nor a way to read it, is refused at its declaration."""
     from dataclasses import fields
 
     from piezofin_ros.errors import PiezofinError
-    from piezofin_ros.physics.amplifier import POWER_FIELDS, WATT, WATTS_SHORT, power_in, watt_of
+    from piezofin_ros.physics.amplifier import AmplifierError, Watt, power_in, watt_of
 
     names = {f.name for f in fields(Estimate)}
-    assert list(WATT) == list(WATTS) == list(WATTS_SHORT) == list(POWER_FIELDS)
     assert [w for w in WATT.values() if w.is_fin] == [WATT["fin"]]
     amp = SwitchingAmplifier(efficiency=0.8, recovered=0.5, quiescent_w=0.05)
     v, i, p = np.array([400.0, 800.0]), np.array([1e-3, 3e-3]), np.array([0.05, 0.2])
     for w in WATT.values():
-        assert w.field in names and POWER_FIELDS[w.name] == w.field
+        assert w.field in names and w.read({w.field: 0.25}) == 0.25 and math.isnan(w.read({}))
         assert not w.model.measured and (w.model is w) == (not w.measured)
         np.testing.assert_array_equal(power_in(w.name, v, i, p, amp), w.model.steady(v, i, p, amp))
     np.testing.assert_allclose(power_in("apparent", v, i, p, amp), v / (2 * math.sqrt(2)) * i)
     np.testing.assert_array_equal(power_in("supply_measured", v, i, p, amp), amp.steady(v, i, p))
     with pytest.raises(PiezofinError, match="unknown watt 'volts'"):
         watt_of("volts")
+    for bad in (
+        {"field": "power_w"},  # (neither a law nor a model)
+        {"field": "power_w", "law": WATT["fin"].law, "modelled_as": "supply"},  # (both)
+        {"field": "", "law": WATT["fin"].law},  # (no way to read it)
+        {"field": "power_w", "law": WATT["fin"].law, "derive": lambda r: 0.0},  # (two)
+    ):
+        with pytest.raises(AmplifierError, match="'volts'"):
+            Watt("volts", "", "", **bad)  # type: ignore[arg-type]
 
 
 def test_each_thrust_source_is_declared_once_in_its_registry() -> None:
