@@ -1,6 +1,7 @@
 """A fish you can plug in: ``ros2 launch piezofin_ros fish.launch.py sim:=false`` with the fish's own
 driver (``test/fish_driver.py``: not ``fin_sim``, another fin, amplifier, body, speed sensor and
-battery than the stack is told) in a process of its own, at real time."""
+battery than the stack is told) in a process of its own, at real time: it swims, and is near its
+set-point in truth by the end."""
 
 from __future__ import annotations
 
@@ -21,10 +22,19 @@ ROOT = Path(__file__).resolve().parents[2]
 #: the README's two lines, as typed
 STACK = ("ros2", "launch", "piezofin_ros", "fish.launch.py", "sim:=false", "speed_m_s:=0.05")
 DRIVER = ("python", "test/fish_driver.py", "--ros-args", "-r", "__ns:=/fish")
-RUN_S = 75.0
+SPEED_M_S = 0.05  # (STACK's set-point)
+#: The run, and its last stretch, whose mean speed in truth must be within ``NEAR`` of the set-point.
+#: The driver is another fish than the stack is told (its body drags more than the told one, its
+#: speed sensor reads 0.1 cm/s high); live, at real time, the stack's first trials overshoot and the
+#: speed loop's integral then removes the drag law's error with a time constant of 90 s.  In four
+#: runs the fish swam 4.52-4.61 cm/s at 75 s and 4.64-4.88 at 100-120 s in three; of two runs of
+#: 200 s one held within 5 % from 86 s, the other crept from -7.6 % at 77 s to -3.8 % at 160 s.
+#: Before the stack dropped a wrong prior it swam 12.9-22.7 % slow for good: 10 % tells them apart.
+RUN_S, LAST_S, NEAR = 120.0, 20.0, 0.1
 
 
 def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, str], tmp_path: Path) -> None:
+    assert f"speed_m_s:={SPEED_M_S}" in STACK
     truth, said = tmp_path / "truth.csv", tmp_path / "driver.log"
     # the fish first (its drive at 0 V: the estimator learns the battery's fixed draw there), then the stack
     driver = subprocess.Popen(
@@ -63,5 +73,6 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
     t, speed, volts = rows[:, 0] - rows[0, 0], rows[:, 1], rows[:, 4]
     assert volts.max() <= 800.0 + 1e-6
     assert np.any(volts > 100.0), "the stack never drove the fish"
-    # the speed loop asks and the fish swims: the last 10 s at least half of its set-point
-    assert np.mean(speed[t > t[-1] - 10.0]) > 0.025, speed[-200::20]
+    # near its set-point in truth by the end (NEAR: see above)
+    last = float(np.mean(speed[t > t[-1] - LAST_S]))
+    assert abs(last / SPEED_M_S - 1.0) <= NEAR, (last, speed[::200])
