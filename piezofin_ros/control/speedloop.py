@@ -89,7 +89,8 @@ class SpeedLoopConfig:
         10.0,
         "the speed's trend is its reading low-passed over filter_s against the same over this long; "
         "the integral winds steady_boost times faster once that trend, carried on for twice this "
-        "long, has left the speed more than 2 % off on the same side for this long, s",
+        "long, has left the speed more than 2 % off on the same side for this long, and until it "
+        "leaves it within 1.5 %, s",
         1.0,
         600.0,
     )
