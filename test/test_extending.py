@@ -21,7 +21,6 @@ from scipy import optimize
 from piezofin_ros.control.correction import Correction
 from piezofin_ros.control.objective import THRUST_PER_WATT
 from piezofin_ros.control.optimise import Optimiser
-from piezofin_ros.estimation.estimator import StreamEstimator
 from piezofin_ros.physics import amplifier as amplifiers
 from piezofin_ros.physics.amplifier import (
     Amplifier,
@@ -35,10 +34,10 @@ from piezofin_ros.physics.amplifier import (
 from piezofin_ros.physics.fin import Fin
 from piezofin_ros.physics.swim import Body, bending_speed
 from piezofin_ros.rig.fish import FreeSwimmer
-from piezofin_ros.rig.simulated import SimulatedRig
 
 from .control.test_objective import BRUTE_F, choices_against_brute_force
 from .control.test_optimise import LIMITS
+from .estimation.test_watts import drive
 from .physics.test_amplifier import test_the_closed_form_is_the_time_domain_law_on_a_sine as amplifier_law
 
 
@@ -125,13 +124,7 @@ def test_a_watt_is_one_entry_in_the_registry(monkeypatch: pytest.MonkeyPatch, m8
     c = chosen["heat"]
     assert c.thrust_n / c.power_w >= 0.98 * best  # (the Choice's power is in the watt it ranks by)
     assert abs(c.frequency_hz / chosen["fin"].frequency_hz - 1) > 0.05, chosen
-    rig, est = SimulatedRig(m8528, seed=4, amplifier=amp), StreamEstimator(m8528, amplifier=amp)
-    out = []
-    for _ in range(200):  # (8 s of a steady drive)
-        rig.command(6.0, 800.0, 1)
-        b = rig.step(50)
-        out += est.add_drive(b.t, b.voltage, b.current)
-    e = [e for e in out if not e.final][-1]
+    e = drive(amp, amp, supply=False)  # (the stream estimator's running estimate of a steady drive)
     assert e.power("heat") == pytest.approx(e.power_supply_w - e.power_w, rel=1e-12) and e.power("heat") > 0
     assert e.thrust_per("heat", "self") == pytest.approx(e.thrust_self_n / e.power("heat"), rel=1e-12)
 
