@@ -19,6 +19,41 @@ def node_executables() -> list[str]:
     raise SystemExit("setup.py: piezofin_ros/nodes/entry.py declares no EXECUTABLES")
 
 
+CONSOLE_SCRIPTS = [
+    "piezofin = piezofin_ros.cli.main:main",
+    "sweep = piezofin_ros.cli.main:sweep_main",
+    "diagnose = piezofin_ros.cli.main:diagnose_main",
+    "identify = piezofin_ros.cli.main:identify_main",
+    *(f"{name} = piezofin_ros.nodes.entry:{name}" for name in node_executables()),
+]
+
+
+def write_console_scripts_as_pip_does() -> None:
+    """colcon builds an ament_python package with ``setup.py develop`` (or ``install``), whose console
+    scripts (``lib/piezofin_ros/<node>``, what ``ros2 run`` starts) setuptools writes from
+    easy_install's template: it imports ``importlib.metadata`` and scans every distribution on the
+    path for the entry point before the node's first line runs (80 ms here; seconds under CI's load,
+    when a SIGINT from ``ros2 launch`` landed there as a ``KeyboardInterrupt`` traceback).  Written as
+    pip writes them instead: the function imported and called.  (A setuptools without easy_install
+    writes its own.)"""
+    try:
+        from setuptools.command.easy_install import ScriptWriter
+    except ImportError:
+        return
+    targets = {name.strip(): target.strip() for name, target in (s.split("=") for s in CONSOLE_SCRIPTS)}
+    ScriptWriter.template = (
+        "# %(name)s: written by piezofin_ros's setup.py (the entry point imported, as pip writes it)\n"
+        "import importlib\n"
+        "import sys\n\n"
+        f"_TARGETS = {targets!r}\n\n"
+        "if __name__ == '__main__':\n"
+        "    module, _, function = _TARGETS[%(name)r].partition(':')\n"
+        "    sys.exit(getattr(importlib.import_module(module), function)())\n"
+    )
+
+
+write_console_scripts_as_pip_does()
+
 setup(
     name=PACKAGE,
     version="0.1.0",
@@ -47,13 +82,5 @@ setup(
     description="MFC piezoelectric fin: simulated hardware, thrust estimation, control, MCAP, diagnosis",
     license="Apache-2.0",
     tests_require=["pytest"],
-    entry_points={
-        "console_scripts": [
-            "piezofin = piezofin_ros.cli.main:main",
-            "sweep = piezofin_ros.cli.main:sweep_main",
-            "diagnose = piezofin_ros.cli.main:diagnose_main",
-            "identify = piezofin_ros.cli.main:identify_main",
-            *(f"{name} = piezofin_ros.nodes.entry:{name}" for name in node_executables()),
-        ],
-    },
+    entry_points={"console_scripts": CONSOLE_SCRIPTS},
 )

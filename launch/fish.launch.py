@@ -22,7 +22,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from piezofin_ros.nodes.launching import number_argument, stop_if_it_fails
+from piezofin_ros.nodes.launching import number_argument, stop_if_any_fails
 
 NAMESPACE = "fish"
 #: Each data topic's readers before fin_sim's first sample: the estimator and the recorder.
@@ -80,7 +80,7 @@ def _nodes(context, *args, **kwargs):
         )
     )
     # a node that stops with an error stops them all (a fish without its speed loop swam on)
-    return nodes + [stop_if_it_fails(n, n.node_executable) for n in nodes]
+    return nodes + stop_if_any_fails(nodes)
 
 
 def generate_launch_description():

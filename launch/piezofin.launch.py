@@ -24,7 +24,7 @@ from launch_ros.event_handlers import OnStateTransition
 from launch_ros.events.lifecycle import ChangeState
 from lifecycle_msgs.msg import Transition
 
-from piezofin_ros.nodes.launching import number_argument, stop_if_it_fails
+from piezofin_ros.nodes.launching import number_argument, stop_if_any_fails
 
 #: What reads each fin's data topics here: its thrust_estimator and the recorder.  fin_sim waits for
 #: both before its first sample, so neither misses the first trial's start (nodes start in any order).
@@ -125,7 +125,7 @@ def _nodes(context, *args, **kwargs):
     )
     # a node that stops with an error stops them all (the others went on without it)
     nodes = [a for a in actions if isinstance(a, Node)]  # (a LifecycleNode is a Node)
-    return actions + [stop_if_it_fails(n, n.node_executable) for n in nodes]
+    return actions + stop_if_any_fails(nodes)
 
 
 def generate_launch_description():

@@ -16,20 +16,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
+from piezofin_ros.nodes.launching import past_start
+
 ENTRY = "import sys; from piezofin_ros.nodes.entry import fin_sim; sys.exit(fin_sim())"
-
-
-def _catches_sigterm(pid: int) -> bool:
-    """Whether the process has a handler for SIGTERM (Python installs none of its own: ours is the
-    first).  Before it, the interpreter is still starting, which no Python program can guard."""
-    try:
-        with open(f"/proc/{pid}/status") as status:
-            for line in status:
-                if line.startswith("SigCgt:"):
-                    return bool(int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)))
-    except FileNotFoundError:
-        pass
-    return False
 
 
 def _stop_after(sig: int, delay: float) -> tuple[int, str, float]:
@@ -40,7 +29,7 @@ def _stop_after(sig: int, delay: float) -> tuple[int, str, float]:
     t0 = time.monotonic()
     # from the entry point's handler on (before it the interpreter is still starting: under CI's load
     # that took over 0.5 s once); the handler is there before the imports (the test below)
-    while not _catches_sigterm(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 30.0:
+    while not past_start(proc.pid) and time.monotonic() - t0 < 30.0:
         time.sleep(0.001)
     time.sleep(delay)
     sent = time.monotonic()
@@ -100,3 +89,31 @@ assert on_int is entry._interrupted and on_term is entry._interrupted, (on_int, 
 """
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and not run.stderr, run.stderr
+
+
+def test_a_failed_launch_waits_for_the_others_to_be_past_their_start() -> None:
+    """What ``ros2 launch``'s stop on a failed node waits for before its SIGINT (stop 61's CI: the
+    controller, still in its console script's imports, printed a ``KeyboardInterrupt`` traceback): a
+    process is past its start once it catches SIGTERM, which Python alone never does, or once it has
+    ended, reaped or not."""
+    late = (
+        "import signal, sys, time; time.sleep(1.0); signal.signal(signal.SIGTERM, lambda *a: sys.exit(0));"
+        + ("print('handled', flush=True); time.sleep(30)")
+    )
+    proc = subprocess.Popen([sys.executable, "-c", late], stdout=subprocess.PIPE, text=True)
+    try:
+        time.sleep(0.3)
+        assert not past_start(proc.pid)  # the interpreter is up, its default SIGINT handler too
+        assert proc.stdout is not None and proc.stdout.readline() == "handled\n"
+        assert past_start(proc.pid)
+        proc.terminate()
+        for _ in range(200):  # ended, not yet reaped (a zombie): past its start
+            with open(f"/proc/{proc.pid}/status") as status:
+                if "zombie" in status.read():
+                    break
+            time.sleep(0.01)
+        assert past_start(proc.pid)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert past_start(proc.pid)  # reaped
