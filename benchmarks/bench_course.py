@@ -1,7 +1,7 @@
 """A fish swims a square course with the same steering at fixed drives and at the drives the
 optimiser chooses: how far off it, in what time, at what energy per metre and range per charge.
 
-    python benchmarks/bench_course.py [--fish M8528-P1 ... "stranger 1"] [--side 20]
+    python benchmarks/bench_course.py [--fish M8528-P1 ... "stranger 1"] [--side 20] [--to starboard]
                                       [--drives ...] [--plot docs/fish_course.png] [--workers 2]
 
 Each fish carries its fin on ``mfc-fish`` (25 cm, 450 g) through ``fish-switching``, with the
@@ -18,7 +18,9 @@ planar body turns (:func:`piezofin_ros.bench.course.swim_course`).  The square i
 (anticlockwise), the way a P1 fin turns fast; its side is ``--side`` metres, about ten turning
 radii: a corner cut on a 2.5 m circle is 1 m off the course at its middle, so a smaller square
 cannot be held within a body length.  Off the course is the least distance to any leg, every 0.1 s
-of fish time.
+of fish time.  ``--to starboard`` swims it the other way, the P1's weak side: the guidance told the
+6.4 m circle the optimising stack turns on once it gives up voltage for its offset's room
+(:data:`STARBOARD_RADIUS_M`; the fixed drives, at their voltage, turn on far wider ones).
 
 The drives (:data:`DRIVES`): the paper's point (5.5 Hz, 800 Vpp); the told model's resonance at
 full voltage (what a builder without an optimiser drives); the best fixed drive in truth (the point
@@ -112,16 +114,32 @@ def drive_of(name: str, told: Fish, truth: Fish) -> tuple[Drive, str]:
     return OptimisingDrive(opt), "its own"
 
 
-def run(task: tuple[str, str, float]) -> dict[str, Any]:
+#: A square to starboard: the tightest turn guidance asks that way and how far before a corner the
+#: turn begins.  The P1's window leaves the offset -100 V under 800 Vpp (a 19 m circle on the
+#: M8528-P1 twin); the optimising stack lowers its voltage for the offset's room (``voltage_cap``,
+#: :class:`~piezofin_ros.control.yawloop.OffsetRoom`) down to 400 Vpp, -300 V: a 6.4 m circle.
+STARBOARD_RADIUS_M = 6.4
+
+
+def course_of(side: float, to: str) -> LineOfSight:
+    """The square ``to`` port (the guidance's defaults) or starboard (:data:`STARBOARD_RADIUS_M`)."""
+    if to == "port":
+        return LineOfSight(square(side))
+    return LineOfSight(
+        square(side, to), starboard_radius_m=STARBOARD_RADIUS_M, acceptance_m=STARBOARD_RADIUS_M
+    )
+
+
+def run(task: tuple[str, str, float, str]) -> dict[str, Any]:
     """One fish, one drive, one course (a worker's task)."""
-    name, drive_name, side = task
+    name, drive_name, side, to = task
     told, truth = fish_of(name)
     drive, point = drive_of(drive_name, told, truth)
     r = swim_course(
         truth.model,
         truth.body,
         truth.amplifier,
-        LineOfSight(square(side)),
+        course_of(side, to),
         drive,
         told=told.model,
         told_body=told.body,
@@ -157,7 +175,7 @@ def table(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def plot(results: list[dict[str, Any]], side_m: float, path: Path) -> None:
+def plot(results: list[dict[str, Any]], side_m: float, path: Path, to: str = "port") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -165,7 +183,7 @@ def plot(results: list[dict[str, Any]], side_m: float, path: Path) -> None:
 
     names = list(dict.fromkeys(r["fish"] for r in results))
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 4.2), squeeze=False)
-    course = np.array(square(side_m))
+    course = np.array(square(side_m, to))
     colours = dict(zip(DRIVES, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
     for ax, name in zip(axes[0], names, strict=False):
         ax.plot(course[:, 0], course[:, 1], "k--", lw=1.2, label="the course")
@@ -187,7 +205,8 @@ def plot(results: list[dict[str, Any]], side_m: float, path: Path) -> None:
     bars.set_ylabel("battery energy per metre, J/m (fixed draw counted)")
     bars.set_title("what a metre costs", fontsize=9)
     fig.suptitle(
-        f"a {side_m:g} m square, steered by the fin's offset: the paths swum and their cost", fontsize=10
+        f"a {side_m:g} m square to {to}, steered by the fin's offset: the paths swum and their cost",
+        fontsize=10,
     )
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -199,6 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--fish", nargs="+", default=[*TWINS, *STRANGERS], choices=[*TWINS, *STRANGERS])
     ap.add_argument("--side", type=float, default=20.0, help="the square's side, m")
+    ap.add_argument("--to", choices=("port", "starboard"), default="port",
+                    help="the way each corner turns (a P1 fin turns fast to port)")  # fmt: skip
     ap.add_argument("--drives", nargs="+", default=list(DRIVES), choices=DRIVES, metavar="DRIVE",
                     help=f"of: {'; '.join(DRIVES)}")  # fmt: skip
     ap.add_argument("--plot", type=Path, help="draw the paths swum over the course and their cost (PNG)")
@@ -206,16 +227,16 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if not (a.side > 0 and np.isfinite(a.side)):
         ap.error(f"--side {a.side!r}: a finite side > 0, m")
-    tasks = [(name, d, a.side) for name in a.fish for d in DRIVES if d in a.drives]
+    tasks = [(name, d, a.side, a.to) for name in a.fish for d in DRIVES if d in a.drives]
     t0 = time.perf_counter()
     try:
         results = workers.run_parsed(run, tasks, a, lambda t: f"{t[0]}, {t[1]}")
     except PiezofinError as exc:
         ap.error(str(exc))
-    print(f"a {a.side:g} m square swum to port on mfc-fish's planar body, steered by the fin's offset:")
+    print(f"a {a.side:g} m square swum to {a.to} on mfc-fish's planar body, steered by the fin's offset:")
     print(table(results))
     if a.plot:
-        plot(results, a.side, a.plot)
+        plot(results, a.side, a.plot, a.to)
         print(f"the paths: {a.plot}")
     sim = sum(r["run"].time_s for r in results)
     print(

@@ -4,8 +4,9 @@ how many it sent.  KIND: ``speed`` (std_msgs/Float64 of plausible speeds), ``dem
 plausible thrust demands), ``supply``, ``drive``, ``tip`` or ``loadcell`` (blocks of plausible
 samples at times of their own), ``estimate`` (plausible estimates), ``cmd`` (0 V commands), ``twist``
 (geometry_msgs/Twist: a teleop's speeds straight ahead, every eighth no speed at all: NaN, inf,
-+-1e9, 1e308), ``bias`` (Float64 offsets of 0 V: a fish swimming straight) or ``imu``
-(sensor_msgs/Imu: a gyro at rest).
++-1e9, 1e308), ``bias`` (Float64 offsets of 0 V: a fish swimming straight), ``cap`` (Float64 voltage
+caps of 2,000 Vpp: none, as a straight fish's yaw loop sends) or ``imu`` (sensor_msgs/Imu: a gyro
+at rest).
 
 Not a test module: the flood tests start it as an attacker would be, in a process of its own.
 """
@@ -54,6 +55,8 @@ def messages(kind: str) -> list:
         return out
     if kind == "bias":
         return [Float64(data=0.0)]
+    if kind == "cap":
+        return [Float64(data=2000.0)]
     if kind == "imu":
         from sensor_msgs.msg import Imu
 

@@ -30,6 +30,9 @@ TOPIC_CMD_VEL = "cmd_vel"  # geometry_msgs/Twist (or TwistStamped): a fish stack
 TOPIC_ODOM = "odom"  # nav_msgs/Odometry: the speed loop's dead reckoning
 TOPIC_IMU = "imu"  # sensor_msgs/Imu: a fish's yaw rate and heading
 TOPIC_BIAS = "bias_demand"  # std_msgs/Float64: the drive's offset the yaw loop asks, V
+#: std_msgs/Float64: the most peak-to-peak voltage the drive may have so that the offset the yaw loop
+#: wants fits in the MFC's window with the sine (control/yawloop.py's OffsetRoom), Vpp
+TOPIC_VOLTAGE_CAP = "voltage_cap"
 TOPIC_WAYPOINT_STATUS = "waypoints/status"  # std_msgs/String: the course's progress (JSON)
 TOPIC_WAYPOINT_MARKERS = "waypoints/markers"  # visualization_msgs/MarkerArray: the course and the fish
 TOPIC_WAYPOINT_PATH = "waypoints/path"  # nav_msgs/Path: a course from a fish stack's planner
@@ -78,6 +81,7 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_MODEL, STRING, "status", "controller (optimising)"),
         Topic(TOPIC_DEMAND, F64, "command", "speed_loop, or a fish stack"),
         Topic(TOPIC_BIAS, F64, "command", "speed_loop (its yaw loop), or a fish stack"),
+        Topic(TOPIC_VOLTAGE_CAP, F64, "command", "speed_loop (its yaw loop), or a fish stack"),
         Topic(
             TOPIC_BATTERY,
             "sensor_msgs/msg/BatteryState",

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control.guidance import LineOfSight
-from ..control.yawloop import YawLoop
+from ..control.guidance import GuidanceError, LineOfSight
+from ..control.yawloop import OffsetRoom, YawLoop
 from ..estimation.estimator import StreamEstimator
 from ..estimation.selfsense import Calibration
 from ..physics.amplifier import Amplifier
@@ -90,11 +90,15 @@ def swim_course(
     battery: Battery | None = None,
     seed: int = 0,
     most_s: float = 3600.0,
+    room: OffsetRoom | None = None,
 ) -> CourseRun:
     """``course`` swum from rest by the fish ``truth`` (its fin and effects) on ``body`` through
     ``amplifier``, at the points ``drive`` gives (module docstring); stops when done or after
     ``most_s`` of fish time.  The stack is told ``told``, ``told_body`` and ``told_amplifier`` (the
-    yaw loop's fin and body, the estimator's calibration and supply model): by default the truth."""
+    yaw loop's fin and body, the estimator's calibration and supply model): by default the truth.
+    An optimising drive caps its voltage so that the offset the yaw loop wants fits in the MFC's
+    window (``room``; by default :class:`~piezofin_ros.control.yawloop.OffsetRoom`'s, under the
+    optimiser's box; a fixed drive never)."""
     told, told_body = told or truth, told_body or body
     rig = SimulatedRig(
         truth.fin, amplifier=amplifier, seed=seed, model=truth.knobs_at if truth.effects else None
@@ -103,6 +107,7 @@ def swim_course(
     loop = YawLoop(slender_planar(told_body, told.fin), told.fin)
     estimator = None
     if isinstance(drive, OptimisingDrive):
+        room = room or OffsetRoom(most_vpp=drive.optimiser.limits.voltage_pp_max)
 
         def calibrate(frequency_hz: float, voltage_pp: float) -> Calibration:
             return Calibration.of_law(told.law(frequency_hz, voltage_pp))
@@ -134,6 +139,8 @@ def swim_course(
         rate, _ = course.update(fish.x_m, fish.y_m, fish.heading_rad, fish.speed_m_s)
         loop.set_setpoint(rate if rate else 1e-12)  # (0 would reset the integral between corrections)
         bias = loop.update(t, thrust, fish.speed_m_s, v, f)
+        if isinstance(drive, OptimisingDrive) and room is not None and room.update(loop.wanted_v, t):
+            drive.loop.set_voltage_cap(room.cap)
         off.append(course.off_course_m(fish.x_m, fish.y_m))
         path.append((t, fish.x_m, fish.y_m))
         if course.done:
@@ -151,6 +158,10 @@ def swim_course(
     )
 
 
-def square(side_m: float) -> list[tuple[float, float]]:
-    """A square swum to port (anticlockwise) from the origin: the way a P1 fin turns fast."""
-    return [(0.0, 0.0), (side_m, 0.0), (side_m, side_m), (0.0, side_m), (0.0, 0.0)]
+def square(side_m: float, to: str = "port") -> list[tuple[float, float]]:
+    """A square from the origin along x, each corner turned ``to`` port (anticlockwise: the way a P1
+    fin turns fast) or to starboard."""
+    if to not in ("port", "starboard"):
+        raise GuidanceError(f"a square turns to port or starboard, not {to!r}")
+    y = side_m if to == "port" else -side_m
+    return [(0.0, 0.0), (side_m, 0.0), (side_m, y), (0.0, y), (0.0, 0.0)]

@@ -39,6 +39,10 @@ class DemandGate:
     trials_at: int = -1  # trials learnt when the last demand was taken (-1: none taken yet)
     in_force: float | None = None
     taken_t: float = -math.inf
+    #: the voltage cap set (inf: none; :meth:`DriveLoop.set_voltage_cap`), and whether it waits: taken
+    #: at the next look, before the demand
+    cap: float = math.inf
+    cap_due: bool = False
 
     def want(self, demand_n: float | None) -> None:
         self.wanted = demand_n if demand_n is not None and demand_n > 0 else None
@@ -183,7 +187,9 @@ class DriveLoop:
         goal = 0.0 if self.state in ("ramping down", "stopped") else v_target
         step = self.slew_vpp_per_s * dt
         self.command_v += min(max(goal - self.command_v, -step), step)
-        self.command_v = min(max(self.command_v, 0.0), self.optimiser.limits.voltage_pp_max)
+        # (the optimiser's box takes a cap in the fit's thread: the command at once)
+        top = min(self.optimiser.limits.voltage_pp_max, self.gate.cap)
+        self.command_v = min(max(self.command_v, 0.0), top)
         if self.state == "ramping down" and self.command_v == 0.0:
             self.state = "stopped"
             self._stopped_since = t
@@ -285,13 +291,29 @@ class DriveLoop:
             self._submit_demand(self._t_last if self._t_last is not None else 0.0)
             self._take_next()
 
+    def set_voltage_cap(self, voltage_pp: float | None) -> None:
+        """Cap the optimiser's voltage (:meth:`.optimise.Optimiser.set_voltage_cap`: a yaw loop's
+        offset needs the room), None: no cap.  Taken by the heartbeat as a demand is, before it, by
+        the fit's thread; the command never exceeds the cap from the next tick on."""
+        least = 2.0 * self.optimiser.limits.voltage_pp_min  # (as the box's cap: OperatingBox.capped)
+        cap = math.inf if voltage_pp is None or math.isnan(voltage_pp) else max(float(voltage_pp), least)
+        if cap != self.gate.cap:  # (a yaw loop sends its cap at 10 Hz: a fit only when it moves)
+            self.gate.cap, self.gate.cap_due = cap, True
+
     def _submit_demand(self, t: float) -> None:
-        """The trial waiting, else the latest demand when it is due, to the fit's thread (or at once,
-        without one)."""
+        """The trial waiting, else a new voltage cap, else the latest demand when it is due, to the fit's
+        thread (or at once, without one)."""
         if self._waiting is not None:  # (no demand goes before it)
             if all(job.done() for job in self._pending):
                 args, self._waiting = self._waiting, None
                 self._pending.append(self._worker().submit(self._learn, *args))
+            return
+        if self.gate.cap_due and not self.gate.queued:
+            self.gate.cap_due, cap = False, self.gate.cap
+            if self.background:
+                self._pending.append(self._worker().submit(self._capped, cap))
+            else:
+                self._capped(cap)
             return
         if self.gate.ready(t, self.trials, mid_trial=bool(self._windows)):
             # a trial the demand cuts short is learnt from its last window, not lost: one that gave
@@ -315,6 +337,10 @@ class DriveLoop:
             self.optimiser.observe(*cut)
             self.trials += 1
         self.optimiser.set_demand(demand_n)
+        self._refit_done()
+
+    def _capped(self, voltage_pp: float | None) -> None:
+        self.optimiser.set_voltage_cap(voltage_pp)
         self._refit_done()
 
     def _learn(self, *observation: Any) -> None:

@@ -90,6 +90,7 @@ class Task:
     voltage_pp: float
     demand_margin_z: float
     objective: Objective
+    voltage_pp_max: float = math.inf  # (a capped box: points measured above it are out of reach)
 
 
 class Counted(NamedTuple):
@@ -124,6 +125,8 @@ def count(
         confirmed = len(same) > 1
         out = counted if confirmed else candidates
         o = obs[same[0]]
+        if o.voltage_pp > task.voltage_pp_max * (1.0 + 1e-9):
+            continue
         use = same[1:] if confirmed else same
         t = float(np.exp(np.mean(np.log(thrust[use]))))
         noise_t = float(np.sqrt(np.mean(noise[use] ** 2) / len(use)))

@@ -9,7 +9,8 @@ Choose the drive frequency ``f`` and peak-to-peak voltage ``V`` within :class:`O
   thrust meets ``D`` *with a margin* (below) is found by bisection and the search is over ``f``;
 * without a demand: the paper's convention, the frequency of the highest thrust per watt at the
   configured voltage, among frequencies that give at least ``min_thrust_n`` (default 1 mN);
-* when ``D`` cannot be met within the limits: the most thrust available, flagged infeasible.
+* when ``D`` cannot be met within the limits: the most thrust available, flagged infeasible;
+* the box's voltage capped while a yaw loop's offset needs the room (:meth:`~Optimiser.set_voltage_cap`).
 
 How it learns
 -------------
@@ -43,18 +44,12 @@ How it learns
    model's parametric uncertainty, the process's and one trial's, meets the demand.  The point
    the controller holds (:meth:`Optimiser.incumbent`) is the best that counts.
 
-The rooms: the corrected model (:mod:`.correction`), its fit (:mod:`.fit`), the evidence and what
-counts (:mod:`.evidence`), the map and its frontier (:mod:`.thrustmap`), the proposal's rules
-(:mod:`.proposal`); this module holds the loop that ties them (:class:`Optimiser`), with its knobs
-in one object (:class:`Tuning`).
-
-A proposal within ``tolerance`` of a measured point measures that point again, so that its trials add
-up.  The incumbent is held unless the map expects ``hold_gain`` more elsewhere, and every
-``probe_every`` trials a probe at ``f (1 +- probe_step)`` keeps the fit informed.  The fin has
-changed (drift, temperature, a new load) when a point measured again lies more than
-``change_sigma`` of its trials' noise from its earlier trials (model-free), or a trial lies that far
-off the settled map: the earlier measurements, all of the fin before the change, are dropped and the
-fit starts again from the new one.
+The rooms: the corrected model (:mod:`.correction`), its fit (:mod:`.fit`), the evidence
+(:mod:`.evidence`), the map (:mod:`.thrustmap`), the proposal's rules (:mod:`.proposal`); this
+module ties them (:class:`Optimiser`), its knobs in :class:`Tuning`.  A proposal within
+``tolerance`` of a measured point measures it again; the incumbent is held unless the map expects
+``hold_gain`` more elsewhere; every ``probe_every`` trials a probe at ``f (1 +- probe_step)``.  The
+fin has changed (a point measured again, or a trial, ``change_sigma`` off): the earlier trials go.
 """
 
 from __future__ import annotations
@@ -187,7 +182,8 @@ class Optimiser:
 
     @property
     def task(self) -> Task:
-        return Task(self.demand_n, self.min_thrust_n, self.voltage_pp, self.demand_margin_z, self.objective)
+        top, o = self.limits.voltage_pp_max, self
+        return Task(o.demand_n, o.min_thrust_n, min(o.voltage_pp, top), o.demand_margin_z, o.objective, top)
 
     @property
     def mode(self) -> Mode:
@@ -211,6 +207,12 @@ class Optimiser:
         self.demand_n = demand_n if demand_n is not None and demand_n > 0 else None
         self.converged = False
         self._update(learn=False)  # (the trials are those of the last fit: only the choice moves)
+
+    def set_voltage_cap(self, voltage_pp: float | None) -> None:
+        """The box capped (:meth:`.thrustmap.OperatingBox.capped`) for a yaw loop's offset (its room)."""
+        if (box := self.limits.capped(voltage_pp)) != self.limits:
+            self.limits, self.converged = box, False
+            self._update(learn=False)
 
     def observe(
         self,

@@ -8,7 +8,7 @@ and watt) and changes nothing.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -38,6 +38,8 @@ class OperatingBox:
     frequency_max_hz: float = 20.0
     voltage_pp_min: float = 50.0
     voltage_pp_max: float = 800.0
+    #: the ``voltage_pp_max`` configured, while :meth:`capped` holds it lower (0: not capped)
+    voltage_pp_uncapped: float = 0.0
 
     def __post_init__(self) -> None:
         vals = (self.frequency_min_hz, self.frequency_max_hz, self.voltage_pp_min, self.voltage_pp_max)
@@ -45,10 +47,24 @@ class OperatingBox:
             raise ControlError(f"limits must be finite and > 0, got {vals}")
         if self.frequency_min_hz >= self.frequency_max_hz or self.voltage_pp_min >= self.voltage_pp_max:
             raise ControlError("limits: each minimum must be below its maximum")
+        uncapped = self.voltage_pp_uncapped
+        if uncapped != 0.0 and not self.voltage_pp_max <= uncapped <= HARD_VOLTAGE_PP_MAX:
+            raise ControlError(
+                f"limits: voltage_pp_uncapped {uncapped!r} must be 0 or in [voltage_pp_max, hard cap]"
+            )
         if self.voltage_pp_max > HARD_VOLTAGE_PP_MAX:
             raise ControlError(
                 f"voltage_pp_max {self.voltage_pp_max} V exceeds the hard cap {HARD_VOLTAGE_PP_MAX} V"
             )
+
+    def capped(self, voltage_pp: float | None) -> OperatingBox:
+        """The box as configured with its voltage capped at ``voltage_pp`` (None or NaN: the box as
+        configured), never below twice its least voltage."""
+        top = self.voltage_pp_uncapped or self.voltage_pp_max
+        if voltage_pp is None or math.isnan(voltage_pp) or voltage_pp >= top:
+            return replace(self, voltage_pp_max=top, voltage_pp_uncapped=0.0)
+        cap = max(float(voltage_pp), min(2.0 * self.voltage_pp_min, top))
+        return replace(self, voltage_pp_max=cap, voltage_pp_uncapped=top)
 
     def clamp(self, f: float, v: float) -> tuple[float, float]:
         """The nearest point inside the box (NaN goes to the lower corner: the safe side)."""

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, fields
 from ..config import setting
 from ..errors import ControlError
 from ..physics.fin import Fin
-from ..physics.planar import PlanarBody, bias_for_yaw_rate, bias_window_v, fin_yaw_damping
+from ..physics.planar import MFC_P1_WINDOW_V, PlanarBody, bias_for_yaw_rate, bias_window_v, fin_yaw_damping
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,18 @@ class YawLoopConfig:
         0.05,
         60.0,
     )
+    room_least_vpp: float = setting(
+        400.0,
+        "yaw loop: for the room its offset needs, the drive's voltage is never capped below this, Vpp",
+        0.0,
+        1e4,
+    )
+    room_engage_s: float = setting(
+        10.0,
+        "yaw loop: the drive's voltage is capped for its offset's room once it wanted more for this long, s",
+        0.0,
+        3600.0,
+    )
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -88,6 +100,7 @@ class YawLoop:
     integral_v: float = 0.0
     bias_v: float = 0.0
     edge: str = ""  # "port" or "starboard": the set-point is beyond what that edge of the window gives
+    wanted_v: float = 0.0  # the offset it would ask in a window without edges (:class:`OffsetRoom`)
     _t_rate: float = -math.inf
     _t: float = math.nan
     _slew: float = math.inf  # V/s, this tick's
@@ -103,7 +116,7 @@ class YawLoop:
     def stop(self) -> None:
         """No turn asked and no offset from now (a fish stack fell silent): the drive's own slew takes
         it to 0 V; nothing is left to wind."""
-        self.setpoint_rad_s, self.integral_v, self.bias_v, self.edge = 0.0, 0.0, 0.0, ""
+        self.setpoint_rad_s, self.integral_v, self.bias_v, self.edge, self.wanted_v = 0.0, 0.0, 0.0, "", 0.0
 
     def measure(self, t: float, rate_rad_s: float) -> None:
         """An IMU's yaw rate at ``t``: low-passed (``rate_filter_s``) into :attr:`rate_rad_s`."""
@@ -131,7 +144,7 @@ class YawLoop:
         r = self.setpoint_rad_s
         steerable = math.isfinite(speed_m_s) and speed_m_s >= self.config.min_speed_m_s
         if r == 0.0 or not (math.isfinite(thrust_n) and thrust_n > 0 and steerable):
-            self.integral_v, self.edge = 0.0, ""
+            self.integral_v, self.edge, self.wanted_v = 0.0, "", 0.0
             return self._slewed(0.0, dt)
         speed = max(speed_m_s, 0.0)
         ff = bias_for_yaw_rate(self.body, self.fin, r, thrust_n, speed)
@@ -142,6 +155,7 @@ class YawLoop:
         error = r - self.rate_rad_s if fresh else 0.0  # (the set-point less the IMU's rate)
         kp, ki = tau / (gain * self.config.time_constant_s), 1.0 / (gain * self.config.time_constant_s)
         raw = ff + kp * error + self.integral_v + ki * error * dt
+        self.wanted_v = raw
         bias = min(max(raw, low), high)
         slewed = self._slewed(bias, dt)
         held = abs(slewed - bias) > 1e-9  # (the slew holds the offset back: the integral waits too)
@@ -166,3 +180,64 @@ class YawLoop:
         gain = 1.0 / slope if math.isfinite(slope) and slope > 0 else 1e-4
         k = fin_yaw_damping(self.body, self.fin, speed_m_s)
         return gain, self.body.yaw_time_constant_s(r, k)
+
+
+@dataclass
+class OffsetRoom:
+    """The most peak-to-peak voltage the drive may have so that the offset a yaw loop wants
+    (:attr:`YawLoop.wanted_v`) fits in the MFC's window with the sine, on the window's short side:
+    ``2 (b - lo)`` where ``lo`` is the edge nearer 0 V
+    (:func:`~piezofin_ros.physics.planar.bias_window_v` turned round), for the optimiser's box
+    (:meth:`~piezofin_ros.control.driveloop.DriveLoop.set_voltage_cap`).
+
+    The P1's window (-500 V to +1,500 V) leaves an offset of -100 V under 800 Vpp: on the twin of
+    M8528-P1 at 5.5 Hz a turn to starboard of 0.23 deg/s on a circle of 19 m, where 400 Vpp and
+    -300 V give 0.35 deg/s on 6.4 m (slower, 4.0 cm/s against 7.5: docs/fish.md, Turning).  To port
+    the window leaves +1,100 V, and a smaller sine loses more yaw rate than its offset gains (2.4
+    deg/s at 800 Vpp, 1.5 at 400): no cap.  Below ``least_vpp`` (the yaw loop's
+    ``room_least_vpp``) the yaw rate falls again (0.27 deg/s at 300 Vpp, 0.17 at 200): never below
+    it.  The cap moves in steps of ``step_v``: down as soon as the room is below it, up only once the
+    room is a step above the next (a wandering offset does not move the box at every tick).  Above
+    ``most_vpp`` (the box's own top), or the room the window leaves with no offset (1,000 Vpp on a
+    P1), there is no cap: :attr:`cap` is inf.  A cap begins only once the
+    room has been short for ``engage_s`` (the yaw loop's ``room_engage_s``): a starboard correction
+    after a turn to port wants it for seconds, a turn to starboard for minutes, and capped at each
+    correction stranger 2 swam a square to port at +15 % energy per metre (the optimiser choosing
+    anew within each cap); once begun, it follows the room at once."""
+
+    least_vpp: float = YawLoopConfig.room_least_vpp
+    step_v: float = 100.0
+    most_vpp: float = math.inf
+    window_v: tuple[float, float] = MFC_P1_WINDOW_V
+    engage_s: float = YawLoopConfig.room_engage_s
+    cap: float = math.inf
+    _short_since: float = math.nan  # when the room first fell short of the box (NaN: it is not)
+
+    def update(self, wanted_v: float, t: float | None = None) -> bool:
+        """The cap for the offset wanted at ``t`` (s; None: at once, no ``engage_s``), V; True if it
+        moved."""
+        lo, hi = self.window_v
+        room, middle = math.inf, 0.5 * (lo + hi)
+        if math.isfinite(wanted_v) and abs(lo) <= abs(hi) and wanted_v < middle:  # (the short side: lo)
+            room = max(2.0 * (wanted_v - lo), 0.0)
+        elif math.isfinite(wanted_v) and abs(hi) < abs(lo) and wanted_v > middle:  # (or hi)
+            room = max(2.0 * (hi - wanted_v), 0.0)
+        step = self.step_v
+        below = max(math.floor(room / step) * step, self.least_vpp) if math.isfinite(room) else math.inf
+        if below < self.cap:
+            new = below
+        else:
+            above = room - step
+            up = max(math.floor(above / step) * step, self.least_vpp) if math.isfinite(above) else math.inf
+            new = max(up, self.cap)
+        if new >= min(self.most_vpp, 2.0 * min(abs(lo), abs(hi))):  # (or what no offset leaves)
+            new = math.inf
+        if new == math.inf:
+            self._short_since = math.nan
+        elif self.cap == math.inf and t is not None:  # (a cap begins once the room was short engage_s)
+            if math.isnan(self._short_since):
+                self._short_since = t
+            if t - self._short_since < self.engage_s:
+                return False
+        moved, self.cap = new != self.cap, new
+        return moved

@@ -115,6 +115,7 @@ from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contrac
     TOPIC_STATUS,
     TOPIC_SUPPLY,
     TOPIC_TIP,
+    TOPIC_VOLTAGE_CAP,
     TOPIC_WAYPOINT_MARKERS,
     TOPIC_WAYPOINT_PATH,
     TOPIC_WAYPOINT_STATUS,

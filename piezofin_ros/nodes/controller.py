@@ -52,6 +52,7 @@ from ._common import (
     TOPIC_ESTIMATE,
     TOPIC_MODEL,
     TOPIC_STATUS,
+    TOPIC_VOLTAGE_CAP,
     Inbox,
     SilenceWatch,
     StartupError,
@@ -218,7 +219,12 @@ class Controller(Node):
         self._bias = (0.0, -math.inf)  # (the offset, when it came: node clock, s)
         low, high = HARD_VOLTAGE_WINDOW_V
         self.inbox.latest(Float64, TOPIC_BIAS, self._on_bias, scalar(low, high, "V"))
+        self._cap_at = -math.inf  # (node clock, s) the latest voltage cap; none older than BIAS_FRESH_S
         if self.loop is not None:
+            # and the most voltage that leaves the offset its room: the optimiser's box under it
+            self.inbox.latest(
+                Float64, TOPIC_VOLTAGE_CAP, self._on_voltage_cap, scalar(0.0, high - low, "Vpp")
+            )
             # the quiet identification trial, when the fish's stack says its speed may drop (never by a
             # timer that ages evidence out: a fish fell to 1.2-2.6 cm/s for 20-30 s every 320-470 s)
             self.create_service(Trigger, "~/identify", self._on_identify)
@@ -397,6 +403,17 @@ class Controller(Node):
     def _on_bias(self, bias_v: float) -> None:
         self._bias = (bias_v, self._now())
 
+    def _on_voltage_cap(self, voltage_pp: float) -> None:  # (within the window's span: checked at the door)
+        assert self.loop is not None
+        self._cap_at = self._now()
+        self.loop.set_voltage_cap(voltage_pp)
+
+    def _voltage_cap_expired(self, t: float) -> None:
+        """A cap older than :data:`BIAS_FRESH_S` goes (a yaw loop that fell silent holds no drive down)."""
+        if self.loop is not None and math.isfinite(self._cap_at) and t - self._cap_at > BIAS_FRESH_S:
+            self._cap_at = -math.inf
+            self.loop.set_voltage_cap(None)
+
     def _estimator_ready(self) -> bool:
         """True :data:`ESTIMATOR_SETTLE_S` after an estimator publishes ``estimate`` and a rig
         ``drive`` (or once ``wait_estimator_s`` passed without them); else drive off.  The rig too: a
@@ -446,6 +463,7 @@ class Controller(Node):
         strategy = self.strategy
         if not strategy.started() and not self._estimator_ready():
             return
+        self._voltage_cap_expired(t)
         command = strategy.command(t)
         self._publish_model()  # (before the command that moves the drive to the fit's next point)
         log = self.get_logger()

@@ -30,10 +30,10 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, String
 
-from ..config import HARD_VOLTAGE_PP_MAX, setting
+from ..config import HARD_VOLTAGE_PP_MAX, HARD_VOLTAGE_WINDOW_V, setting
 from ..control.odometry import UNKNOWN, DeadReckoning
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
-from ..control.yawloop import YawLoop, YawLoopConfig
+from ..control.yawloop import OffsetRoom, YawLoop, YawLoopConfig
 from ..errors import PiezofinError
 from ..estimation.estimator import THRUST_MOST_N
 from ..physics.fin import load_fin
@@ -50,6 +50,7 @@ from ._common import (
     TOPIC_LOOP_STATUS,
     TOPIC_ODOM,
     TOPIC_SPEED,
+    TOPIC_VOLTAGE_CAP,
     Inbox,
     MessageRefused,
     StartupError,
@@ -221,6 +222,8 @@ class SpeedLoopNode(Node):
             fin = load_model(own.model).fin if own.model else load_fin(own.fin)
             # one fin turns the fish by its offset (two swim straight: no yaw loop)
             self.yaw = YawLoop(slender_planar(body, fin), fin, declare(self, YawLoopConfig, "yaw"))
+            yaw = self.yaw.config
+            self.room = OffsetRoom(least_vpp=yaw.room_least_vpp, engage_s=yaw.room_engage_s)
         except PiezofinError as exc:
             raise StartupError(str(exc)) from None
         self._turns = body.fins == 1
@@ -243,6 +246,8 @@ class SpeedLoopNode(Node):
         self.inbox.latest(endpoint(TOPIC_IMU)[0], TOPIC_IMU, self._on_imu, imu_reading)
         self.inbox.latest(endpoint(TOPIC_CMD)[0], TOPIC_CMD, self._on_cmd, drive_point)
         self._bias_pub = self.create_publisher(*endpoint(TOPIC_BIAS))
+        # and the most voltage the drive may have so that the offset it wants fits in the window
+        self._cap_pub = self.create_publisher(*endpoint(TOPIC_VOLTAGE_CAP))
         # a fish stack's velocity command (teleop, nav2): its forward speed is the set-point
         self._cmd_vel_timeout_s = own.cmd_vel_timeout_s
         self._cmd_vel_t = math.nan  # (node clock, s) the latest cmd_vel; NaN: none yet, or timed out
@@ -419,6 +424,18 @@ class SpeedLoopNode(Node):
         vpp, f = self._drive_now(t)
         bias = self.yaw.update(t, self._thrust_n, self.loop.speed_m_s, vpp, f)
         self._bias_pub.publish(Float64(data=bias))
+        was = self.room.cap
+        if self.room.update(self.yaw.wanted_v, t) and math.inf in (was, self.room.cap):  # (begins, ends)
+            topic = self.resolve_topic_name(TOPIC_VOLTAGE_CAP)
+            self.get_logger().info(
+                f"the drive capped at {self.room.cap:.0f} Vpp on {topic}: the offset the yaw loop wants, "
+                f"{self.yaw.wanted_v:.0f} V, fits in the MFC's window with that sine (it follows the "
+                "offset from now on)"
+                if math.isfinite(self.room.cap)
+                else "the drive's voltage no longer capped for the offset's room"
+            )
+        low, high = HARD_VOLTAGE_WINDOW_V  # (no cap: the whole window, as a finite number)
+        self._cap_pub.publish(Float64(data=min(self.room.cap, high - low)))
         if self.yaw.edge:
             self._say_once(
                 f"edge {self.yaw.edge}",

@@ -185,6 +185,96 @@ def test_the_yaw_loop_moves_the_offset_for_the_drive_the_controller_asks() -> No
     assert slope == pytest.approx(asked, rel=0.15), (slope, asked)
 
 
+@pytest.mark.slow
+def test_a_turn_to_starboard_caps_the_drive_for_its_offsets_room() -> None:
+    """The P1's window leaves a turn to starboard -100 V of offset under 800 Vpp (0.23 deg/s on the
+    twin; 400 Vpp and -300 V give 0.35): asked a turn to starboard beyond it, the speed loop asks the
+    controller on ``voltage_cap`` for the sine that leaves its offset room, down to the yaw loop's
+    ``room_least_vpp`` (400 Vpp), once it wanted it ``room_engage_s`` (here 1 s); to port and
+    straight none (the window's 2,000 V), said once each way."""
+    from sensor_msgs.msg import Imu
+
+    from piezofin_ros.bags.blocks import Block
+    from piezofin_ros.nodes._common import block_msg, imu_msg, record_msg
+
+    args = ("-p", "rate_hz:=20.0", "-p", "yaw.slew_v_per_s:=5000.0", "-p", "yaw.room_engage_s:=1.0")
+    proc = start("speed_loop", "-r", "__ns:=/cap", *args)
+    caps: list[tuple[str, float]] = []
+    phase = [""]
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("stack", namespace="cap", context=g.context))
+            pubs = {
+                "cmd_vel": node.create_publisher(Twist, "cmd_vel", QOS_COMMAND),
+                "swim_speed": node.create_publisher(data_type("swim_speed"), "swim_speed", QOS_SENSOR),
+                "imu": node.create_publisher(Imu, "imu", QOS_SENSOR),
+                "estimate": node.create_publisher(data_type("estimate"), "estimate", QOS_DATA),
+                "cmd": node.create_publisher(data_type("cmd"), "cmd", QOS_COMMAND),
+            }
+            node.create_subscription(
+                Float64, "voltage_cap", lambda m: caps.append((phase[0], m.data)), QOS_COMMAND
+            )
+            g.spin_until(
+                lambda: all(p.get_subscription_count() > 0 for p in pubs.values()), 60.0, "the speed loop"
+            )
+            estimate = {"thrust_self_n": 3e-3, "voltage_pp": 800.0, "frequency_hz": 5.5}
+            cmd = block_msg(Block.from_record({"frequency_hz": 5.5, "voltage_pp_V": 800.0, "on": 1.0}))
+            for phase[0], yaw in (("starboard", -0.3), ("port", 0.3), ("straight", 0.0)):
+                t_end = time.monotonic() + 4.0
+                while time.monotonic() < t_end:  # (20 Hz: a fish stack's, the sensors', the controller's)
+                    now = time.time()
+                    pubs["cmd_vel"].publish(twist(0.05, yaw=yaw))
+                    pubs["swim_speed"].publish(speed_msg(data_type("swim_speed"), 0.05, now))
+                    pubs["imu"].publish(imu_msg(0.0, 0.0, 1e-4, 1e-3, now))
+                    pubs["estimate"].publish(record_msg(data_type("estimate"), estimate, now))
+                    pubs["cmd"].publish(cmd)
+                    g.spin_for(0.05)
+    finally:
+        out = stop(proc)[0]
+    assert "Traceback" not in out, out[-3000:]
+    last = {p: [c for q, c in caps if q == p][-1] for p in ("starboard", "port", "straight")}
+    assert last == {"starboard": 400.0, "port": 2000.0, "straight": 2000.0}, (last, out[-2000:])
+    assert out.count("the drive capped at 400 Vpp on /cap/voltage_cap") == 1, out[-3000:]
+    assert out.count("no longer capped") == 1, out[-3000:]
+
+
+@pytest.mark.slow
+def test_the_controller_keeps_its_drive_under_the_cap_it_is_sent() -> None:
+    """The optimising controller, in its own process, sent ``voltage_cap`` by another (a yaw loop's):
+    its ``cmd`` stays under the cap while the cap comes, and the drive goes back to the optimiser's
+    point 1 s after it stops coming (a yaw loop that fell silent holds no drive down)."""
+    from piezofin_ros.nodes._common import msg_block
+
+    args = ("-p", "mode:=optimise", "-p", "demand_n:=0.004", "-p", "wait_estimator_s:=0.0")
+    proc = start("controller", "-r", "__ns:=/capped", *args)
+    vpp: list[tuple[float, float]] = []
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("yaw_loop", namespace="capped", context=g.context))
+            cap = node.create_publisher(Float64, "voltage_cap", QOS_COMMAND)
+            node.create_subscription(
+                data_type("cmd"),
+                "cmd",
+                lambda m: vpp.append((time.monotonic(), float(msg_block(m)["voltage_pp_V"][0]))),
+                QOS_COMMAND,
+            )
+            g.spin_until(lambda: cap.get_subscription_count() > 0, 60.0, "the controller's voltage_cap")
+            g.spin_until(lambda: vpp and vpp[-1][1] >= 390.0, 60.0, "the drive at its first point")
+            t_end = time.monotonic() + 3.0
+            while time.monotonic() < t_end:  # (a yaw loop's 20 Hz)
+                cap.publish(Float64(data=250.0))
+                g.spin_for(0.05)
+            sent_until = time.monotonic()
+            g.spin_for(4.0)
+    finally:
+        out = stop(proc)[0]
+    assert "Traceback" not in out, out[-3000:]
+    capped = [v for t, v in vpp if sent_until - 2.0 <= t <= sent_until]
+    assert capped and max(capped) <= 250.0 + 1e-6, (capped[-5:], out[-2000:])
+    after = [v for t, v in vpp if t >= sent_until + 2.5]
+    assert after and min(after) >= 390.0, (after[:5], out[-2000:])
+
+
 #: the fish's stack for the turn, each node as ``ros2 run`` starts it with the fish's parameter file
 FISH_YAML = str(Path(__file__).resolve().parents[2] / "config" / "fish.yaml")
 

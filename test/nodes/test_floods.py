@@ -45,6 +45,7 @@ TOPICS = {
     "loadcell": "loadcell",
     "imu": "imu",
     "bias_demand": "bias",
+    "voltage_cap": "cap",
     "cmd_vel": "twist",  # (last: its timeout then stops the fish swimming)
 }
 #: the drive's cap at 800 Vpp, plus the voltage monitor's noise, V

@@ -183,6 +183,8 @@ ATTACKS = {
             QOS_COMMAND,
             [Float64(data=x) for x in [*HOSTILE, math.nan, -600.0, 1600.0]],
         ),
+        # (a cap can only lower the drive: its door refuses what is no voltage or beyond the window)
+        "voltage_cap": (Float64, QOS_COMMAND, [Float64(data=x) for x in [*HOSTILE, math.nan, -1.0, 2001.0]]),
         "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
     },
 }
