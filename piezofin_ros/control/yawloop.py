@@ -199,11 +199,11 @@ class OffsetRoom:
     it.  The cap moves in steps of ``step_v``: down as soon as the room is below it, up only once the
     room is a step above the next (a wandering offset does not move the box at every tick).  Above
     ``most_vpp`` (the box's own top), or the room the window leaves with no offset (1,000 Vpp on a
-    P1), there is no cap: :attr:`cap` is inf.  A cap begins only once the
-    room has been short for ``engage_s`` (the yaw loop's ``room_engage_s``): a starboard correction
-    after a turn to port wants it for seconds, a turn to starboard for minutes, and capped at each
-    correction stranger 2 swam a square to port at +15 % energy per metre (the optimiser choosing
-    anew within each cap); once begun, it follows the room at once."""
+    P1), there is no cap: :attr:`cap` is inf.  A cap begins only once the room has been short for
+    ``engage_s`` (the yaw loop's ``room_engage_s``): a starboard correction after a turn to port
+    wants it for seconds, a turn to starboard for minutes, and capped at each correction stranger 2
+    swam a square to port at +15 % energy per metre (the optimiser choosing anew within each cap);
+    once begun, it follows the room at once."""
 
     least_vpp: float = YawLoopConfig.room_least_vpp
     step_v: float = 100.0
