@@ -295,8 +295,8 @@ class DriveLoop:
         """Cap the optimiser's voltage (:meth:`.optimise.Optimiser.set_voltage_cap`: a yaw loop's
         offset needs the room), None: no cap.  Taken by the heartbeat as a demand is, before it, by
         the fit's thread; the command never exceeds the cap from the next tick on."""
-        least = 2.0 * self.optimiser.limits.voltage_pp_min  # (as the box's cap: OperatingBox.capped)
-        cap = math.inf if voltage_pp is None or math.isnan(voltage_pp) else max(float(voltage_pp), least)
+        capped = self.optimiser.limits.capped(voltage_pp).voltage_pp_max  # (its floor and top: the box's)
+        cap = math.inf if voltage_pp is None or math.isnan(voltage_pp) else capped
         if cap != self.gate.cap:  # (a yaw loop sends its cap at 10 Hz: a fit only when it moves)
             self.gate.cap, self.gate.cap_due = cap, True
 

@@ -8,6 +8,7 @@ import itertools
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,6 +27,38 @@ def twist(forward: float, yaw: float = 0.0) -> Twist:
     msg = Twist()
     msg.linear.x, msg.angular.z = forward, yaw
     return msg
+
+
+def stack_publishers(node: Any) -> dict[str, Any]:
+    """What a speed loop hears, published by ``node``: a fish stack's cmd_vel, the sensors, the
+    estimator's estimates and the controller's cmd."""
+    from sensor_msgs.msg import Imu
+
+    return {
+        "cmd_vel": node.create_publisher(Twist, "cmd_vel", QOS_COMMAND),
+        "swim_speed": node.create_publisher(data_type("swim_speed"), "swim_speed", QOS_SENSOR),
+        "imu": node.create_publisher(Imu, "imu", QOS_SENSOR),
+        "estimate": node.create_publisher(data_type("estimate"), "estimate", QOS_DATA),
+        "cmd": node.create_publisher(data_type("cmd"), "cmd", QOS_COMMAND),
+    }
+
+
+def feed(
+    g: Any, pubs: dict[str, Any], seconds: float, yaw: float, estimate: dict[str, float], cmd: Any
+) -> None:
+    """``seconds`` of a fish swimming 5 cm/s, asked ``yaw`` rad/s, at rest by its IMU, ``estimate``
+    and ``cmd`` as the estimator and the controller send them (20 Hz: each of them)."""
+    from piezofin_ros.nodes._common import imu_msg, record_msg
+
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        now = time.time()
+        pubs["cmd_vel"].publish(twist(0.05, yaw=yaw))
+        pubs["swim_speed"].publish(speed_msg(data_type("swim_speed"), 0.05, now))
+        pubs["imu"].publish(imu_msg(0.0, 0.0, 1e-4, 1e-3, now))
+        pubs["estimate"].publish(record_msg(data_type("estimate"), estimate, now))
+        pubs["cmd"].publish(cmd)
+        g.spin_for(0.05)
 
 
 @pytest.mark.slow
@@ -139,23 +172,16 @@ def test_the_yaw_loop_moves_the_offset_for_the_drive_the_controller_asks() -> No
     stops at the edge of the drive asked (1,500 - 400 V), not the estimate's (1,278 V), and moves
     at the share of the asked sine's slope (5 %: 276 V/s), not of the estimate's (436 V/s), which
     had split the estimator's periods."""
-    from sensor_msgs.msg import Imu
 
     from piezofin_ros.bags.blocks import Block
-    from piezofin_ros.nodes._common import block_msg, imu_msg, record_msg
+    from piezofin_ros.nodes._common import block_msg
 
     proc = start("speed_loop", "-r", "__ns:=/room", "-p", "rate_hz:=20.0", "-p", "yaw.period_shift:=0.05")
     biases: list[tuple[float, float]] = []
     try:
         with graph() as g:
             node = g.add(rclpy.create_node("stack", namespace="room", context=g.context))
-            pubs = {
-                "cmd_vel": node.create_publisher(Twist, "cmd_vel", QOS_COMMAND),
-                "swim_speed": node.create_publisher(data_type("swim_speed"), "swim_speed", QOS_SENSOR),
-                "imu": node.create_publisher(Imu, "imu", QOS_SENSOR),
-                "estimate": node.create_publisher(data_type("estimate"), "estimate", QOS_DATA),
-                "cmd": node.create_publisher(data_type("cmd"), "cmd", QOS_COMMAND),
-            }
+            pubs = stack_publishers(node)
             node.create_subscription(
                 Float64, "bias_demand", lambda m: biases.append((time.monotonic(), m.data)), QOS_COMMAND
             )
@@ -164,15 +190,7 @@ def test_the_yaw_loop_moves_the_offset_for_the_drive_the_controller_asks() -> No
             )
             estimate = {"thrust_self_n": 1.5e-3, "voltage_pp": 444.0, "frequency_hz": 6.25}
             cmd = block_msg(Block.from_record({"frequency_hz": 2.2, "voltage_pp_V": 800.0, "on": 1.0}))
-            t_end = time.monotonic() + 8.0
-            while time.monotonic() < t_end:  # (20 Hz: a fish stack's, the sensors', the controller's)
-                now = time.time()
-                pubs["cmd_vel"].publish(twist(0.05, yaw=0.3))
-                pubs["swim_speed"].publish(speed_msg(data_type("swim_speed"), 0.05, now))
-                pubs["imu"].publish(imu_msg(0.0, 0.0, 1e-4, 1e-3, now))
-                pubs["estimate"].publish(record_msg(data_type("estimate"), estimate, now))
-                pubs["cmd"].publish(cmd)
-                g.spin_for(0.05)
+            feed(g, pubs, 8.0, 0.3, estimate, cmd)
     finally:
         out = stop(proc)[0]
     assert "Traceback" not in out, out[-3000:]
@@ -192,10 +210,9 @@ def test_a_turn_to_starboard_caps_the_drive_for_its_offsets_room() -> None:
     controller on ``voltage_cap`` for the sine that leaves its offset room, down to the yaw loop's
     ``room_least_vpp`` (400 Vpp), once it wanted it ``room_engage_s`` (here 1 s); to port and
     straight none (the window's 2,000 V), said once each way."""
-    from sensor_msgs.msg import Imu
 
     from piezofin_ros.bags.blocks import Block
-    from piezofin_ros.nodes._common import block_msg, imu_msg, record_msg
+    from piezofin_ros.nodes._common import block_msg
 
     args = ("-p", "rate_hz:=20.0", "-p", "yaw.slew_v_per_s:=5000.0", "-p", "yaw.room_engage_s:=1.0")
     proc = start("speed_loop", "-r", "__ns:=/cap", *args)
@@ -204,13 +221,7 @@ def test_a_turn_to_starboard_caps_the_drive_for_its_offsets_room() -> None:
     try:
         with graph() as g:
             node = g.add(rclpy.create_node("stack", namespace="cap", context=g.context))
-            pubs = {
-                "cmd_vel": node.create_publisher(Twist, "cmd_vel", QOS_COMMAND),
-                "swim_speed": node.create_publisher(data_type("swim_speed"), "swim_speed", QOS_SENSOR),
-                "imu": node.create_publisher(Imu, "imu", QOS_SENSOR),
-                "estimate": node.create_publisher(data_type("estimate"), "estimate", QOS_DATA),
-                "cmd": node.create_publisher(data_type("cmd"), "cmd", QOS_COMMAND),
-            }
+            pubs = stack_publishers(node)
             node.create_subscription(
                 Float64, "voltage_cap", lambda m: caps.append((phase[0], m.data)), QOS_COMMAND
             )
@@ -220,15 +231,7 @@ def test_a_turn_to_starboard_caps_the_drive_for_its_offsets_room() -> None:
             estimate = {"thrust_self_n": 3e-3, "voltage_pp": 800.0, "frequency_hz": 5.5}
             cmd = block_msg(Block.from_record({"frequency_hz": 5.5, "voltage_pp_V": 800.0, "on": 1.0}))
             for phase[0], yaw in (("starboard", -0.3), ("port", 0.3), ("straight", 0.0)):
-                t_end = time.monotonic() + 4.0
-                while time.monotonic() < t_end:  # (20 Hz: a fish stack's, the sensors', the controller's)
-                    now = time.time()
-                    pubs["cmd_vel"].publish(twist(0.05, yaw=yaw))
-                    pubs["swim_speed"].publish(speed_msg(data_type("swim_speed"), 0.05, now))
-                    pubs["imu"].publish(imu_msg(0.0, 0.0, 1e-4, 1e-3, now))
-                    pubs["estimate"].publish(record_msg(data_type("estimate"), estimate, now))
-                    pubs["cmd"].publish(cmd)
-                    g.spin_for(0.05)
+                feed(g, pubs, 4.0, yaw, estimate, cmd)
     finally:
         out = stop(proc)[0]
     assert "Traceback" not in out, out[-3000:]
