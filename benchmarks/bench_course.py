@@ -12,15 +12,17 @@ the stack is not told (a fin with effects outside the correction, another body, 
 speed sensor), the M8528-P1 twin, ``mfc-fish`` and ``fish-switching`` told instead.
 
 It steers by its fin's offset: line-of-sight guidance (:mod:`piezofin_ros.control.guidance`, its
-defaults: 2.5 m lookahead, the tightest turns 2.5 m to port and 20 m to starboard) asks a yaw rate,
+defaults: 2.5 m lookahead, the tightest turns 2.5 m to port and 6.4 m to starboard, each begun that
+far before its corner) asks a yaw rate,
 the yaw loop (:mod:`piezofin_ros.control.yawloop`, told the stack's fin and body) the offset, the
 planar body turns (:func:`piezofin_ros.bench.course.swim_course`).  The square is swum to port
 (anticlockwise), the way a P1 fin turns fast; its side is ``--side`` metres, about ten turning
 radii: a corner cut on a 2.5 m circle is 1 m off the course at its middle, so a smaller square
 cannot be held within a body length.  Off the course is the least distance to any leg, every 0.1 s
-of fish time.  ``--to starboard`` swims it the other way, the P1's weak side: the guidance told the
-6.4 m circle the optimising stack turns on once it gives up voltage for its offset's room
-(:data:`STARBOARD_RADIUS_M`; the fixed drives, at their voltage, turn on far wider ones).
+of fish time.  ``--to starboard`` swims it the other way, the P1's weak side: 6.4 m is the circle
+the optimising stack turns on once it gives up voltage for its offset's room
+(:class:`~piezofin_ros.control.yawloop.OffsetRoom`; the fixed drives, at their voltage, turn on far
+wider ones: 19 m at 800 Vpp).  A course is given up after its length at :data:`SLOWEST_M_S`.
 
 The drives (:data:`DRIVES`): the paper's point (5.5 Hz, 800 Vpp); the told model's resonance at
 full voltage (what a builder without an optimiser drives); the best fixed drive in truth (the point
@@ -114,20 +116,9 @@ def drive_of(name: str, told: Fish, truth: Fish) -> tuple[Drive, str]:
     return OptimisingDrive(opt), "its own"
 
 
-#: A square to starboard: the tightest turn guidance asks that way and how far before a corner the
-#: turn begins.  The P1's window leaves the offset -100 V under 800 Vpp (a 19 m circle on the
-#: M8528-P1 twin); the optimising stack lowers its voltage for the offset's room (``voltage_cap``,
-#: :class:`~piezofin_ros.control.yawloop.OffsetRoom`) down to 400 Vpp, -300 V: a 6.4 m circle.
-STARBOARD_RADIUS_M = 6.4
-
-
-def course_of(side: float, to: str) -> LineOfSight:
-    """The square ``to`` port (the guidance's defaults) or starboard (:data:`STARBOARD_RADIUS_M`)."""
-    if to == "port":
-        return LineOfSight(square(side))
-    return LineOfSight(
-        square(side, to), starboard_radius_m=STARBOARD_RADIUS_M, acceptance_m=STARBOARD_RADIUS_M
-    )
+#: A course is given up (not done) after its length at this mean speed: the slowest twin swims 3.5
+#: cm/s, and a 20 m square is given an hour as before.
+SLOWEST_M_S = 80.0 / 3600.0
 
 
 def run(task: tuple[str, str, float, str]) -> dict[str, Any]:
@@ -135,16 +126,18 @@ def run(task: tuple[str, str, float, str]) -> dict[str, Any]:
     name, drive_name, side, to = task
     told, truth = fish_of(name)
     drive, point = drive_of(drive_name, told, truth)
+    course = LineOfSight(square(side, to))  # (guidance's defaults: each turn at its own radius)
     r = swim_course(
         truth.model,
         truth.body,
         truth.amplifier,
-        course_of(side, to),
+        course,
         drive,
         told=told.model,
         told_body=told.body,
         told_amplifier=told.amplifier,
         battery=truth.battery,
+        most_s=course.length_m / SLOWEST_M_S,
     )
     if isinstance(drive, OptimisingDrive):
         held = drive.optimiser.status().get("held") or {}

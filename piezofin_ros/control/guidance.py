@@ -9,10 +9,10 @@ give each way.  ``k`` is ``gain_per_s``, or the speed over ``heading_distance_m`
 a fast fish turns its heading within the same distance swum as a slow one, not within the same
 time (at 0.1/s a fish at 18 cm/s swam 1.8 m per time constant, finished each corner 0.6 m outside the
 next leg and took 8 m to come back).  A waypoint is reached within the acceptance radius (at least
-the tightest turn to port, where the turn's arc begins), widened by ``turn_lead`` of the distance the
-fish swims in ``1 / k`` (its heading answers the rate asked with that lag: the turn begins that much
-later), or once the fish is past it along its leg; then the next leg.  The course's last waypoint
-reached, it is done.
+the tightest turn asked the way the course turns there, where the turn's arc begins), widened by
+``turn_lead`` of the distance the fish swims in ``1 / k`` (its heading answers the rate asked with
+that lag: the turn begins that much later), or once the fish is past it along its leg; then the next
+leg.  The course's last waypoint reached, it is done.
 """
 
 from __future__ import annotations
@@ -60,7 +60,10 @@ class LineOfSight:
     acceptance_m: float = 2.0  # (about the fish's turning radius: the turn begins that far before)
     gain_per_s: float = 0.1
     port_radius_m: float = 2.5  # the tightest turn asked each way, m (module docstring)
-    starboard_radius_m: float = 20.0
+    #: (the P1's window leaves the offset -100 V under 800 Vpp, a 19 m circle on the paper's twin; the
+    #: fish stack gives up voltage for the offset's room, down to 400 Vpp and -300 V: 6.4 m,
+    #: control.yawloop.OffsetRoom)
+    starboard_radius_m: float = 6.4
     #: (0.75 m: the distance a 7.5 cm/s fish swims in 1 / gain_per_s at the default gain; a fixed
     #: 0.2/s instead put M8507-P1 0.43 m and M8514-P1 up to 0.64 m off a 20 m square,
     #: benchmarks/bench_course.py)
@@ -114,6 +117,16 @@ class LineOfSight:
             best = min(best, math.hypot(x - (x0 + u * (x1 - x0)), y - (y0 + u * (y1 - y0))))
         return best
 
+    def turn_radius_m(self, k: int) -> float:
+        """The radius of the turn at ``waypoints[k]``, m: the tightest asked that way
+        (``port_radius_m`` or ``starboard_radius_m``), the turn's arc beginning that far before the
+        point; ``port_radius_m`` at the course's end, where there is no turn."""
+        if k >= len(self.waypoints) - 1:
+            return self.port_radius_m
+        (x0, y0), (x1, y1), (x2, y2) = self.waypoints[k - 1 : k + 2]
+        cross = (x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1)
+        return self.starboard_radius_m if cross < 0 else self.port_radius_m
+
     def gain_at(self, speed_m_s: float) -> float:
         """The yaw rate asked per radian of heading error at ``speed_m_s``, 1/s (module docstring)."""
         return max(self.gain_per_s, abs(speed_m_s) / self.heading_distance_m)
@@ -136,10 +149,11 @@ class LineOfSight:
         if not all(math.isfinite(v) for v in (x, y, heading_rad, speed_m_s)):
             raise GuidanceError(f"the fish at ({x!r}, {y!r}) heading {heading_rad!r}: not a pose")
         gain = self.gain_at(speed_m_s)
-        accept = max(self.acceptance_m, self.port_radius_m) + self.turn_lead * abs(speed_m_s) / gain
+        lead = self.turn_lead * abs(speed_m_s) / gain
         while not self.done:
             here = self.where(x, y)
             past = here.along_m >= self._lengths[self.leg - 1]
+            accept = max(self.acceptance_m, self.turn_radius_m(self.leg)) + lead
             if not (past or math.dist((x, y), self.waypoints[self.leg]) <= accept):
                 break
             if self.leg == len(self.waypoints) - 1:

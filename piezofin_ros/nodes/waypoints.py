@@ -52,7 +52,7 @@ from ._diagnostics import OK, STALE, Diagnostics, Report
 
 @dataclass(frozen=True)
 class WaypointsConfig:
-    """``waypoints``'s parameters."""
+    """``waypoints``'s parameters (guidance's defaults are its own: :class:`LineOfSight`'s)."""
 
     waypoints: tuple[float, ...] = setting(
         (),
@@ -62,39 +62,43 @@ class WaypointsConfig:
     )
     speed_m_s: float = setting(0.05, "the speed asked on the course, m/s", 0.0, 10.0)
     lookahead_m: float = setting(
-        2.5,
+        LineOfSight.lookahead_m,
         "line of sight: the point steered for, this far ahead on the leg, m (about the tightest turn "
         "asked: shorter, slow fish overshot each corner)",
         0.01,
         1e4,
     )
     acceptance_m: float = setting(
-        2.0, "a waypoint is reached within this distance (about the turning radius), m", 0.01, 1e4
+        LineOfSight.acceptance_m,
+        "a waypoint is reached within this distance, or within the radius of its turn if larger, m",
+        0.01,
+        1e4,
     )
     gain_per_s: float = setting(
-        0.1, "the yaw rate asked per radian of heading error, 1/s (at least)", 1e-4, 100.0
+        LineOfSight.gain_per_s, "the yaw rate asked per radian of heading error, 1/s (at least)", 1e-4, 100.0
     )
     port_radius_m: float = setting(
-        2.5,
+        LineOfSight.port_radius_m,
         "the tightest turn to port asked, m (the paper's twin turns on 1.8 m at its offset's edge)",
         0.01,
         1e4,
     )
     starboard_radius_m: float = setting(
-        20.0,
-        "the tightest turn to starboard asked, m (the P1 window leaves the offset little room)",
+        LineOfSight.starboard_radius_m,
+        "the tightest turn to starboard asked, m (the P1 window leaves the offset little room: the "
+        "fish gives up voltage for it, voltage_cap, down to a 6.4 m circle on the paper's twin)",
         0.01,
         1e4,
     )
     heading_distance_m: float = setting(
-        0.75,
+        LineOfSight.heading_distance_m,
         "a faster fish turns its heading error away within this distance swum: the gain is at least "
         "the speed over it, m",
         0.01,
         1e4,
     )
     turn_lead: float = setting(
-        0.5,
+        LineOfSight.turn_lead,
         "each turn begins earlier by this share of the distance the fish swims in 1 / the gain (its "
         "heading's lag)",
         0.0,

@@ -62,7 +62,7 @@ def test_the_line_of_sight_is_the_legs_angle_less_the_offset_over_the_lookahead(
     assert (leg.along_m, leg.across_m) == pytest.approx((3.0, 1.0))
     assert leg.heading_rad == pytest.approx(-math.atan(0.5)) and leg.to_go_m == pytest.approx(17.0)
     rate, _ = los.update(3.0, 1.0, 0.0, speed_m_s=0.1)
-    assert rate == pytest.approx(-0.1 / 20.0)  # (to starboard: as tight as its 20 m radius allows)
+    assert rate == pytest.approx(-0.1 / 6.4)  # (to starboard: as tight as its 6.4 m radius allows)
     rate, _ = los.update(3.0, -0.1, 0.0, speed_m_s=0.05)
     assert rate == pytest.approx(0.1 * math.atan(0.05))  # (a small error: the gain's)
     rate, _ = los.update(3.0, -0.1, 0.0, speed_m_s=0.15)  # (faster than 0.75 m x 0.1/s: within 0.75 m)
@@ -76,6 +76,26 @@ def test_the_line_of_sight_is_the_legs_angle_less_the_offset_over_the_lookahead(
     rate, _ = los.update(10.0, 9.0, math.pi / 2, speed_m_s=0.1)
     assert los.done and rate == 0.0
     assert wrap(3 * math.pi) == pytest.approx(math.pi) and los.off_course_m(5.0, -1.0) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("turn", ["port", "starboard"])
+def test_each_turn_begins_its_own_radius_before_its_corner(turn: str) -> None:
+    """A corner to starboard is reached ``starboard_radius_m`` before it, one to port
+    ``port_radius_m`` before it (a mixed course: each turn's arc where it begins), the course's end
+    within the acceptance or the port radius; the course's turn at each point read from its legs."""
+    side = 1.0 if turn == "port" else -1.0
+    course = [(0.0, 0.0), (20.0, 0.0), (20.0, 20.0 * side), (40.0, 20.0 * side), (40.0, 0.0)]
+    los = LineOfSight(course, port_radius_m=2.5, starboard_radius_m=6.4, turn_lead=0.0)
+    first, second = (2.5, 6.4) if turn == "port" else (6.4, 2.5)
+    assert (los.turn_radius_m(1), los.turn_radius_m(2), los.turn_radius_m(4)) == (first, second, 2.5)
+    for radius, (x, y), heading in ((first, course[1], 0.0), (second, course[2], side * math.pi / 2)):
+        before = los.leg
+        back = (x - (radius + 0.05) * math.cos(heading), y - (radius + 0.05) * math.sin(heading))
+        los.update(*back, heading, speed_m_s=0.05)
+        assert los.leg == before, f"taken {radius + 0.05} m before a {radius} m turn"
+        nearer = (x - (radius - 0.05) * math.cos(heading), y - (radius - 0.05) * math.sin(heading))
+        los.update(*nearer, heading, speed_m_s=0.05)
+        assert los.leg == before + 1, f"not taken {radius - 0.05} m before a {radius} m turn"
 
 
 @pytest.mark.slow  # (7 s)
