@@ -17,7 +17,7 @@ controller ramped the drive down and the fish swam its course 1.4 m off).  A fis
 ``min_speed_m_s`` is not steered.
 
 The P1 MFC's window is not symmetric (-500 V to +1,500 V): a fish turns one way far faster than the
-other (docs/fish.md, Turning).
+other (docs/fish-record.md, Turning).
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ class OffsetRoom:
 
     The P1's window (-500 V to +1,500 V) leaves an offset of -100 V under 800 Vpp: on the twin of
     M8528-P1 at 5.5 Hz a turn to starboard of 0.23 deg/s on a circle of 19 m, where 400 Vpp and
-    -300 V give 0.35 deg/s on 6.4 m (slower, 4.0 cm/s against 7.5: docs/fish.md, Turning).  To port
+    -300 V give 0.35 deg/s on 6.4 m (slower, 4.0 cm/s against 7.5: docs/fish-record.md, Turning).  To port
     the window leaves +1,100 V, and a smaller sine loses more yaw rate than its offset gains (2.4
     deg/s at 800 Vpp, 1.5 at 400): no cap.  Below ``least_vpp`` (the yaw loop's
     ``room_least_vpp``) the yaw rate falls again (0.27 deg/s at 300 Vpp, 0.17 at 200): never below

@@ -75,7 +75,7 @@ def test_an_offset_turns_the_fish_at_the_planar_bodys_steady_yaw_rate() -> None:
     u = fish.speed_m_s
     moment = bias_side_force_n(fin, thrust, bias, u) * planar.fin_lever_m
     expected = planar.steady_yaw_rate(moment, fin_yaw_damping(planar, fin, u))
-    assert math.degrees(expected) > 1.0  # (the nominal fin: 1.7 deg/s; the twin, docs/fish.md: 2.4)
+    assert math.degrees(expected) > 1.0  # (the nominal fin: 1.7 deg/s; the twin, docs/fish-record.md: 2.4)
     assert fish.yaw_rate_rad_s == pytest.approx(expected, rel=0.03)
     assert rates[-1] == pytest.approx(fish.yaw_rate_rad_s + fish.gyro_bias_rad_s, rel=1e-9)
     _, heading, var = fish.imu_reading()
