@@ -228,7 +228,7 @@ class DriveLoop:
         agree = len(w) >= 2 and all(
             abs(a / b - 1) <= self.settle_tolerance for a, b in zip(w[-1], w[-2], strict=True)
         )
-        if not (agree or self._falls_short(args) or len(w) >= self.max_windows):
+        if not (agree or self._ends_early(args) or len(w) >= self.max_windows):
             return True
         self._windows, self._partial = [], None
         if self.background:
@@ -247,18 +247,27 @@ class DriveLoop:
             self._take_next()
         return True
 
-    def _falls_short(self, args: tuple[Any, ...]) -> bool:
-        """Whether a fish's trial ends at this window (``observe``'s arguments): under a demand with a
-        ``trial_overshoot``, a window the fit reads more than ``hold_margin`` below the demand, at a
-        point that is not a quiet identification trial (taken low on purpose).  Its speed follows the
-        trial's thrust: a wrong prior's trial giving a fifth of the demand had run two more windows."""
+    def _ends_early(self, args: tuple[Any, ...]) -> bool:
+        """Whether a trial under a demand ends at this window (``observe``'s arguments), before two
+        windows agree:
+
+        * a quiet identification trial, at its first window: whoever asked the demand waits for it
+          (a fish from rest crawls at a fifth of its demand), and its observation is one window
+          either way (a second only shows the first was settled, which below the resonance, after
+          the estimator's settling, it is): a fish from rest then swims 6 s sooner;
+        * on a fish (a ``trial_overshoot``), a trial whose window the fit reads more than
+          ``hold_margin`` below the demand: its speed follows the trial's thrust (a wrong prior's
+          trial giving a fifth of the demand had run two more windows)."""
         opt = self.optimiser
-        if opt.demand_n is None or not math.isfinite(opt.overshoot_limit):
+        if opt.demand_n is None:
             return False
         t, f, v, thrust, power, admittance, _, drive = args
         o = Observation(t, f, v, thrust, power, opt.source, admittance, voltage_pp_drive=drive)
+        if is_quiet(opt, o):
+            return True
         return (
-            not is_quiet(opt, o) and opt.thrust_as_fitted(o) < (1.0 - opt.tuning.hold_margin) * opt.demand_n
+            math.isfinite(opt.overshoot_limit)
+            and opt.thrust_as_fitted(o) < (1.0 - opt.tuning.hold_margin) * opt.demand_n
         )
 
     def _named_watt(self, e: Any) -> float:

@@ -107,7 +107,8 @@ def test_a_demand_waits_for_the_trial_it_would_cut_short(m8528: Fin) -> None:
     """A speed loop's demand moves all the time: a small change waits until the running trial has
     been learnt, a jump (a new set-point) or one that waited ``wait_s`` goes at once.  Taken
     at once, every demand moved the drive before its trial ended and the optimiser learnt nothing."""
-    loop = DriveLoop(Optimiser(m8528, LIMITS, tuning=COARSE), slew_vpp_per_s=4000.0)
+    # (no quiet identification trial first: it ends at its first window, _ends_early)
+    loop = DriveLoop(Optimiser(m8528, LIMITS, tuning=COARSE, identify=False), slew_vpp_per_s=4000.0)
     loop.set_demand(3e-3)  # the first: at once
     assert loop.optimiser.demand_n == 3e-3
     t = _settle_on_a_point(loop, 0.0)
@@ -234,7 +235,10 @@ def _ticks(loop: DriveLoop, t: float, seconds: float) -> float:
     [
         (False, 0.2, 0.1, True),  # a fifth of the demand on a fish: ended at its first window
         (False, 1.0, 0.1, False),  # the demand met: two windows that agree, as every trial
-        (True, 1.0, 0.1, False),  # the quiet identification trial, low on purpose: not ended
+        # the quiet identification trial, low on purpose, under a demand: learnt from its first
+        # window, on a fish or a rig (whoever asked the demand waits for it)
+        (True, 1.0, 0.1, True),
+        (True, 1.0, 0.0, True),
         (False, 0.2, 0.0, False),  # no overshoot limit (a rig, not a fish): its windows as always
     ],
 )
@@ -243,7 +247,8 @@ def test_a_fish_trial_far_short_of_the_demand_ends_at_its_first_window(
 ) -> None:
     """A fish's speed follows each trial's thrust: a trial whose first window the fit reads more than
     ``hold_margin`` below the demand is learnt from that window and left (a stranger given a wrong
-    prior spent 24 s below 90 % of the demand in one such trial, 15 s with this, ``--strangers``)."""
+    prior spent 24 s below 90 % of the demand in one such trial, 15 s with this, ``--strangers``),
+    and so is a quiet identification trial under a demand (a fish from rest swims 6 s sooner)."""
     opt = Optimiser(
         m8528, LIMITS, tuning=COARSE, identify=identify, demand_margin_z=0.0, trial_overshoot=overshoot
     )
