@@ -73,7 +73,9 @@ def _machine(exclusive: bool) -> Iterator[None]:
     machine that only their own processes load, as a user's robot would be."""
     d = ROOT / ".ros"
     d.mkdir(parents=True, exist_ok=True)
-    with open(d / "tests.turnstile", "w") as turnstile, open(d / "tests.lock", "w") as lock:
+    # (a lock of each phase's own: tools/test.sh runs the two phases side by side)
+    name = os.environ.get("PIEZOFIN_TEST_LOCK", "tests")
+    with open(d / f"{name}.turnstile", "w") as turnstile, open(d / f"{name}.lock", "w") as lock:
         fcntl.flock(turnstile, fcntl.LOCK_EX)
         try:
             fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
