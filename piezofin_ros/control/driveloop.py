@@ -30,8 +30,10 @@ class DemandGate:
     hold_s: float = 1.0
     #: a demand this far (relative) from the one in force is taken without waiting for a trial
     jump: float = 0.25
-    #: nor one that has waited this long for a trial to end, s
-    wait_s: float = 20.0
+    #: nor one that has waited this long for a trial to end, s (20 s until 2026-11-29: a fish holding a
+    #: confirmed point runs no trial, and a speed loop's demand rising 15 % above it waited the whole
+    #: 20 s; stranger 2 from rest dipped 10 % for 36 s, held after 83 s, 21 s now; 5 s cut trials short)
+    wait_s: float = 10.0
     wanted: float | None = None  # the latest demand set
     due: bool = False  # set since the last taken
     queued: bool = False  # taken, its fit not begun: a demand set now queues a new fit

@@ -411,10 +411,13 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
     trace = result["trace"]
     assert any("the model is dropped" in e for e in trace.events), trace.events
     _, truth, _, _ = stranger(name)
-    # from rest within 90 s (measured 46 and 76 s; 66 s on stranger 1 before the given model was
-    # weighed by its whole cost, 114 s before the speed loop's steady boost; the issue's 60 s is not
-    # met on stranger 2: the twin's map after the identification trial, 0.48 mN where 2.3 were expected)
-    assert trace.settling_s(0.0, 400.0) <= 90.0, (name, trace.settling_s(0.0, 400.0))
+    # from rest, every sample within 5 % after 75 s (measured 35.4 and 71.6 s; stranger 2 83 s while a
+    # demand above a held point waited 20 s for a trial that never came, `DemandGate.wait_s`, 10 s now;
+    # 66 s on stranger 1 before the given model was weighed by its whole cost, 114 s before the speed
+    # loop's steady boost).  Stranger 2 reaches the band at 21 s and dips up to 10 % from 48 to 68 s
+    # (the twin's map read the first trials 2.6 times low): over `bench_fish.py`'s 750 s step that is
+    # held after 21 s by the issue's measure, 95 % of the step within 5 % (`Trace.held_s`)
+    assert trace.settling_s(0.0, 400.0) <= 75.0, (name, trace.settling_s(0.0, 400.0))
     for (t0, t1), u in zip([(0.0, 400.0), (400.0, 800.0)], STRANGERS[name]["setpoints_m_s"], strict=True):
         assert abs(trace.mean("speed_m_s", t1 - 60.0, t1) / u - 1.0) < 0.05, (name, u)
         # over the step's second half at least 95 % of the time within 5 % (issue 39's goal; measured 1.0:
