@@ -11,6 +11,7 @@ the namespace ``fish`` and obeys ``cmd`` (the README's topic contract).
 
     ros2 launch piezofin_ros fish.launch.py realtime_factor:=10 speed_m_s:=0.05
     ros2 launch piezofin_ros fish.launch.py sim:=false params_file:=my_fish.yaml
+    ros2 launch piezofin_ros fish.launch.py sim:=false realtime_factor:=5   # a simulated driver's /clock
     ros2 param set /fish/speed_loop speed_m_s 0.07
 """
 
@@ -37,7 +38,8 @@ def _nodes(context, *args, **kwargs):
     factor = number_argument(context, "realtime_factor")
     speed = number_argument(context, "speed_m_s")
     sim = LaunchConfiguration("sim").perform(context).lower() in ("1", "true", "yes")
-    use_sim_time = sim and factor != 1.0
+    # (faster than real time, the nodes run on /clock: fin_sim's, or with sim:=false the fish driver's)
+    use_sim_time = factor != 1.0
     nodes = []
     if sim:
         own = {
@@ -94,7 +96,12 @@ def generate_launch_description():
                 default_value="true",
                 description="start fin_sim (false: the fish's driver publishes drive, swim_speed, battery)",
             ),
-            DeclareLaunchArgument("realtime_factor", default_value="1.0", description="fin_sim speed"),
+            DeclareLaunchArgument(
+                "realtime_factor",
+                default_value="1.0",
+                description="fin_sim speed; other than 1, the nodes run on /clock (with sim:=false, a "
+                "driver that simulates its fish this fast publishes it)",
+            ),
             DeclareLaunchArgument("speed_m_s", default_value="0.06", description="the speed set-point, m/s"),
             OpaqueFunction(function=_nodes),
         ]

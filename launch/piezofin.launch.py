@@ -38,7 +38,8 @@ def _nodes(context, *args, **kwargs):
     namespaces = LaunchConfiguration("namespaces").perform(context).split()
     sim = LaunchConfiguration("sim").perform(context).lower() in ("1", "true", "yes")
     factor = number_argument(context, "realtime_factor")
-    use_sim_time = sim and factor != 1.0
+    # (faster than real time, the nodes run on /clock: fin_sim's, or with sim:=false the driver's)
+    use_sim_time = factor != 1.0
     actions = []
     several = sim and len(namespaces) > 1
     if several:
@@ -140,7 +141,12 @@ def generate_launch_description():
             DeclareLaunchArgument(
                 "sim", default_value="true", description="start fin_sim (false: real drive)"
             ),
-            DeclareLaunchArgument("realtime_factor", default_value="1.0", description="fin_sim speed"),
+            DeclareLaunchArgument(
+                "realtime_factor",
+                default_value="1.0",
+                description="fin_sim speed; other than 1, the nodes run on /clock (with sim:=false, a "
+                "driver that simulates its rig this fast publishes it)",
+            ),
             OpaqueFunction(function=_nodes),
         ]
     )

@@ -9,15 +9,19 @@ Nothing of it is what the stack is told: the fin is the nominal M8528-P1 (the st
 paper's twin), the amplifier is another switching one (70 % efficient, none recovered, 0.12 W
 quiescent), the body has a linear drag term besides the quadratic one and a speed sensor with a
 bias, the battery feeds 0.3 W of electronics besides the amplifier.  Its own safety: the drive
-ramps to 0 V when no command came for 1 s.
+ramps to 0 V when no command came for 1 s.  With ``realtime_factor`` other than 1 it simulates its
+fish that many times faster than real time and publishes ``/clock`` (the time of its last sample),
+as a simulated fish would for a stack on ``use_sim_time``.
 
     python test/fish_driver.py --ros-args -r __ns:=/fish -p truth_file:=truth.csv
+    python test/fish_driver.py --ros-args -r __ns:=/fish -p realtime_factor:=5.0
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import time
 
 import numpy as np
 import rclpy
@@ -25,6 +29,8 @@ from geometry_msgs.msg import TwistStamped
 from piezofin_msgs.msg import Drive
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64MultiArray
 
@@ -45,10 +51,13 @@ class FishDriver(Node):
     def __init__(self) -> None:
         super().__init__("fish_driver")
         self.truth_file = self.declare_parameter("truth_file", "").value
+        self.factor = float(self.declare_parameter("realtime_factor", 1.0).value)
+        self.clock = self.create_publisher(Clock, "/clock", 10) if self.factor != 1.0 else None
+        self.wall0, self.sim0 = time.monotonic(), time.time()
         self.rig = SimulatedRig(load_fin("M8528-P1"), seed=11, amplifier=AMPLIFIER)
         self.rng = np.random.default_rng(12)
         self.speed = 0.0
-        self.t0 = self.get_clock().now().nanoseconds * 1e-9
+        self.t0 = self.now()
         self.samples = 0
         self.last_cmd = -math.inf
         self.draws: list[float] = []
@@ -60,11 +69,13 @@ class FishDriver(Node):
         self.speed_pub = self.create_publisher(TwistStamped, "swim_speed", qos_profile_sensor_data)
         self.battery = self.create_publisher(BatteryState, "battery", qos_profile_sensor_data)
         self.create_subscription(Float64MultiArray, "cmd", self.on_cmd, QOS_COMMAND)
-        self.create_timer(BLOCK / RATE_HZ, self.step)
+        self.create_timer(BLOCK / RATE_HZ / self.factor, self.step)  # (a wall timer: the node's own clock)
         self.get_logger().info("driving the fin from cmd; publishing drive, swim_speed, battery")
 
     def now(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        if self.clock is None:
+            return self.get_clock().now().nanoseconds * 1e-9
+        return self.sim0 + (time.monotonic() - self.wall0) * self.factor
 
     def on_cmd(self, msg: Float64MultiArray) -> None:
         f, v, on = (msg_block(msg, expect=COMMAND_FIELDS).scalar(n) for n in COMMAND_FIELDS)
@@ -95,6 +106,8 @@ class FishDriver(Node):
             self.truth.append(
                 f"{t[-1]:.3f},{self.speed:.6f},{thrust:.6e},{self.draws[-1]:.6e},{self.rig.drive.voltage_pp:.1f}"
             )
+            if self.clock is not None:
+                self.clock.publish(Clock(clock=Time(nanoseconds=round(float(t[-1]) * 1e9)).to_msg()))
             if t[-1] - self.last_battery >= 0.2:  # (its battery monitor: 5 Hz)
                 self.last_battery = float(t[-1])
                 power = float(np.mean(self.draws)) + ELECTRONICS_W

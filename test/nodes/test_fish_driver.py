@@ -33,12 +33,15 @@ SPEED_M_S = 0.05  # (STACK's set-point)
 RUN_S, LAST_S, NEAR = 120.0, 20.0, 0.1
 
 
-def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, str], tmp_path: Path) -> None:
-    assert f"speed_m_s:={SPEED_M_S}" in STACK
+def run_fish(
+    ros_env: dict[str, str], tmp_path: Path, stack: tuple[str, ...], driver: tuple[str, ...], wall_s: float
+) -> tuple[str, np.ndarray]:
+    """The fish's driver first (its drive at 0 V: the estimator learns the battery's fixed draw
+    there), then the stack, for ``wall_s`` of wall time; the stack's output and the driver's truth
+    (time, speed, thrust, supply watt, drive voltage)."""
     truth, said = tmp_path / "truth.csv", tmp_path / "driver.log"
-    # the fish first (its drive at 0 V: the estimator learns the battery's fixed draw there), then the stack
-    driver = subprocess.Popen(
-        [sys.executable, *DRIVER[1:], "-p", f"truth_file:={truth}"],  # (this venv's python)
+    proc = subprocess.Popen(
+        [sys.executable, *driver[1:], "-p", f"truth_file:={truth}"],  # (this venv's python)
         env=ros_env,
         cwd=ROOT,
         stdin=subprocess.DEVNULL,
@@ -49,9 +52,9 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
     while "driving the fin from cmd" not in said.read_text() and time.monotonic() - t0 < 60.0:
         time.sleep(0.2)
     try:
-        launch = Launch(ros_env, tmp_path, *STACK[4:], file=STACK[3], besides=("/fish/fish_driver",))
+        launch = Launch(ros_env, tmp_path, *stack[4:], file=stack[3], besides=("/fish/fish_driver",))
     except BaseException:
-        stop(driver)
+        stop(proc)
         raise
     try:
         launch.wait_for("the supply watt is measured on /fish/battery", 60.0)
@@ -61,18 +64,80 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
         # domain, listed a fin_sim that test had stopped: a CI run of 2026-11-27)
         direct = set(ros2(ros_env, "node", "list", "--no-daemon", "--spin-time", "5").stdout.split())
         assert "/fish/fin_sim" not in direct and "/fish/fish_driver" in direct, direct
-        time.sleep(max(0.0, RUN_S - (time.monotonic() - launch.started)))
+        time.sleep(max(0.0, wall_s - (time.monotonic() - launch.started)))
     finally:  # (the stack first, as the fish's operator would, then the fish)
         try:
             out = launch.interrupt()
         finally:
-            stop(driver)
+            stop(proc)
     assert "[ERROR]" not in out and "Traceback" not in out, out[-3000:]
     assert "fin_sim" not in out, out[-3000:]
     rows = np.loadtxt(truth, delimiter=",", skiprows=1, ndmin=2)
-    t, speed, volts = rows[:, 0] - rows[0, 0], rows[:, 1], rows[:, 4]
-    assert volts.max() <= 800.0 + 1e-6
-    assert np.any(volts > 100.0), "the stack never drove the fish"
+    assert rows[:, 4].max() <= 800.0 + 1e-6
+    assert np.any(rows[:, 4] > 100.0), "the stack never drove the fish"
+    return out, rows
+
+
+def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, str], tmp_path: Path) -> None:
+    assert f"speed_m_s:={SPEED_M_S}" in STACK
+    _, rows = run_fish(ros_env, tmp_path, STACK, DRIVER, RUN_S)
+    t, speed = rows[:, 0] - rows[0, 0], rows[:, 1]
     # near its set-point in truth by the end (NEAR: see above)
     last = float(np.mean(speed[t > t[-1] - LAST_S]))
     assert abs(last / SPEED_M_S - 1.0) <= NEAR, (last, speed[::200])
+
+
+#: Issue 39's goals through ``ros2 launch``, on the driver's simulated fish at x5 (as the issue's own
+#: runs: ``use_sim_time``, a fish the stack is not told: the nominal fin for the twin it is given,
+#: another amplifier, a body with a linear drag term, a speed sensor 0.1 cm/s high).  From its first
+#: drive (the stack's start is seconds of wall time, five times that of fish time), held within
+#: ``HELD_S`` of fish time: within 5 % then, every minute's mean after within 5 %, and 95 % of the
+#: time after within 5 % (``Trace.held_s``).  Measured 73 and 75 s (2026-11-29, two runs): the fish reaches
+#: 4.1 cm/s of 5 at 16 s, dips 8-11 % from 45 s to 75 s while the speed loop's integral removes its
+#: told drag law's error, and holds 4.88-4.91 cm/s in truth from 90 s (its sensor reads 0.1 high).
+#: The issue's 60 s is not met here.
+FAST = (
+    "ros2",
+    "launch",
+    "piezofin_ros",
+    "fish.launch.py",
+    "sim:=false",
+    "speed_m_s:=0.05",
+    "realtime_factor:=5",
+)
+FISH_S, HELD_S = 600.0, 120.0
+
+
+def test_the_fish_stack_holds_a_driver_fish_it_is_not_told_at_x5(
+    ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    from piezofin_ros.bench.fishrun import Trace
+
+    _, rows = run_fish(ros_env, tmp_path, FAST, (*DRIVER, "-p", "realtime_factor:=5.0"), FISH_S / 5.0)
+    t = rows[:, 0] - rows[0, 0]
+    driven = np.flatnonzero(rows[:, 4] > 0.0)
+    first = float(t[driven[0]])  # (the first drive: the stack's first trial)
+    end = float(t[driven[-1]]) - 1.0  # (the stack stopped: the driver's watchdog ramps its fin down)
+    n = t.size
+    unknown = np.full(n, np.nan)  # (what the driver's truth does not hold)
+    trace = Trace(
+        t=t,
+        setpoint_m_s=np.full(n, SPEED_M_S),
+        speed_m_s=rows[:, 1],
+        demand_n=unknown,
+        thrust_n=rows[:, 2],
+        thrust_estimate_n=unknown,
+        thrust_fitted_n=unknown,
+        frequency_hz=unknown,
+        voltage_pp=rows[:, 4],
+        supply_w=rows[:, 3],
+        soc=unknown,
+        distance_m=unknown,
+        energy_j=unknown,
+    )
+    assert end >= 0.8 * FISH_S, end  # (its clock ran at x5)
+    held, good = trace.held_s(first, end), trace.settling_s(first, end)
+    last = trace.mean("speed_m_s", end - 60.0, end)
+    print(f"first drive at {first:.1f} s; held {held:.1f} s after it; within 5 % for good after {good:.1f} s")
+    assert held <= HELD_S, held
+    assert abs(last / SPEED_M_S - 1.0) <= 0.05, last
