@@ -49,7 +49,10 @@ def test_the_closed_form_is_the_time_domain_law_on_a_sine(vpp, i_peak, phase, da
         amp = cls(**params)
         want = amp.mean_draw(v, i)
         got = float(amp.steady(vpp, i_rms, power))
-        assert got == pytest.approx(want, rel=1e-5, abs=1e-12), amp
+        # (the time-domain mean is a midpoint sum over n samples: where the draw has a kink, a
+        # switching stage's half-wave, it is off by up to (2 pi / n)^2 of the sine's scale, 1e-7:
+        # hypothesis found 1.1e-12 W off a 7.6e-9 W sliver of a 31 mW sine, beyond an absolute 1e-12)
+        assert got == pytest.approx(want, rel=1e-5, abs=1e-7 * vpp * i_peak), amp
         quiet = float(amp.without_quiescent().steady(vpp, i_rms, power))
         assert quiet == pytest.approx(got - params.get("quiescent_w", 0.0), rel=1e-9, abs=1e-9), amp
 
