@@ -136,8 +136,8 @@ def pytest_configure(config: pytest.Config) -> None:
         k = int(worker[2:])
         os.environ["ROS_DOMAIN_ID"] = str(base + 1 + k * 2)
         # a campaign's bringups, each in a domain of its own, draw from a block of the worker's own:
-        # 203-232, above every worker's domain and its ROS CLI domain (`ros_env`: at most 200)
-        first = 203 + (k % 5) * 6
+        # 215-232, above every worker's domain and its ROS CLI domain (`ros_env`)
+        first = 215 + (k % 3) * 6
         os.environ["PIEZOFIN_ROS_DOMAINS"] = f"{first}-{first + 5}"
 
 
