@@ -68,11 +68,8 @@ if [ "$tier" != fast ]; then
 fi
 echo "== pytest, $tier tier, phase 1: in parallel (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
 # One worker more than the cores: half of a test's time is spent waiting (a node's start-up, a live
-# graph in real time), and the third worker fills it (measured: docs/testing.md).  Beside phase 2,
-# two more: its tests mostly wait too, and three workers left the machine 12 % idle (2026-11-29).
-extra=1
-[ "$tier" != fast ] && extra=2
-workers="${PIEZOFIN_TEST_WORKERS:-$(( $(nproc) + extra ))}"
+# graph in real time), and the third worker fills it (measured: docs/testing.md).
+workers="${PIEZOFIN_TEST_WORKERS:-$(( $(nproc) + 1 ))}"
 PIEZOFIN_TEST_LOCK=parallel nice -n 19 python -m pytest -n "$workers" --dist loadgroup --durations="$slowest" \
   --durations-min=1.0 -m "not exclusive${select:+ and ($select)}" "${args[@]}" </dev/null || rc1=$?
 t2=$SECONDS
