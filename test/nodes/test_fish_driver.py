@@ -34,7 +34,12 @@ RUN_S, LAST_S, NEAR = 120.0, 20.0, 0.1
 
 
 def run_fish(
-    ros_env: dict[str, str], tmp_path: Path, stack: tuple[str, ...], driver: tuple[str, ...], wall_s: float
+    ros_env: dict[str, str],
+    tmp_path: Path,
+    stack: tuple[str, ...],
+    driver: tuple[str, ...],
+    wall_s: float,
+    ready: str = "the supply watt is measured on /fish/battery",
 ) -> tuple[str, np.ndarray]:
     """The fish's driver first (its drive at 0 V: the estimator learns the battery's fixed draw
     there), then the stack, for ``wall_s`` of wall time; the stack's output and the driver's truth
@@ -57,7 +62,7 @@ def run_fish(
         stop(proc)
         raise
     try:
-        launch.wait_for("the supply watt is measured on /fish/battery", 60.0)
+        launch.wait_for(ready, 60.0)
         nodes = node_list(ros_env, {"/fish/speed_loop", "/fish/fish_driver"})
         assert {"/fish/speed_loop", "/fish/fish_driver"} <= nodes, nodes
         # no fin_sim: asked of the graph itself (the CLI's daemon, started by an earlier test in this
@@ -92,10 +97,10 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
 #: another amplifier, a body with a linear drag term, a speed sensor 0.1 cm/s high).  From its first
 #: drive (the stack's start is seconds of wall time, five times that of fish time), held within
 #: ``HELD_S`` of fish time: within 5 % then, every minute's mean after within 5 %, and 95 % of the
-#: time after within 5 % (``Trace.held_s``).  Measured 73 and 75 s (2026-11-29, two runs): the fish reaches
-#: 4.1 cm/s of 5 at 16 s, dips 8-11 % from 45 s to 75 s while the speed loop's integral removes its
-#: told drag law's error, and holds 4.88-4.91 cm/s in truth from 90 s (its sensor reads 0.1 high).
-#: The issue's 60 s is not met here.
+#: time after within 5 % (``Trace.held_s``).  Measured 73, 75 and 101 s (2026-11-29, three runs): the
+#: fish reaches 4.1 cm/s of 5 at 16 s, dips 8-11 % from 45 s to 75 s while the speed loop's integral
+#: removes its told drag law's error, and holds 4.88-4.91 cm/s in truth from 90 s (its sensor reads
+#: 0.1 high).  The issue's 60 s is not met here.
 FAST = (
     "ros2",
     "launch",
@@ -113,7 +118,17 @@ def test_the_fish_stack_holds_a_driver_fish_it_is_not_told_at_x5(
 ) -> None:
     from piezofin_ros.bench.fishrun import Trace
 
-    _, rows = run_fish(ros_env, tmp_path, FAST, (*DRIVER, "-p", "realtime_factor:=5.0"), FISH_S / 5.0)
+    # (ready once the speed loop holds its set-point: the battery's measured watt is the real-time
+    # test's; at x5, in a CI run with a fourth parallel worker beside it, the estimator had not said
+    # it in 60 s, its fixed draw not learnt before the first drive: cause not found, 2026-11-29)
+    _, rows = run_fish(
+        ros_env,
+        tmp_path,
+        FAST,
+        (*DRIVER, "-p", "realtime_factor:=5.0"),
+        FISH_S / 5.0,
+        ready="set-point 0.05 m/s",
+    )
     t = rows[:, 0] - rows[0, 0]
     driven = np.flatnonzero(rows[:, 4] > 0.0)
     first = float(t[driven[0]])  # (the first drive: the stack's first trial)
