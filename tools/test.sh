@@ -47,6 +47,9 @@ unset PYTHONDONTWRITEBYTECODE
 # column of the summary) and yield it within the scheduler's few milliseconds when they want it
 # back, as a robot's other work yields to its drive.  Run one after the other, the phases took
 # 692 s + 661 s on this machine (2026-11-29, docs/testing.md).  The fast tier is phase 1 alone.
+# One worker more than the cores: half of a test's time is spent waiting (a node's start-up, a live
+# graph in real time), and the third worker fills it (measured: docs/testing.md).
+workers="${PIEZOFIN_TEST_WORKERS:-$(( $(nproc) + 1 ))}"
 rc1=0
 rc2=0
 phase2_log="$ROOT/.ros/phase2.log"
@@ -56,9 +59,9 @@ if [ "$tier" != fast ]; then
   echo "== pytest, $tier tier, phase 2 started beside phase 1: the exclusive tests, two at a time (its output: when it ends)"
   mkdir -p "$ROOT/.ros"
   rm -f "$phase2_rc"
-  # (its own DDS domains, above phase 1's, and its own lock: test/conftest.py)
+  # (its own DDS domains, above phase 1's two per worker, and its own lock: test/conftest.py)
   ( rc=0
-    ROS_DOMAIN_ID=$(( ROS_DOMAIN_ID + 6 )) PIEZOFIN_TEST_LOCK=exclusive PIEZOFIN_EXCLUSIVE_TOGETHER=1 \
+    ROS_DOMAIN_ID=$(( ROS_DOMAIN_ID + 2 * workers )) PIEZOFIN_TEST_LOCK=exclusive PIEZOFIN_EXCLUSIVE_TOGETHER=1 \
       python -m pytest -n 2 --durations="$slowest" --durations-min=1.0 -m "exclusive${select:+ and ($select)}" \
       "${args[@]}" </dev/null || rc=$?
     echo "$rc" > "$phase2_rc" ) > "$phase2_log" 2>&1 &
@@ -67,9 +70,6 @@ if [ "$tier" != fast ]; then
   trap 'pkill -TERM -P "$p2" 2>/dev/null; exit 130' INT TERM
 fi
 echo "== pytest, $tier tier, phase 1: in parallel (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
-# One worker more than the cores: half of a test's time is spent waiting (a node's start-up, a live
-# graph in real time), and the third worker fills it (measured: docs/testing.md).
-workers="${PIEZOFIN_TEST_WORKERS:-$(( $(nproc) + 1 ))}"
 PIEZOFIN_TEST_LOCK=parallel nice -n 19 python -m pytest -n "$workers" --dist loadgroup --durations="$slowest" \
   --durations-min=1.0 -m "not exclusive${select:+ and ($select)}" "${args[@]}" </dev/null || rc1=$?
 t2=$SECONDS
