@@ -93,6 +93,16 @@ STRANGERS: dict[str, dict[str, Any]] = {
         "speed_noise_m_s": 0.002,
         "setpoints_m_s": (0.046, 0.06),
     },
+    # the README's fish driver (test/fish_driver.py), as the live tests run it: the nominal fin, a
+    # body whose drag at 5 cm/s is 39 % above the told law's, an amplifier that recovers nothing
+    "stranger 3": {
+        "effects": {},
+        "body": {"mass_kg": 0.5, "added_mass_kg": 0.0, "drag_area_m2": 1.5e-3, "drag_linear_n_s_m": 0.004},
+        "amplifier": {"efficiency": 0.7, "recovered": 0.0, "quiescent_w": 0.12, "bus_v": 7.6},
+        "speed_bias_m_s": 0.001,
+        "speed_noise_m_s": 0.002,
+        "setpoints_m_s": (0.05, 0.065),
+    },
 }
 
 

@@ -11,7 +11,10 @@ quiescent), the body has a linear drag term besides the quadratic one and a spee
 bias, the battery feeds 0.3 W of electronics besides the amplifier.  Its own safety: the drive
 ramps to 0 V when no command came for 1 s.  With ``realtime_factor`` other than 1 it simulates its
 fish that many times faster than real time and publishes ``/clock`` (the time of its last sample),
-as a simulated fish would for a stack on ``use_sim_time``.
+as a simulated fish would for a stack on ``use_sim_time``; its watchdog then waits 1 s of wall time
+(``realtime_factor`` s of fish time): at x5 a stack that a loaded machine held up for 0.2 s of wall
+time is no dead stack (it had tripped the fish's drive three times in a run of 2026-12-06, each
+latched for a minute of fish time until the controller's own watchdog re-armed it).
 
     python test/fish_driver.py --ros-args -r __ns:=/fish -p truth_file:=truth.csv
     python test/fish_driver.py --ros-args -r __ns:=/fish -p realtime_factor:=5.0
@@ -38,13 +41,15 @@ from piezofin_ros.bags.blocks import COMMAND_FIELDS
 from piezofin_ros.nodes._common import QOS_COMMAND, QOS_DATA, msg_block
 from piezofin_ros.physics.amplifier import SwitchingAmplifier
 from piezofin_ros.physics.fin import load_fin
-from piezofin_ros.rig.simulated import SimulatedRig
+from piezofin_ros.rig.simulated import DriveLimits, SimulatedRig
 
 RATE_HZ, BLOCK = 1000.0, 50
 MASS_KG, DRAG_QUAD, DRAG_LIN = 0.5, 0.75, 0.004  # F = q U|U| + l U  (N; m/s)
 SPEED_BIAS, SPEED_NOISE = 0.001, 0.002  # m/s
 BATTERY_V, ELECTRONICS_W = 7.6, 0.3
 AMPLIFIER = SwitchingAmplifier(efficiency=0.7, recovered=0.0, quiescent_w=0.12, bus_v=BATTERY_V)
+WATCHDOG_S = 1.0  # of wall time (fish time at real time)
+FIN = "M8528-P1"  # the nominal fin, no effect
 
 
 class FishDriver(Node):
@@ -54,7 +59,11 @@ class FishDriver(Node):
         self.factor = float(self.declare_parameter("realtime_factor", 1.0).value)
         self.clock = self.create_publisher(Clock, "/clock", 10) if self.factor != 1.0 else None
         self.wall0, self.sim0 = time.monotonic(), time.time()
-        self.rig = SimulatedRig(load_fin("M8528-P1"), seed=11, amplifier=AMPLIFIER)
+        if not (math.isfinite(self.factor) and 0.1 <= self.factor <= 20.0):
+            raise SystemExit(f"fish_driver: realtime_factor {self.factor!r} must be within [0.1, 20]")
+        self.watchdog_s = WATCHDOG_S * max(1.0, self.factor)  # (fish time)
+        limits = DriveLimits(command_timeout_s=self.watchdog_s)
+        self.rig = SimulatedRig(load_fin(FIN), seed=11, amplifier=AMPLIFIER, limits=limits)
         self.rng = np.random.default_rng(12)
         self.speed = 0.0
         self.t0 = self.now()
@@ -84,7 +93,7 @@ class FishDriver(Node):
         self.commands.append((self.now(), f, v))
 
     def step(self) -> None:
-        if self.now() - self.last_cmd > 1.0:
+        if self.now() - self.last_cmd > self.watchdog_s:
             self.rig.stop()  # (no command for 1 s: the driver's own watchdog)
         while self.samples < (self.now() - self.t0) * RATE_HZ:
             b = self.rig.step(BLOCK)

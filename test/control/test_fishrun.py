@@ -17,7 +17,7 @@ from piezofin_ros.control.optimise import Correction, OperatingBox, Optimiser, T
 from piezofin_ros.control.speedloop import DemandGate, SpeedLoopConfig
 from piezofin_ros.errors import ControlError
 from piezofin_ros.physics.amplifier import load_amplifier
-from piezofin_ros.physics.fin import Fin
+from piezofin_ros.physics.fin import Fin, load_fin
 from piezofin_ros.physics.model import load_model
 from piezofin_ros.physics.swim import load_battery, load_body
 
@@ -395,7 +395,7 @@ def test_an_impossible_margin_or_overshoot_is_one_clear_error(m8528: Fin, bad: d
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["stranger 1", "stranger 2"])
+@pytest.mark.parametrize("name", ["stranger 1", "stranger 2", "stranger 3"])
 def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) -> None:
     """Issue 39's fish (``bench_fish.py --strangers``): the nominal fin with effects, another body,
     amplifier and speed sensor, the paper's twin given as the prior.  With it the fish sat at its 8 mN
@@ -411,13 +411,16 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
     trace = result["trace"]
     assert any("the model is dropped" in e for e in trace.events), trace.events
     _, truth, _, _ = stranger(name)
-    # from rest, every sample within 5 % after 75 s (measured 35.4 and 71.6 s; stranger 2 83 s while a
-    # demand above a held point waited 20 s for a trial that never came, `DemandGate.wait_s`, 10 s now;
-    # 66 s on stranger 1 before the given model was weighed by its whole cost, 114 s before the speed
-    # loop's steady boost).  Stranger 2 reaches the band at 21 s and dips up to 10 % from 48 to 68 s
-    # (the twin's map read the first trials 2.6 times low): over `bench_fish.py`'s 750 s step that is
-    # held after 21 s by the issue's measure, 95 % of the step within 5 % (`Trace.held_s`)
-    assert trace.settling_s(0.0, 400.0) <= 75.0, (name, trace.settling_s(0.0, 400.0))
+    # from rest, every sample within 5 % after 60 s (75 s on stranger 2).  Measured 35.4, 69.4 and
+    # 52.3 s (stranger 3, the README's driver fish, 74.0 s before the speed loop's secant step,
+    # `SpeedLoop._secant`); stranger 2 83 s while a demand above a held point waited 20 s for a trial
+    # that never came (`DemandGate.wait_s`, 10 s now); 66 s on stranger 1 before the given model was
+    # weighed by its whole cost, 114 s before the speed loop's steady boost.  Stranger 2 reaches the
+    # band at 21 s and dips up to 10 % from 48 to 68 s (the twin's map read the first trials 2.6 times
+    # low): over `bench_fish.py`'s 750 s step that is held after 19 s by the issue's measure, 95 % of
+    # the step within 5 % (`Trace.held_s`)
+    within = 75.0 if name == "stranger 2" else 60.0
+    assert trace.settling_s(0.0, 400.0) <= within, (name, trace.settling_s(0.0, 400.0))
     for (t0, t1), u in zip([(0.0, 400.0), (400.0, 800.0)], STRANGERS[name]["setpoints_m_s"], strict=True):
         assert abs(trace.mean("speed_m_s", t1 - 60.0, t1) / u - 1.0) < 0.05, (name, u)
         # over the step's second half at least 95 % of the time within 5 % (issue 39's goal; measured 1.0:
@@ -431,3 +434,23 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
         assert abs(ratio - 1.0) < 0.1, (name, ratio)
         sensed = np.mean(trace.thrust_estimate_n[late]) / np.mean(trace.thrust_n[late])
         assert abs(sensed - 1.0) < 0.1, (name, sensed)
+
+
+def test_stranger_3_is_the_readme_driver_fish() -> None:
+    """``bench_fish.py``'s stranger 3 is the fish of ``test/fish_driver.py`` (the README's driver, run
+    live by ``test/nodes/test_fish_driver.py``), so that what the benchmark measures of it is what
+    the live stack meets: its body, amplifier and speed sensor."""
+    pytest.importorskip("piezofin_msgs.msg", reason="the driver's messages (the ROS workspace) are not built")
+    from benchmarks.bench_fish import stranger
+    from test import fish_driver as d
+
+    _, truth, plant, spec = stranger("stranger 3")
+    body = truth.body
+    assert body.mass_kg + body.added_mass_kg == pytest.approx(d.MASS_KG)
+    assert 0.5 * body.rho_w * body.drag_area_m2 == pytest.approx(d.DRAG_QUAD)
+    assert body.drag_linear_n_s_m == pytest.approx(d.DRAG_LIN)
+    assert (spec["speed_bias_m_s"], spec["speed_noise_m_s"]) == (d.SPEED_BIAS, d.SPEED_NOISE)
+    amp = plant.amplifier
+    for name in ("efficiency", "recovered", "quiescent_w", "bus_v"):
+        assert getattr(amp, name) == pytest.approx(getattr(d.AMPLIFIER, name)), name
+    assert plant.effects == () and plant.fin == load_fin(d.FIN)

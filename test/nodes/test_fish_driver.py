@@ -94,15 +94,16 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
 
 #: Issue 39's goals through ``ros2 launch``, on the driver's simulated fish at x5 (as the issue's own
 #: runs: ``use_sim_time``, a fish the stack is not told: the nominal fin for the twin it is given,
-#: another amplifier, a body with a linear drag term, a speed sensor 0.1 cm/s high).  From its first
-#: drive (the stack's start is seconds of wall time, five times that of fish time), held within
-#: ``HELD_S`` of fish time: within 5 % then, every minute's mean after within 5 %, and 95 % of the
-#: time after within 5 % (``Trace.held_s``).  Measured 73, 75 and 101 s (2026-11-29, three runs): the
-#: fish reaches 4.1 cm/s of 5 at 16 s, dips 8-11 % from 45 s to 75 s while the speed loop's integral
-#: removes its told drag law's error, and holds 4.88-4.91 cm/s in truth from 90 s (its sensor reads
-#: 0.1 high).  The issue's 60 s is not met here.
+#: another amplifier, a body whose drag at 5 cm/s is 39 % above the told law's, a speed sensor 0.1
+#: cm/s high; ``bench_fish.py``'s stranger 3).  From its first drive (the stack's start is seconds of
+#: wall time, five times that of fish time), held within ``HELD_S`` of fish time: within 5 % then,
+#: every minute's mean after within 5 %, and 95 % of the time after within 5 % (``Trace.held_s``).
+#: Measured 24.2, 24.5 and 21.8 s (the last beside two niced CPU-bound processes), within 5 % for good
+#: after 50.7-53.4 s (2026-12-06): the fish overshoots to 5.5 cm/s on its first trials, falls to 4.3
+#: while the speed loop's told drag law asks too little, and the loop's secant step (``SpeedLoop``)
+#: asks the rest at about 45 s.  Before the secant step: held after 73-101 s (three runs, 2026-11-29).
 FAST = (*STACK, "realtime_factor:=5")  # (the README's stack line, on the driver's clock)
-FISH_S, HELD_S = 600.0, 120.0
+FISH_S, HELD_S = 600.0, 60.0
 
 
 def test_the_fish_stack_holds_a_driver_fish_it_is_not_told_at_x5(
