@@ -135,10 +135,15 @@ def pytest_configure(config: pytest.Config) -> None:
         base = int(os.environ.get("ROS_DOMAIN_ID", "0"))
         k = int(worker[2:])
         os.environ["ROS_DOMAIN_ID"] = str(base + 1 + k * 2)
-        # a campaign's bringups, each in a domain of its own, draw from a block of the worker's own:
-        # 215-232, above every worker's domain and its ROS CLI domain (`ros_env`)
-        first = 215 + (k % 3) * 6
-        os.environ["PIEZOFIN_ROS_DOMAINS"] = f"{first}-{first + 5}"
+        # a campaign's bringups, each in a domain of its own, draw from a block of the worker's own,
+        # counted down from 232, above every worker's domain and its ROS CLI domain (`ros_env`): 6
+        # domains a worker up to 16 workers, then fewer (a campaign's stage needs 3); before, the
+        # blocks 215 + (k % 3) * 6 repeated from a fourth worker on (tools/test.sh's phase 2, the
+        # exclusive tests on workers of their own, runs no campaign)
+        count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+        size = max(3, min(6, 100 // max(count, 1)))
+        first = 233 - size * (k + 1)
+        os.environ["PIEZOFIN_ROS_DOMAINS"] = f"{first}-{first + size - 1}"
 
 
 @pytest.fixture(params=PAPER_FINS)
