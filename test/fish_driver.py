@@ -57,10 +57,10 @@ class FishDriver(Node):
         super().__init__("fish_driver")
         self.truth_file = self.declare_parameter("truth_file", "").value
         self.factor = float(self.declare_parameter("realtime_factor", 1.0).value)
-        self.clock = self.create_publisher(Clock, "/clock", 10) if self.factor != 1.0 else None
-        self.wall0, self.sim0 = time.monotonic(), time.time()
         if not (math.isfinite(self.factor) and 0.1 <= self.factor <= 20.0):
             raise SystemExit(f"fish_driver: realtime_factor {self.factor!r} must be within [0.1, 20]")
+        self.clock = self.create_publisher(Clock, "/clock", 10) if self.factor != 1.0 else None
+        self.wall0, self.sim0 = time.monotonic(), time.time()
         self.watchdog_s = WATCHDOG_S * max(1.0, self.factor)  # (fish time)
         limits = DriveLimits(command_timeout_s=self.watchdog_s)
         self.rig = SimulatedRig(load_fin(FIN), seed=11, amplifier=AMPLIFIER, limits=limits)

@@ -312,10 +312,10 @@ class SpeedLoop:
             or not 0.3 * self.setpoint_m_s < self._speed < 3.0 * self.setpoint_m_s
         ):
             return
-        drag_now = float(self.body.drag_n(self._speed)) / self.body.fins
+        drag_now = self.feed_forward_n(self._speed)  # (per fin, as ff)
         if not (math.isfinite(drag_now) and drag_now > 0.0):
             return
-        target = self._thrust * self.feed_forward_n(self.setpoint_m_s) / drag_now
+        target = self._thrust * ff / drag_now
         step = cfg.steady_secant * (target - (ff + self.integral_n))
         if step * e <= 0.0:  # (a step away from the set-point, as an estimate read low asks, is none)
             return
