@@ -247,18 +247,27 @@ def node_list(env: dict[str, str], expected: set[str], timeout: float = 30.0) ->
 
 
 def listed(
-    env: dict[str, str], nodes: Iterable[str] = (), topics: Iterable[str] = (), timeout: float = 60.0
+    env: dict[str, str],
+    nodes: Iterable[str] = (),
+    topics: Iterable[str] = (),
+    timeout: float = 60.0,
+    *,
+    lifecycle: bool = False,
 ) -> tuple[set[str], set[str]]:
     """``ros2 node list`` and ``ros2 topic list``, asked again until they show ``nodes`` and ``topics``
     (or ``timeout``): as a user waits before naming a node to ``ros2 lifecycle`` or ``ros2 param``.
     On a loaded machine the CLI's discovery lags the graph by seconds (stop 46's whole run:
-    ``lifecycle set /fin/fin_sim`` said "Node not found" of a node that was driving)."""
+    ``lifecycle set /fin/fin_sim`` said "Node not found" of a node that was driving).  ``lifecycle``:
+    ``ros2 lifecycle nodes`` instead of ``ros2 node list``, the list ``ros2 lifecycle set`` itself
+    looks the node up in (a node with its ``get_state`` service discovered: stop 65's CI, a fin the
+    node list showed was "not found" by the service's later discovery)."""
     want_nodes, want_topics = set(nodes), set(topics)
+    node_cmd = ("lifecycle", "nodes") if lifecycle else ("node", "list")
     t0 = time.monotonic()
     while True:
         seen_nodes, seen_topics = (
-            set(ros2(env, kind, "list", "--spin-time", "3").stdout.split()) if want else set()
-            for kind, want in (("node", want_nodes), ("topic", want_topics))
+            set(ros2(env, *cmd, "--spin-time", "3").stdout.split()) if want else set()
+            for cmd, want in ((node_cmd, want_nodes), (("topic", "list"), want_topics))
         )
         if (want_nodes <= seen_nodes and want_topics <= seen_topics) or time.monotonic() - t0 > timeout:
             return seen_nodes, seen_topics

@@ -165,12 +165,19 @@ class Body:
     ) -> FloatArray:
         """The speed at which ``fins`` fins of still-water thrust ``thrust0_n`` (each, at
         ``frequency_hz``) balance the drag, m/s (0 without thrust): the positive root of
-        ``D(U) = n T_0 (1 - (U/c)^2)``; without a frequency, of ``D(U) = n T_0`` (no speed term)."""
+        ``D(U) = n T_0 (1 - (U/c)^2)``; without a frequency, of ``D(U) = n T_0`` (no speed term).
+        As ``2 T / (b + sqrt(b^2 + 4 a T))`` with numerator and denominator divided by ``sqrt(T)``, and
+        ``sqrt(a)`` as the ``hypot`` of its two terms' roots: no cancellation at a small thrust, no
+        overflow at an absurd one (1e300 N overflowed ``4 a T``), every float of thrust to the last bits."""
         t0 = np.maximum(np.asarray(thrust0_n, float), 0.0) * self.fins
         c = bending_speed(frequency_hz, fin_length_m)
-        a = t0 / c**2 + 0.5 * self.rho_w * self.drag_area_m2
         b = self.drag_linear_n_s_m
-        return (-b + np.sqrt(b * b + 4 * a * t0)) / (2 * a)  # type: ignore[no-any-return]
+        with np.errstate(divide="ignore", invalid="ignore"):  # (no thrust: 0 below)
+            r = np.sqrt(t0)
+            sqrt_a = np.hypot(r / c, math.sqrt(0.5 * self.rho_w * self.drag_area_m2))
+            u = 2.0 * r / (b / r + np.hypot(b / r, 2.0 * sqrt_a))
+        u = np.where(t0 > 0, u, 0.0)
+        return u[()]  # type: ignore[no-any-return]  # (a scalar's a NumPy scalar, as before)
 
     def surge_acceleration(self, thrust_n: float, U: float) -> float:
         """The surge equation: ``dU/dt = (T - D(U)) / (m + m_a)`` for the fins' total thrust ``T`` at

@@ -94,9 +94,11 @@ def test_an_operators_deactivate_holds_under_every_launch_file(
     try:
         for ns in namespaces:
             probe.spin_until_driven(ns, 100.0, 120.0)  # the controller drives: a trial is on
-        # the operator names the node once the command line lists it, as a user does
+        # the operator names the node once `ros2 lifecycle nodes` lists it, as a user does
         fins = {f"/{ns}/fin_sim" for ns in namespaces}
-        assert fins <= listed(ros_env, nodes=fins)[0], "the command line never listed the fins"
+        assert fins <= listed(ros_env, nodes=fins, lifecycle=True)[0], (
+            "`ros2 lifecycle nodes` never listed them"
+        )
         for ns in namespaces:
             stop = ros2(ros_env, "lifecycle", "set", f"/{ns}/fin_sim", "deactivate", "--spin-time", "3")
             assert "Transitioning successful" in stop.stdout, stop.stdout + stop.stderr

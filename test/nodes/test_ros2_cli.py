@@ -49,6 +49,9 @@ PLOTTED = (
 )
 
 
+# exclusive: a status echo is asked to answer within 2 s of wall time (issue 41); in phase 1, at nice 19
+# beside phase 2, the controller's once-a-second status missed two such echoes (stop 65's CI)
+@pytest.mark.exclusive
 def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
     ros_env: dict[str, str], tmp_path: Path
 ) -> None:

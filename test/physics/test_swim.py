@@ -66,6 +66,43 @@ def test_the_steady_speed_is_where_the_surge_equation_rests(thrust, f, area, lin
     assert 0 < tau < math.inf
 
 
+@settings(max_examples=60, deadline=None)
+@given(
+    thrust=st.floats(0.0, 1e308),
+    linear=st.floats(0.0, 0.05),
+    f=st.one_of(st.none(), st.floats(0.5, 50.0)),
+)
+def test_the_steady_speed_is_finite_and_exact_at_any_thrust(thrust, linear, f) -> None:
+    """Any thrust a caller may hold (a hostile estimate of 1e300 N reached it through the speed
+    loop): a finite speed, without an overflow's warning, that balances the drag to the last bits
+    (the root of its quadratic to 80 digits), and that grows
+    with the thrust."""
+    import warnings
+    from decimal import Decimal, localcontext
+
+    body = Body(drag_linear_n_s_m=linear)
+    L = 0.09
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        U = float(body.steady_speed(thrust, f, L))
+        U_more = float(body.steady_speed(min(thrust * 2.0, 1.7e308), f, L))
+    assert math.isfinite(U) and U >= 0.0 and U_more >= U * (1 - 1e-12)  # (near c: to the last bit)
+    if thrust == 0.0:
+        assert U == 0.0
+        return
+    # the same root to 80 digits: a U^2 + b U - T = 0, U = 2T / (b + sqrt(b^2 + 4aT))
+    with localcontext() as ctx:
+        ctx.prec = 80
+        c = math.inf if f is None else float(bending_speed(f, L))
+        T = Decimal(thrust) * body.fins
+        a = (T / Decimal(c) ** 2 if math.isfinite(c) else 0) + Decimal(body.rho_w) * Decimal(
+            body.drag_area_m2
+        ) / 2
+        b = Decimal(body.drag_linear_n_s_m)
+        exact = 2 * T / (b + (b * b + 4 * a * T).sqrt())
+    assert pytest.approx(float(exact), rel=1e-12) == U
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     thrust=st.floats(1e-4, 0.05),
