@@ -118,7 +118,14 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """``@pytest.mark.fast_cases("id", ...)`` on a parametrized test: the cases named stay in the fast
-    tier, every other case is marked ``slow`` (the whole suite runs them all)."""
+    tier, every other case is marked ``slow`` (the whole suite runs them all).  A test marked ``alone``
+    must be ``exclusive`` too (tools/test.sh runs the alone ones in a phase of their own, after the
+    parallel one, which takes every test not exclusive: one not exclusive would run in both)."""
+    lone = [
+        i.nodeid for i in items if i.get_closest_marker("alone") and not i.get_closest_marker("exclusive")
+    ]
+    if lone:
+        raise pytest.UsageError(f"marked alone but not exclusive: {', '.join(lone)}")
     for item in items:
         keep = item.get_closest_marker("fast_cases")
         callspec = getattr(item, "callspec", None)

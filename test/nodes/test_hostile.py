@@ -424,6 +424,43 @@ def test_fast_simulation_does_not_trip_on_scheduling_jitter() -> None:
     assert stopped_after < floor + 0.1 + 0.15, stopped_after  # wall floor + ramp (at x20) + a block
 
 
+@pytest.mark.exclusive
+@pytest.mark.slow
+@pytest.mark.parametrize("factor", [1.0, 4.0])
+def test_the_wall_floor_is_for_a_fast_simulation_only(factor: float) -> None:
+    """A 0.25 s watchdog, and a commander that stops: in real time it trips after 0.25 s of the fin's
+    time (the floor is no excuse there); at x4 it waits WATCHDOG_MIN_WALL_S of wall time (4 s of fin
+    time), said once at start.  Timed in the fin's own sample times: its last loud sample after the
+    last command the fin took."""
+    from piezofin_ros.nodes.fin_sim import WATCHDOG_MIN_WALL_S as floor
+
+    ns = f"floor{int(factor)}"
+    proc = fin_sim(ns, "-p", "limits.command_timeout_s:=0.25", "-p", f"realtime_factor:={factor:g}")
+    try:
+        with graph() as g:
+            w = Witness(g, ns)
+            w.drive_until_loud()
+            last = w.drive(0.5)
+            g.spin_for(floor + 1.5)
+    finally:
+        out = finish(proc)
+    t, v = w.samples()
+    arrivals = np.concatenate([np.full(b["t_s"].size, a) for a, b in w.blocks])
+    # the fin's time of the last command: its samples that arrived by then, less one block's latency
+    t_cmd = float(np.max(t[arrivals <= last]))
+    loud_for = float(np.max(t[np.abs(v) > QUIET])) - t_cmd  # fin time, s
+    said = "instead of limits.command_timeout_s 0.25 s" in out
+    print(f"x{factor:g}: loud {loud_for:.2f} s of fin time after the last command; floor said: {said}")
+    if factor == 1.0:
+        assert not said, out
+        # the watchdog, a stop's ramp (0.2 s), a block each for the trip's look and for the delivery that
+        # dated the command (0.49 s measured; the floor of 0.5 s there was would give 0.7 at least)
+        assert loud_for < 0.25 + 0.2 + 0.17, loud_for
+    else:
+        assert said and f"watchdog: {floor * factor:g} s of fin time" in out, out
+        assert loud_for > floor * factor - 0.5, loud_for
+
+
 # ------------------------------------------------------------------------------- silence
 @pytest.mark.exclusive
 @pytest.mark.slow
