@@ -51,6 +51,8 @@ unset PYTHONDONTWRITEBYTECODE
 # time, the x5 fish was held after 148 s of its first drive where it is held after 22-25 s alone.
 # Run one after the other, phases 1 and 2 took 692 s + 661 s on this machine (2026-11-29,
 # docs/testing.md).  The fast tier is phase 1 alone.
+# One worker more than the cores: half of a test's time is spent waiting (a node's start-up, a live
+# graph in real time), and the third worker fills it (measured: docs/testing.md).
 workers="${PIEZOFIN_TEST_WORKERS:-$(( $(nproc) + 1 ))}"
 rc1=0
 rc2=0
