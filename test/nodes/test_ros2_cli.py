@@ -164,6 +164,10 @@ def echoed_value(env: dict[str, str], topic: str) -> float:
     return float(numbers[-1]) if numbers else float("nan")
 
 
+# exclusive: its status echoes must answer within 2 s of wall time (issue 41); in phase 1, at nice 19
+# beside phase 2's two workers, `/fish/controller/status` was heard by neither of two echoes (the CI run
+# on stop 66's 337ad07), as the suite's launch test's had been in stop 65's
+@pytest.mark.exclusive
 def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Path) -> None:
     """Issue 27's example, as a user runs it: `ros2 launch piezofin_ros fish.launch.py`, each node in
     its own process; the set-point set live with `ros2 param set` (a speed that is no speed and any
