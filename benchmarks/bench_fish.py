@@ -18,9 +18,12 @@ Per step, in truth: the speed's mean error over its second half, the settling ti
 the speed within 5 % of the set-point from then on), the time from which it is held as a fish's goal
 asks (``held``: within 5 % then, every minute's mean after within 5 % and 95 % of the time after;
 :meth:`~piezofin_ros.bench.fishrun.Trace.held_s`), the battery's energy per metre and the range on one
-charge at that draw (the hotel load included), over the step's second half.  ``least`` is the
-fish's own bound: the range at the set-point's speed on the least supply power any point of the
-model gives it (:class:`~piezofin_ros.control.swimming.Fish`).
+charge at that draw (the hotel load included), over the step's second half, and the step's
+deepest ``cut`` (issue 39: no trial while swimming may give less than 90 % of the speed loop's
+demand): the least share of the demand the thrust in truth gave for a second or more once the speed
+had reached half its set-point, and how long (:meth:`~piezofin_ros.bench.fishrun.Trace.cuts`).
+``least`` is the fish's own bound: the range at the set-point's speed on the least supply power any
+point of the model gives it (:class:`~piezofin_ros.control.swimming.Fish`).
 
 ``--unseen EFFECT ...``: each twin also carries, per effect, one the fish's builder is not told
 (``bench_unseen.py``'s library outside the optimiser's correction, its values drawn per fin): the
@@ -193,6 +196,7 @@ def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
                 "error": u / u_set - 1.0,
                 "settling_s": trace.settling_s(t_step, t_end),
                 "held_s": trace.held_s(t_step, t_end),
+                "cuts": trace.cuts(t_step, t_end),
                 "supply_w": supply,
                 "energy_per_m_j": trace.energy_per_m(mid, t_end),
                 "range_m": float(f.battery.range_m(supply, u)),
@@ -209,13 +213,22 @@ def settled(seconds: float) -> str:
     return f"{seconds:.1f}" if math.isfinite(seconds) else "never"
 
 
+def worst_cut(cuts: list[tuple[float, float, float]]) -> str:
+    """A step's deepest cut as the table says it: its share of the demand and its length (``none``:
+    the thrust in truth never under 90 % of the demand for a second while swimming)."""
+    if not cuts:
+        return "none"
+    _, length, share = min(cuts, key=lambda c: c[2])
+    return f"{share:.2f} {length:.1f}s"
+
+
 def table(results: list[dict[str, Any]]) -> str:
     lines = []
     for fin in dict.fromkeys(r["fin"] for r in results):
         lines.append(f"\n{fin}:")
         lines.append(
             f"  {'strategy':34s} {'set cm/s':>8s} {'speed':>6s} {'err':>6s} {'settle s':>8s} {'held s':>7s} "
-            f"{'supply mW':>9s} {'least mW':>8s} {'J/m':>6s} {'range km':>8s} {'CoT':>5s}"
+            f"{'supply mW':>9s} {'least mW':>8s} {'J/m':>6s} {'range km':>8s} {'CoT':>5s} {'cut':>10s}"
         )
         for r in (r for r in results if r["fin"] == fin):
             for k, s in enumerate(r["steps"]):
@@ -225,7 +238,7 @@ def table(results: list[dict[str, Any]]) -> str:
                     f"{s['error'] * 100:+5.1f}% {settled(s['settling_s']):>8s} {settled(s['held_s']):>7s} "
                     f"{s['supply_w'] * 1e3:9.1f} "
                     f"{s['least_supply_w'] * 1e3:8.1f} {s['energy_per_m_j']:6.2f} {s['range_m'] / 1e3:8.2f} "
-                    f"{s['cost_of_transport']:5.2f}"
+                    f"{s['cost_of_transport']:5.2f} {worst_cut(s['cuts']):>10s}"
                 )
     return "\n".join(lines)
 

@@ -205,6 +205,31 @@ class Trace:
         ok = np.flatnonzero(inside & (i >= first) & (i <= n - w) & (after >= share))
         return math.inf if ok.size == 0 else float(t[ok[0]] - t_step)
 
+    def cuts(
+        self, t_step: float, t_end: float, below: float = 0.9, least_s: float = 1.0
+    ) -> list[tuple[float, float, float]]:
+        """Where a trial cut the thrust while swimming (issue 39's goal: none by more than 10 % below
+        the demand): each stretch from ``t_step`` to ``t_end``, once the speed has first reached half
+        its set-point, where the thrust in truth stays under ``below`` times the speed loop's demand
+        for ``least_s`` or longer; as (its start after ``t_step``, its length, the least share of the
+        demand in it), s, s, 1.  None where the demand is not known (NaN)."""
+        sel = (self.t >= t_step) & (self.t < t_end)
+        t, u, s = self.t[sel], self.speed_m_s[sel], self.setpoint_m_s[sel]
+        demand, thrust = self.demand_n[sel], self.thrust_n[sel]
+        swimming = np.flatnonzero(u >= 0.5 * s)
+        if swimming.size == 0:
+            return []
+        share = thrust / np.where(demand > 0, demand, np.nan)
+        low = np.zeros(t.size, bool)
+        low[swimming[0] :] = share[swimming[0] :] < below  # (NaN: not judged)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], low.astype(np.int8), [0]])))
+        out = []
+        for a, b in zip(edges[::2], edges[1::2], strict=True):  # (each stretch [a, b))
+            length = float(t[b - 1] - t[a])
+            if length >= least_s:
+                out.append((float(t[a] - t_step), length, float(np.min(share[a:b]))))
+        return out
+
     def mean(self, name: str, t0: float, t1: float) -> float:
         sel = (self.t >= t0) & (self.t < t1)
         return float(np.mean(getattr(self, name)[sel]))

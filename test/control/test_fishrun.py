@@ -71,6 +71,34 @@ def test_a_speed_is_held_from_when_it_arrives_if_every_minute_after_and_95_perce
     assert _speed_trace(np.where(t < 100, 0.5, approach)).held_s(100.0, 600.0) == pytest.approx(0.0)
 
 
+def test_a_cut_is_a_second_or_more_under_90_percent_of_the_demand_once_swimming() -> None:
+    """Issue 39's goal, measured: no trial while swimming gives less than 90 % of the demand.  A cut
+    counts once the speed has first reached half its set-point, lasts a second or more, and is said
+    by where it starts, how long it lasts and the least share of the demand in it; a demand not
+    known (NaN: a driver's trace) is no cut."""
+    t = np.arange(3000) * 0.1
+    speed = np.minimum(t / 100.0, 1.0)  # (half the set-point at 50 s)
+    demand = np.full(t.size, 2e-3)
+    thrust = np.full(t.size, 2e-3)
+    thrust[(t >= 10.0) & (t < 30.0)] = 0.5e-3  # before the fish swims: no cut
+    thrust[(t >= 60.0) & (t < 68.0)] = 1.1e-3  # 0.55 for 8 s (the samples 60.0-67.9: 7.9 s)
+    thrust[(t >= 70.0) & (t < 70.5)] = 0.2e-3  # half a second: no cut
+    thrust[(t >= 100.0) & (t < 103.0)] = 1.81e-3  # 0.905 of it: no cut
+    thrust[(t >= 200.0) & (t < 202.0)] = 1.78e-3  # 0.89 for 2 s
+    nan = np.full(t.size, np.nan)
+    trace = Trace(t, np.ones(t.size), speed, demand, thrust, *[nan] * 8)
+    cuts = trace.cuts(0.0, 300.0)
+    assert [(a, round(b, 1)) for a, b, _ in cuts] == [(60.0, 7.9), (200.0, 1.9)], cuts
+    assert [c[2] for c in cuts] == pytest.approx([0.55, 0.89])
+    # counted from a step (the speed already above half): the same cuts, from the step's time
+    assert [round(a, 1) for a, _, _ in trace.cuts(55.0, 300.0)] == [5.0, 145.0]
+    assert trace.cuts(0.0, 300.0, below=0.5) == []
+    assert trace.cuts(0.0, 300.0, least_s=8.0) == []
+    unknown = Trace(t, np.ones(t.size), speed, nan, thrust, *[nan] * 8)
+    assert unknown.cuts(0.0, 300.0) == []
+    assert Trace(t, np.ones(t.size), 0.4 * speed, demand, thrust, *[nan] * 8).cuts(0.0, 300.0) == []
+
+
 def test_a_fixed_drive_swims_at_the_closed_form_speed_and_pays_its_joules_per_metre(twin) -> None:
     """The harness's body and battery against the closed forms: the steady speed where the drag
     meets the thrust at that speed (Eq. 19's U term), and the battery's energy per metre
@@ -434,6 +462,19 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
         assert abs(ratio - 1.0) < 0.1, (name, ratio)
         sensed = np.mean(trace.thrust_estimate_n[late]) / np.mean(trace.thrust_n[late])
         assert abs(sensed - 1.0) < 0.1, (name, sensed)
+        # issue 39's goal: no trial while swimming under 90 % of the demand (`Trace.cuts`).  Met on
+        # stranger 3 and on each second step.  Not met on the first minute of strangers 1 and 2 (the
+        # twin's map, read high, put a trial where the truth gave 0.58 and 0.55 of the demand for 8.6
+        # and 8.0 s, from 19 and 20 s; stranger 2 two more of 0.88 and 0.82 for 3.2 s: the fish's
+        # record): held here to no worse, a share of at least 0.5, for at most 10 s, in the first 70 s
+        cuts = trace.cuts(t0, t1)
+        if name == "stranger 3" or t0 > 0.0:
+            assert cuts == [], (name, u, cuts)
+        else:
+            assert all(share >= 0.5 and length <= 10.0 and start < 70.0 for start, length, share in cuts), (
+                name,
+                cuts,
+            )
 
 
 def test_stranger_3_is_the_readme_driver_fish() -> None:
