@@ -93,6 +93,22 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
     assert abs(last / SPEED_M_S - 1.0) <= NEAR, (last, speed[::200])
 
 
+def demand_at(tmp_path: Path, t: np.ndarray) -> np.ndarray:
+    """The speed loop's thrust demand in force at each of the fish times ``t`` (its latest, from the
+    stack's bag: the recorder runs on the driver's ``/clock``), N; NaN before the first."""
+    from piezofin_ros.bags import decode, read_messages
+
+    bag = next((tmp_path / "bags").glob("piezofin_*.mcap"))
+    said = [
+        (m.log_time_ns * 1e-9, float(decode(m.type_name, m.data).data))
+        for m in read_messages(bag, ["/fish/thrust_demand"])
+    ]
+    times = np.array([a for a, _ in said])
+    values = np.array([b for _, b in said] or [np.nan])
+    k = np.searchsorted(times, t, side="right") - 1
+    return np.where(k >= 0, values[np.maximum(k, 0)], np.nan)
+
+
 #: Issue 39's goals through ``ros2 launch``, on the driver's simulated fish at x5 (as the issue's own
 #: runs: ``use_sim_time``, a fish the stack is not told: the nominal fin for the twin it is given,
 #: another amplifier, a body whose drag at 5 cm/s is 39 % above the told law's, a speed sensor 0.1
@@ -111,8 +127,8 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
 #: trials overshot to 6.2 cm/s and the fish fell to 3.9, then crept to 4.45 at 88 Vpp until the
 #: secant step, 58 s after the first drive.  The same fish in ``bench_fish.py`` (stranger 3) is held
 #: after 52.3 s: the stack's figure sits at the issue's 60 s, and live runs fall either side of it by
-#: how the first trials land (22-25 s or 62-64 s).  Asserted: 90 s, what it holds whichever way they
-#: land; the issue's 60 s is still open (docs/fish-record.md).
+#: how the first trials land (22-25 s, 52.6 s, 62-64 s).  Asserted: 90 s, what it holds whichever way
+#: they land; the issue's 60 s is still open (docs/fish-record.md).
 FAST = (*STACK, "realtime_factor:=5")  # (the README's stack line, on the driver's clock)
 FISH_S, HELD_S = 600.0, 90.0
 
@@ -144,7 +160,7 @@ def test_the_fish_stack_holds_a_driver_fish_it_is_not_told_at_x5(
         t=t,
         setpoint_m_s=np.full(n, SPEED_M_S),
         speed_m_s=rows[:, 1],
-        demand_n=unknown,
+        demand_n=demand_at(tmp_path, rows[:, 0]),
         thrust_n=rows[:, 2],
         thrust_estimate_n=unknown,
         thrust_fitted_n=unknown,
@@ -158,6 +174,13 @@ def test_the_fish_stack_holds_a_driver_fish_it_is_not_told_at_x5(
     assert end >= 0.8 * FISH_S, end  # (its clock ran at x5)
     held, good = trace.held_s(first, end), trace.settling_s(first, end)
     last = trace.mean("speed_m_s", end - 60.0, end)
-    print(f"first drive at {first:.1f} s; held {held:.1f} s after it; within 5 % for good after {good:.1f} s")
+    # issue 39's cut (a trial under 90 % of the demand while swimming), said, not asserted: live, one
+    # run of three gave 0.43 of the demand for 10 s from 21 s after its first drive (its first trials
+    # late: the fish fast, then 127 Vpp where 1.3-1.5 mN were asked), the others none (the fish's record)
+    cuts = [(round(a, 1), round(b, 1), round(c, 2)) for a, b, c in trace.cuts(first, end)]
+    print(
+        f"first drive at {first:.1f} s; held {held:.1f} s after it; within 5 % for good after {good:.1f} s; "
+        f"cuts (from, for, share of the demand): {cuts or 'none'}"
+    )
     assert held <= HELD_S, held
     assert abs(last / SPEED_M_S - 1.0) <= 0.05, last
