@@ -133,6 +133,14 @@ class Witness:
         """Arrival time of the last block with a sample above QUIET."""
         return max(a for a, b in self.blocks if np.max(np.abs(b["voltage_V"])) > QUIET)
 
+    def loud_for(self, last: float) -> float:
+        """How long the drive stayed loud after the last command, in the fin's own sample times (s):
+        the command dated by the fin's samples that had arrived when it was sent (``last``: the
+        witness's clock), so one block's delivery late; the drive's last sample above QUIET."""
+        t, v = self.samples()
+        arrivals = np.concatenate([np.full(b["t_s"].size, a) for a, b in self.blocks])
+        return float(np.max(t[np.abs(v) > QUIET])) - float(np.max(t[arrivals <= last]))
+
     def samples(self) -> tuple[np.ndarray, np.ndarray]:
         t = np.concatenate([b["t_s"] for _, b in self.blocks])
         v = np.concatenate([b["voltage_V"] for _, b in self.blocks])
@@ -188,10 +196,7 @@ def test_no_clock_or_time_parameter_silences_the_watchdog(attack: str) -> None:
     print(
         f"{attack}: below 1 % {quiet_after:.2f} s after the last command, {published_during} blocks meanwhile"
     )
-    t, v = w.samples()
-    arrivals = np.concatenate([np.full(b["t_s"].size, a) for a, b in w.blocks])
-    t_cmd = float(np.max(t[arrivals <= last_cmd]))  # (the fin's time of the last command: see above)
-    loud_for = float(np.max(t[np.abs(v) > QUIET])) - t_cmd
+    loud_for = w.loud_for(last_cmd)
     print(f"{attack}: loud {loud_for:.2f} s of the fin's time after the last command")
     assert published_during >= 40, (published_during, out)  # 2.5 s of 20 blocks/s: the timer runs on
     assert loud_for < 1.0 + 0.2 + 0.17, (loud_for, out)
@@ -455,11 +460,7 @@ def test_the_wall_floor_is_for_a_fast_simulation_only(factor: float) -> None:
             g.spin_for(floor + 1.5)
     finally:
         out = finish(proc)
-    t, v = w.samples()
-    arrivals = np.concatenate([np.full(b["t_s"].size, a) for a, b in w.blocks])
-    # the fin's time of the last command: its samples that arrived by then, less one block's latency
-    t_cmd = float(np.max(t[arrivals <= last]))
-    loud_for = float(np.max(t[np.abs(v) > QUIET])) - t_cmd  # fin time, s
+    loud_for = w.loud_for(last)  # fin time, s
     said = "instead of limits.command_timeout_s 0.25 s" in out
     print(f"x{factor:g}: loud {loud_for:.2f} s of fin time after the last command; floor said: {said}")
     if factor == 1.0:
