@@ -49,8 +49,8 @@ PLOTTED = (
 )
 
 
-# exclusive: a status echo is asked to answer within 2 s of wall time (issue 41); in phase 1, at nice 19
-# beside phase 2, the controller's once-a-second status missed two such echoes (stop 65's CI)
+# exclusive: a status echo is asked to answer within 2 s of wall time (issue 41).  (Stop 65's CI put its
+# two missed echoes down to nice 19 in phase 1; stop 67's, exclusive, showed the cause: `answered_latched`)
 @pytest.mark.exclusive
 def test_launch_runs_the_suite_answers_the_cli_and_stops_cleanly(
     ros_env: dict[str, str], tmp_path: Path
@@ -140,17 +140,25 @@ def fish_time(env: dict[str, str]) -> float:
 
 
 def answered_latched(env: dict[str, str], topics: Sequence[str]) -> None:
-    """Issue 41's goal: ``ros2 topic echo --once`` of each status topic answers within 2 s, counted
-    by the command line itself from its subscription (``--timeout 2``: its start-up, 1-7 s of wall time
-    on CI's loaded machine, is the command line's, not the topic's).  Volatile and sent on change, one
-    such echo after a run waited 20 s for nothing; transient-local, an echo that joined before it had
-    discovered the publisher asked a volatile profile and waited for the protocol's next trial (4.1 s):
-    each status is now sent at least once a second besides.  (Two tries: one 2 s on a machine running
-    three test workers on two cores is a scheduler's, twice is the topic's.)"""
+    """Issue 41's goal: ``ros2 topic echo --once`` of each status topic answers within 2 s of its
+    subscription (``--timeout 2``: the command line's own start-up, 1-7 s of wall time on CI's loaded
+    machine, is not the topic's).  Volatile and sent on change, one such echo after a run waited 20 s
+    for nothing; transient-local, an echo that joined before it had discovered the publisher asked a
+    volatile profile and waited for the protocol's next trial (4.1 s): each status is now sent at least
+    once a second besides.
+
+    The echo first finds the graph itself for 3 s (``--no-daemon --spin-time 3``), then subscribes:
+    with the daemon it subscribes from a participant made that instant, and its 2 s then held Fast
+    DDS's own discovery, which here finds a publisher within 0.6 s or only after 2.2-2.6 s (one join in
+    three, even on a quiet domain with two publishers: measured 2026-12-06), so both of the CI run's
+    echoes of ``/recorder/status`` on stop 67 heard nothing.  Found first, each status answered in
+    0.1 s, 16 of 16 beside two busy processes.  (Two tries: one 2 s on a machine running three test
+    workers on two cores is a scheduler's, twice is the topic's.)"""
     for topic in topics:
         outs = []
         for _ in range(2):
-            run = ros2(env, "topic", "echo", "--once", "--timeout", "2", topic, timeout=60.0)
+            echo = ["topic", "echo", "--once", "--no-daemon", "--spin-time", "3", "--timeout", "2"]
+            run = ros2(env, *echo, topic, timeout=60.0)
             outs.append(run.stdout + run.stderr)
             if "data:" in outs[-1]:
                 break
@@ -164,9 +172,8 @@ def echoed_value(env: dict[str, str], topic: str) -> float:
     return float(numbers[-1]) if numbers else float("nan")
 
 
-# exclusive: its status echoes must answer within 2 s of wall time (issue 41); in phase 1, at nice 19
-# beside phase 2's two workers, `/fish/controller/status` was heard by neither of two echoes (the CI run
-# on stop 66's 337ad07), as the suite's launch test's had been in stop 65's
+# exclusive: its status echoes must answer within 2 s of wall time (issue 41), as the suite's launch
+# test's (stop 66's CI put two missed echoes down to nice 19; the cause: `answered_latched`)
 @pytest.mark.exclusive
 def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Path) -> None:
     """Issue 27's example, as a user runs it: `ros2 launch piezofin_ros fish.launch.py`, each node in
