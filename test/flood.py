@@ -5,14 +5,16 @@ plausible thrust demands), ``supply``, ``drive``, ``tip`` or ``loadcell`` (block
 samples at times of their own), ``estimate`` (plausible estimates), ``cmd`` (0 V commands), ``twist``
 (geometry_msgs/Twist: a teleop's speeds straight ahead, every eighth no speed at all: NaN, inf,
 +-1e9, 1e308), ``bias`` (Float64 offsets of 0 V: a fish swimming straight), ``cap`` (Float64 voltage
-caps of 2,000 Vpp: none, as a straight fish's yaw loop sends) or ``imu`` (sensor_msgs/Imu: a gyro
-at rest).
+caps of 2,000 Vpp: none, as a straight fish's yaw loop sends), ``imu`` (sensor_msgs/Imu: a gyro
+at rest) or ``status`` (std_msgs/String: an estimator's status that names no supply meter, and
+strings that are no status).
 
 Not a test module: the flood tests start it as an attacker would be, in a process of its own.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 
@@ -63,6 +65,11 @@ def messages(kind: str) -> list:
         msg = Imu()
         msg.orientation.w = 1.0
         return [msg]
+    if kind == "status":
+        from std_msgs.msg import String
+
+        named = json.dumps({"supply_watt_measured_on": "", "estimates": 0})
+        return [String(data=x) for x in (named, "not JSON", "[1, 2]", json.dumps({"estimates": 3}))]
     if kind == "cmd":
         return [block_msg(Block.from_record({"frequency_hz": 5.0, "voltage_pp_V": 0.0, "on": 0.0}))]
     t = 1e6 + np.arange(20) * 1e-3  # (times of its own, far from the fin's)

@@ -26,6 +26,8 @@ TOPIC_DEMAND = "thrust_demand"
 TOPIC_MODEL = "controller/model"
 TOPIC_BATTERY = "battery"  # sensor_msgs/BatteryState: a fish's battery
 TOPIC_LOOP_STATUS = "speed_loop/status"  # std_msgs/String: what the speed loop is doing
+#: std_msgs/String (JSON): what the estimator hears, and where it measures the supply watt
+TOPIC_ESTIMATOR_STATUS = "thrust_estimator/status"
 TOPIC_CMD_VEL = "cmd_vel"  # geometry_msgs/Twist (or TwistStamped): a fish stack's velocity command
 TOPIC_ODOM = "odom"  # nav_msgs/Odometry: the speed loop's dead reckoning
 TOPIC_IMU = "imu"  # sensor_msgs/Imu: a fish's yaw rate and heading
@@ -76,6 +78,7 @@ TOPICS: dict[str, Topic] = {
         Topic(TOPIC_SUPPLY, SUPPLY, "data", "fin_sim, or a driver with a supply meter"),
         Topic(TOPIC_CMD, F64A, "command", "controller"),
         Topic(TOPIC_ESTIMATE, ESTIMATE, "estimate", "thrust_estimator"),
+        Topic(TOPIC_ESTIMATOR_STATUS, STRING, "status", "thrust_estimator"),
         Topic(TOPIC_SPEED, SPEED, "sensor", "fin_sim with a body, or a fish driver"),
         Topic(TOPIC_STATUS, STRING, "status", "controller"),
         Topic(TOPIC_MODEL, STRING, "status", "controller (optimising)"),

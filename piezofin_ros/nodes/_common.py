@@ -9,6 +9,7 @@ import copy
 import faulthandler
 import gc
 import importlib
+import json
 import math
 import os
 import signal
@@ -106,6 +107,7 @@ from ..bags.topics import (  # noqa: E402, F401 (re-exported: the nodes' contrac
     TOPIC_DIAGNOSTICS,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
+    TOPIC_ESTIMATOR_STATUS,
     TOPIC_IMU,
     TOPIC_LOADCELL,
     TOPIC_LOOP_STATUS,
@@ -634,7 +636,16 @@ class Inbox:
     ) -> None:
         try:
             value = msg if check is None else check(msg)
-        except (PiezofinError, ValueError, TypeError, ArithmeticError, KeyError, IndexError) as exc:
+        # (RecursionError: a message nested deeper than a check's parser recurses is the message's)
+        except (
+            PiezofinError,
+            ValueError,
+            TypeError,
+            ArithmeticError,
+            KeyError,
+            IndexError,
+            RecursionError,
+        ) as exc:
             self.refused[topic] += 1
             self.refused_at = time.monotonic()
             self._say(
@@ -786,6 +797,38 @@ def estimates(msg: Any) -> Any:
     from ..estimation.estimator import Estimate, check_estimate
 
     return check_estimate(msg_block(msg, expect=Estimate.field_names()).as_dict())
+
+
+def json_object(msg: Any, most: int, what: str) -> dict[str, Any]:
+    """The JSON object a ``std_msgs/String`` carries (``what`` names it in the refusal): at most
+    ``most`` characters, else :class:`MessageRefused`.  Not JSON, not an object, or nested deeper than
+    Python's parser recurses (``[[[...]]]``: 3 kB of it raised ``RecursionError`` past the door and
+    killed the estimator, 2026-12-06), refused alike."""
+    data = str(msg.data)
+    if len(data) > most:
+        raise MessageRefused(f"{len(data)} characters: {what} holds a few hundred")
+    try:
+        value = json.loads(data)
+    except RecursionError:
+        raise MessageRefused(f"JSON nested too deep for {what}") from None
+    except ValueError as exc:
+        raise MessageRefused(f"not JSON ({exc})") from None
+    if not isinstance(value, dict):
+        raise MessageRefused(f"{what} is a JSON object, not {type(value).__name__}")
+    return value
+
+
+#: The longest ``thrust_estimator/status`` read, characters (its JSON is about 500).
+ESTIMATOR_STATUS_MOST = 4096
+
+
+def supply_measured_on(msg: Any) -> str:
+    """A check for ``thrust_estimator/status`` (``std_msgs/String``, JSON): the topic the estimator
+    measures the supply watt on ("": none, the amplifier's model alone)."""
+    on = json_object(msg, ESTIMATOR_STATUS_MOST, "an estimator's status").get("supply_watt_measured_on")
+    if not isinstance(on, str):
+        raise MessageRefused("an estimator's status names supply_watt_measured_on: a topic or ''")
+    return on
 
 
 # ------------------------------------------------------------------------------------ silence

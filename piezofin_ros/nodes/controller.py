@@ -12,7 +12,8 @@ on ``drive``, at most
 ``wait_estimator_s`` of wall time: under ``ros2 launch`` the nodes start in any order, and on a
 loaded machine the estimator may be the last, which used to cost the first trial its estimate.
 Once it is there the drive stays off :data:`ESTIMATOR_SETTLE_S` more, so that the estimator hears
-the rig at rest (a fish learns its battery's fixed draw there).
+the rig at rest (a fish learns its battery's fixed draw there); ranking by the measured supply watt,
+until the estimator's ``thrust_estimator/status`` says it measures it (within the same bound).
 """
 
 from __future__ import annotations
@@ -45,13 +46,16 @@ from ..physics.model import load_model
 from ..physics.planar import bias_window_v
 from ..physics.waveforms import ProtocolTiming
 from ._common import (
+    TOPIC_BATTERY,
     TOPIC_BIAS,
     TOPIC_CMD,
     TOPIC_DEMAND,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
+    TOPIC_ESTIMATOR_STATUS,
     TOPIC_MODEL,
     TOPIC_STATUS,
+    TOPIC_SUPPLY,
     TOPIC_VOLTAGE_CAP,
     Inbox,
     SilenceWatch,
@@ -63,6 +67,7 @@ from ._common import (
     freeze_parameters,
     run_node,
     scalar,
+    supply_measured_on,
 )
 from ._diagnostics import ERROR, OK, STALE, WARN, Diagnostics, Report
 
@@ -192,6 +197,9 @@ class Controller(Node):
         self._created = time.monotonic()
         self._waiting_logged = False
         self._estimator_seen: float | None = None  # (the fin time it appeared)
+        # where the estimator measures the supply watt, by its status (None: no status heard yet)
+        self._measured_on: str | None = None
+        self._meter_waiting = ""  # (what was said while waiting for it: "waiting", then "gave up")
         self.strategy: Strategy
         if ControllerMode(c.mode).trial_mode is None:
             self.strategy, summary = self._optimiser(c)
@@ -211,6 +219,12 @@ class Controller(Node):
         # polled (a flood of estimates held the executor, and the heartbeat with it: the watchdog tripped)
         self.inbox.polled(
             endpoint(TOPIC_ESTIMATE)[0], TOPIC_ESTIMATE, self._on_estimate, estimates, depth=200, most=20
+        )
+        self.inbox.latest(
+            endpoint(TOPIC_ESTIMATOR_STATUS)[0],
+            TOPIC_ESTIMATOR_STATUS,
+            self._on_estimator_status,
+            supply_measured_on,
         )
         if self.strategy.takes_demand:
             # the newest demand only, polled: a 3-4 kHz flood held the executor and the heartbeat with it
@@ -416,10 +430,12 @@ class Controller(Node):
 
     def _estimator_ready(self) -> bool:
         """True :data:`ESTIMATOR_SETTLE_S` after an estimator publishes ``estimate`` and a rig
-        ``drive`` (or once ``wait_estimator_s`` passed without them); else drive off.  The rig too: a
-        fish's own driver, started apart from the launch, was discovered 1.7 s after the estimator on
-        a loaded machine, the drive was on by then, and the estimator never heard the battery at rest
-        (so never measured the supply watt: ``test_fish_driver.py`` in one CI run)."""
+        ``drive``, and once the estimator measures the supply watt where that ranks the points
+        (:meth:`_meter_pending`); or once ``wait_estimator_s`` passed without them; else drive off.
+        The rig too: a fish's own driver, started apart from the launch, was discovered 1.7 s after
+        the estimator on a loaded machine, the drive was on by then, and the estimator never heard
+        the battery at rest (so never measured the supply watt: ``test_fish_driver.py`` in one CI
+        run)."""
         if (
             self._estimator_seen is None
             and self.count_publishers(TOPIC_ESTIMATE) > 0
@@ -427,7 +443,7 @@ class Controller(Node):
         ):
             self._estimator_seen = self._now()
         if self._estimator_seen is not None:
-            if self._now() - self._estimator_seen >= ESTIMATOR_SETTLE_S:
+            if self._now() - self._estimator_seen >= ESTIMATOR_SETTLE_S and not self._meter_pending():
                 return True
             self._send(0.0, 0.0, 0.0)
             return False
@@ -454,6 +470,40 @@ class Controller(Node):
             )
         self._send(0.0, 0.0, 0.0)
         return False
+
+    def _on_estimator_status(self, measured_on: str) -> None:
+        self._measured_on = measured_on
+
+    def _meter_pending(self) -> bool:
+        """True while the points are ranked by a measured watt (``watt`` supply_measured: a fish's
+        battery), a battery or supply meter publishes, and the estimator's status does not yet
+        say it measures that watt: the drive stays off, so that the estimator learns the battery's
+        fixed draw at rest.  Its discovery of the fish's driver is its own: Fast DDS finds a
+        publisher within 0.6 s or after 2.2-2.6 s, so the controller's own view of the driver, and
+        its 1 s settle, left the estimator at rest too briefly in three CI runs (no supply watt
+        measured for the whole run).  At most ``wait_estimator_s`` from the start, then said."""
+        if not WATT[self.config.watt].measured or self._measured_on:
+            return False
+        if self.count_publishers(TOPIC_BATTERY) + self.count_publishers(TOPIC_SUPPLY) == 0:
+            return False
+        log = self.get_logger()
+        if time.monotonic() - self._created >= self.config.wait_estimator_s:
+            if self._meter_waiting != "gave up":
+                self._meter_waiting = "gave up"
+                log.warning(
+                    f"the thrust_estimator has not measured the supply watt after "
+                    f"{self.config.wait_estimator_s:g} s (its status on "
+                    f"{self.resolve_topic_name(TOPIC_ESTIMATOR_STATUS)}): starting, ranked by the amplifier "
+                    "model's watt till it does"
+                )
+            return False
+        if not self._meter_waiting:
+            self._meter_waiting = "waiting"
+            log.info(
+                "waiting for the thrust_estimator to measure the supply watt (the battery's fixed draw "
+                f"is learnt with the drive off; at most {self.config.wait_estimator_s:g} s), drive off"
+            )
+        return True
 
     def _tick(self) -> None:
         t = self._now()

@@ -4,8 +4,9 @@ Subscribes ``drive`` (required), ``tip_velocity`` and ``loadcell`` (optional: a 
 neither), ``supply`` or ``battery`` (sensor_msgs/BatteryState: the supply watt measured) and
 ``swim_speed`` (geometry_msgs/TwistStamped, m/s); publishes one ``estimate``
 (piezofin_msgs/Estimate: each quantity by name, stamped at the window's end in the fin's time) per
-window.  All timing comes from the samples' own time stamps, so a replayed bag gives the estimates
-recorded live.
+window, and ``thrust_estimator/status`` (JSON: what it has heard, and where it measures the supply
+watt) when that changes and once a second.  All timing comes from the samples' own time stamps, so
+a replayed bag gives the estimates recorded live.
 """
 
 from __future__ import annotations
@@ -16,9 +17,11 @@ import sys
 from dataclasses import dataclass
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
+from std_msgs.msg import String
 
 from ..bags.blocks import (
     DRIVE_CHANNELS,
@@ -37,6 +40,7 @@ from ._common import (
     TOPIC_BATTERY,
     TOPIC_DRIVE,
     TOPIC_ESTIMATE,
+    TOPIC_ESTIMATOR_STATUS,
     TOPIC_LOADCELL,
     TOPIC_MODEL,
     TOPIC_SPEED,
@@ -50,6 +54,7 @@ from ._common import (
     declare,
     endpoint,
     freeze_parameters,
+    json_object,
     record_msg,
     run_node,
     samples,
@@ -96,6 +101,8 @@ class ThrustEstimatorConfig:
 
 #: The longest ``controller/model`` message read, characters (its JSON is about 400).
 MODEL_MESSAGE_MOST = 4096
+#: The topic each of :attr:`StreamEstimator.supply_meter`'s answers measures the supply watt on.
+_METER_TOPIC = {"supply": TOPIC_SUPPLY, "battery": TOPIC_BATTERY}
 
 
 #: How often the inbox is looked at, s of wall time, at the most often: 40 times a second (each look
@@ -137,6 +144,11 @@ class ThrustEstimator(Node):
         self.estimates: list[Estimate] = []
         self._pub = self.create_publisher(*endpoint(TOPIC_ESTIMATE))
         self._estimate_type = self._pub.msg_type
+        # what it hears and where it measures the supply watt: a controller holds its first drive until
+        # the supply watt is measured (the battery's fixed draw is learnt with the drive off), and a
+        # person asks `ros2 topic echo --once .../thrust_estimator/status`
+        self._status_pub = self.create_publisher(*endpoint(TOPIC_ESTIMATOR_STATUS))
+        self.create_timer(1.0, self._publish_status, clock=Clock(clock_type=ClockType.STEADY_TIME))
         # every message from another process through one door: checked there, refused with the reason
         self.inbox = inbox = Inbox(self, POLL_S, node_time_s=Inbox.NODE_TIME_S)
         # every sampled topic polled, each at most BLOCKS_A_LOOK blocks a look: a flood on one (a spoofed
@@ -157,6 +169,7 @@ class ThrustEstimator(Node):
             inbox.latest(endpoint(TOPIC_MODEL)[0], TOPIC_MODEL, self._on_model, self._fitted_model)
         self._last_t = float("nan")
         self.received = {TOPIC_DRIVE: 0, TOPIC_TIP: 0, TOPIC_LOADCELL: 0, TOPIC_SUPPLY: 0}  # blocks
+        self.battery_readings = 0
         drive = self.resolve_topic_name(TOPIC_DRIVE)
         self._silence = SilenceWatch(self, drive, "is fin_sim (or the rig driver) running?", topic=drive)
         self.diagnostics = Diagnostics(self, self.fin.name, stamp=self._fin_time)
@@ -170,6 +183,36 @@ class ThrustEstimator(Node):
     def _fin_time(self) -> float:
         """The fin's time: its latest drive sample's (the node's clock before the first), s."""
         return self._last_t if self._last_t == self._last_t else self.get_clock().now().nanoseconds * 1e-9
+
+    def status(self) -> dict[str, Any]:
+        """``thrust_estimator/status``: the blocks and readings heard, the estimates made, where the
+        supply watt is measured (a topic's full name; "": the amplifier's model alone) above which
+        fixed draw, and what calibrates the self-sensed thrust."""
+        core = self.core
+        fixed = core.battery_fixed_draw_w
+        heard = {self.resolve_topic_name(k): n for k, n in self.received.items()}
+        heard[self.resolve_topic_name(TOPIC_BATTERY)] = self.battery_readings
+        return {
+            "fin": self.fin.name,
+            "heard": heard,
+            "estimates": len(self.estimates),
+            "refused": self.rejected,
+            "supply_watt_measured_on": self.resolve_topic_name(_METER_TOPIC[self._meter])
+            if self._meter
+            else "",
+            "battery_fixed_draw_w": fixed if math.isfinite(fixed) else None,
+            "fixed_draw": (
+                "given"
+                if core.fixed_draw_w is not None
+                else "learnt"
+                if math.isfinite(fixed)
+                else "not known"
+            ),
+            "self_sensing_calibrated_by": self.calibration,
+        }
+
+    def _publish_status(self) -> None:
+        self._status_pub.publish(String(data=json.dumps(self.status(), sort_keys=True)))
 
     def _diagnose(self) -> Report:
         drive = self.resolve_topic_name(TOPIC_DRIVE)
@@ -209,14 +252,8 @@ class ThrustEstimator(Node):
         fit's range; the model it makes, and what it rests on."""
         from ..control.correction import Correction
 
-        data = str(msg.data)
-        if len(data) > MODEL_MESSAGE_MOST:
-            raise MessageRefused(f"{len(data)} characters: a fitted model's message holds a few hundred")
-        try:
-            m = json.loads(data)
-        except ValueError as exc:
-            raise MessageRefused(f"not JSON ({exc})") from None
-        if not isinstance(m, dict) or not isinstance(m.get("fin"), str) or not isinstance(m.get("base"), str):
+        m = json_object(msg, MODEL_MESSAGE_MOST, "a fitted model's message")
+        if not isinstance(m.get("fin"), str) or not isinstance(m.get("base"), str):
             raise MessageRefused("a fitted model is a JSON object with a fin and a base")
         if m["fin"] != self.fin.name:
             raise MessageRefused(f"a fit of {m['fin'][:40]!r}: this estimator's fin is {self.fin.name}")
@@ -280,6 +317,7 @@ class ThrustEstimator(Node):
         t, voltage, current = reading
         if t == 0.0:  # (a driver that leaves the stamp empty: the reading is now's)
             t = self._fin_time()
+        self.battery_readings += 1
         self._emit(self.core.add_battery(t, voltage, current))
 
     def _on_speed(self, reading: tuple[float, float]) -> None:
@@ -288,16 +326,28 @@ class ThrustEstimator(Node):
         stamp, speed_m_s = reading
         self.core.add_speed(stamp if math.isfinite(stamp) else self._fin_time(), speed_m_s)
 
+    def _meter_said(self) -> None:
+        """Where the supply watt is measured, said (and sent on ``status``) as soon as it changes: the
+        battery's fixed draw learnt with the drive off, or a supply meter heard.  (Once measured it
+        stays so; only a supply meter heard later moves it from the battery.)"""
+        core = self.core
+        if self._meter == "supply" or (self._meter == "battery" and not core.supply.seen):
+            return
+        meter = core.supply_meter
+        if meter == self._meter:
+            return
+        self._meter = meter
+        self.get_logger().info(
+            f"the supply watt is measured on {self.resolve_topic_name(TOPIC_SUPPLY)}"
+            if meter == "supply"
+            else f"the supply watt is measured on {self.resolve_topic_name(TOPIC_BATTERY)}: its draw "
+            f"less {core.battery_fixed_draw_w * 1e3:.0f} mW of fixed draw"
+            + (" (learnt with the drive off)" if core.fixed_draw_w is None else "")
+        )
+        self._publish_status()
+
     def _emit(self, estimates: list[Estimate]) -> None:
-        if estimates and self.core.supply_meter != self._meter:
-            self._meter = meter = self.core.supply_meter
-            self.get_logger().info(
-                f"the supply watt is measured on {self.resolve_topic_name(TOPIC_SUPPLY)}"
-                if meter == "supply"
-                else f"the supply watt is measured on {self.resolve_topic_name(TOPIC_BATTERY)}: its draw "
-                f"less {self.core.battery_fixed_draw_w * 1e3:.0f} mW of fixed draw"
-                + (" (learnt with the drive off)" if self.core.fixed_draw_w is None else "")
-            )
+        self._meter_said()
         for e in estimates:
             self.estimates.append(e)
             self._pub.publish(record_msg(self._estimate_type, e.as_dict(), e.t_end))

@@ -46,6 +46,7 @@ TOPICS = {
     "imu": "imu",
     "bias_demand": "bias",
     "voltage_cap": "cap",
+    "thrust_estimator/status": "status",
     "cmd_vel": "twist",  # (last: its timeout then stops the fish swimming)
 }
 #: the drive's cap at 800 Vpp, plus the voltage monitor's noise, V

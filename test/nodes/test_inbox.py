@@ -137,14 +137,36 @@ def battery_states() -> list[BatteryState]:
     return out
 
 
+def too_deep(most: int = 4096) -> list[str]:
+    """JSON within ``most`` characters nested deeper than Python's parser recurses (1,000 levels): in
+    arrays, in objects, and under a key a door reads."""
+    return [
+        "[" * (most // 2) + "]" * (most // 2),
+        "[" * 1000 + "]" * 1000,
+        '{"a":' * 300 + "[" * 900 + "]" * 900 + "}" * 300,
+        '{"fin": ' + "[" * 1500 + "]" * 1500 + "}",
+    ]
+
+
+def estimator_statuses() -> list[String]:
+    """``thrust_estimator/status`` as an attacker sends it: no JSON, no object, the meter's topic not
+    a string, too long (naming the battery, which the controller would act on), too deep."""
+    bodies: list[object] = ["{", "[]", "null", "1e999", "x" * 1_000_000, *too_deep()]
+    bodies += [{"supply_watt_measured_on": x} for x in (None, 5, True, ["/fish/battery"], {"a": 1})]
+    bodies += [{"estimates": 3}, {"supply_watt_measured_on": "/fish/battery", "pad": "x" * 5000}]
+    return [String(data=b if isinstance(b, str) else json.dumps(b)) for b in bodies]
+
+
 def fitted_models() -> list[String]:
     """``controller/model`` as an attacker sends it: no JSON, no object, another fin, a base that is a
     path or another model (never read from the network), a correction with a name missing or added,
-    each value not a finite number or beyond the fit's range, and a message of a megabyte."""
+    each value not a finite number or beyond the fit's range, JSON nested deeper than Python's parser
+    recurses (3 kB of ``[[[...]]]`` killed the estimator with a ``RecursionError``, 2026-12-06), and a
+    message of a megabyte."""
     good = {p.name: 1.0 for p in PARAMS} | {"softening": 0.0, "coupling_k": 0.0, "loss_tan_delta": 0.0}
     good |= {"leakage_us": 0.0}
     plain = {"fin": "M8528-P1", "base": "", "t_s": 0.0, "correction": good, "trials": 5, "misfit_sigma": 1.0}
-    bodies: list[object] = ["{", "[]", "null", '"M8528-P1"', "1e999", "x" * 1_000_000]
+    bodies: list[object] = ["{", "[]", "null", '"M8528-P1"', "1e999", "x" * 1_000_000, *too_deep()]
     bodies += [{**plain, "fin": fin} for fin in ("M8514-P1", "", None, 7, "M8528-P1" * 1000)]
     bodies += [
         {**plain, "base": b} for b in ("/etc/passwd", "../../config/models/x.yaml", "paper-twin-M8514-P1", 1)
@@ -186,6 +208,7 @@ ATTACKS = {
         # (a cap can only lower the drive: its door refuses what is no voltage or beyond the window)
         "voltage_cap": (Float64, QOS_COMMAND, [Float64(data=x) for x in [*HOSTILE, math.nan, -1.0, 2001.0]]),
         "estimate": (EstimateMsg, QOS_DATA, estimate_msgs()),
+        "thrust_estimator/status": (String, QOS_STATUS, estimator_statuses()),
     },
 }
 ARGS = {
