@@ -192,15 +192,11 @@ class ThrustEstimator(Node):
         fixed = core.battery_fixed_draw_w
         heard = {self.resolve_topic_name(k): n for k, n in self.received.items()}
         heard[self.resolve_topic_name(TOPIC_BATTERY)] = self.battery_readings
-        return {
-            "fin": self.fin.name,
-            "heard": heard,
-            "estimates": len(self.estimates),
-            "refused": self.rejected,
+        return {  # (what a person asks first, first: `ros2 topic echo` prints 128 characters of it)
             "supply_watt_measured_on": self.resolve_topic_name(_METER_TOPIC[self._meter])
             if self._meter
             else "",
-            "battery_fixed_draw_w": fixed if math.isfinite(fixed) else None,
+            "battery_fixed_draw_w": round(fixed, 6) if math.isfinite(fixed) else None,
             "fixed_draw": (
                 "given"
                 if core.fixed_draw_w is not None
@@ -208,11 +204,15 @@ class ThrustEstimator(Node):
                 if math.isfinite(fixed)
                 else "not known"
             ),
+            "estimates": len(self.estimates),
+            "refused": self.rejected,
+            "heard": heard,
+            "fin": self.fin.name,
             "self_sensing_calibrated_by": self.calibration,
         }
 
     def _publish_status(self) -> None:
-        self._status_pub.publish(String(data=json.dumps(self.status(), sort_keys=True)))
+        self._status_pub.publish(String(data=json.dumps(self.status())))
 
     def _diagnose(self) -> Report:
         drive = self.resolve_topic_name(TOPIC_DRIVE)

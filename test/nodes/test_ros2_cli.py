@@ -217,6 +217,10 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
         assert "percentage:" in battery.stdout and "voltage:" in battery.stdout, (
             battery.stdout + battery.stderr
         )
+        # where the supply watt is measured, as docs/fish.md's line asks it (fin_sim has a supply meter):
+        # first, within the 128 characters the command line prints of a string
+        meter = ros2(ros_env, "topic", "echo", "--once", "/fish/thrust_estimator/status", timeout=150.0)
+        assert '{"supply_watt_measured_on": "/fish/supply"' in meter.stdout, meter.stdout + meter.stderr
         # the quiet identification trial, when the fish's stack says its speed may drop (issue 39: it
         # came back by itself every 20-22 trials, the fish 60-80 % slower for 20-30 s)
         asked = ros2(
@@ -255,7 +259,9 @@ def test_the_fish_swims_under_the_real_cli(ros_env: dict[str, str], tmp_path: Pa
         assert "Set parameter successful" in far.stdout, far.stdout + far.stderr
         launch.wait_for("set-point 5 m/s is beyond the 8 mN per fin the loop may ask for", 30.0)
         time.sleep(5.0)
-        answered_latched(ros_env, ["/fish/speed_loop/status", "/fish/controller/status"])
+        answered_latched(
+            ros_env, ["/fish/speed_loop/status", "/fish/controller/status", "/fish/thrust_estimator/status"]
+        )
         assert launch.proc.poll() is None
     finally:
         out = launch.interrupt()
