@@ -192,18 +192,12 @@ class ThrustEstimator(Node):
         fixed = core.battery_fixed_draw_w
         heard = {self.resolve_topic_name(k): n for k, n in self.received.items()}
         heard[self.resolve_topic_name(TOPIC_BATTERY)] = self.battery_readings
+        meter = self.resolve_topic_name(_METER_TOPIC[self._meter]) if self._meter else ""
+        known = math.isfinite(fixed)
         return {  # (what a person asks first, first: `ros2 topic echo` prints 128 characters of it)
-            "supply_watt_measured_on": self.resolve_topic_name(_METER_TOPIC[self._meter])
-            if self._meter
-            else "",
-            "battery_fixed_draw_w": round(fixed, 6) if math.isfinite(fixed) else None,
-            "fixed_draw": (
-                "given"
-                if core.fixed_draw_w is not None
-                else "learnt"
-                if math.isfinite(fixed)
-                else "not known"
-            ),
+            "supply_watt_measured_on": meter,
+            "battery_fixed_draw_w": round(fixed, 6) if known else None,
+            "fixed_draw": "given" if core.fixed_draw_w is not None else "learnt" if known else "not known",
             "estimates": len(self.estimates),
             "refused": self.rejected,
             "heard": heard,
