@@ -488,7 +488,7 @@ class Controller(Node):
             return False
         log = self.get_logger()
         if time.monotonic() - self._created >= self.config.wait_estimator_s:
-            if self._meter_waiting != "gave up":
+            if self._meter_waiting != "gave up" and self.config.wait_estimator_s > 0:  # (0: asked not to)
                 self._meter_waiting = "gave up"
                 log.warning(
                     f"the thrust_estimator has not measured the supply watt after "
