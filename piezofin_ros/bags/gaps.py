@@ -28,6 +28,10 @@ HOLE_PERIODS = 1.5
 HORIZON_S = 3600.0
 #: Streams remembered per topic.
 MAX_STREAMS = 8
+#: The shortest sample period a stream can have, s (10 MHz: no rig samples faster).  Below it, as at
+#: 0, no hole is counted: two blocks of denormal times (1e-320 s apart) after a stream's last sample
+#: made a hole of infinitely many samples, and the recorder died of the ``OverflowError`` (2026-12-06).
+MIN_PERIOD_S = 1e-7
 
 
 @dataclass(frozen=True)
@@ -75,9 +79,9 @@ class GapWatch:
         if n > 1:
             period = (t1 - t0) / (n - 1)
         stream[:] = [t1, period, self._used]
-        if period <= 0:
+        if not period >= MIN_PERIOD_S:  # (0, a period no rig samples at)
             return None
-        missing = round((t0 - last) / period) - 1
+        missing = round((t0 - last) / period) - 1  # (finite: t0 - last is within HORIZON_S)
         if (t0 - last) <= HOLE_PERIODS * period or missing < 1:
             return None
         self.lost[topic] = self.lost.get(topic, 0) + missing

@@ -325,7 +325,10 @@ class Recorder(Node):
             self.bag.add_topic(topic, self._types[topic], qos)
         self.bag.write(topic, time_ns, data)
         if topic in self._sampled:
-            gap = self.gaps.see(topic, data, named=is_record_type(self._types[topic]))
+            try:
+                gap = self.gaps.see(topic, data, named=is_record_type(self._types[topic]))
+            except (ValueError, ArithmeticError):  # (what another process sent: recorded, not judged)
+                gap = None
             if gap is not None:
                 self._keep_gap(gap, time_ns)
         if self.plot_fields and topic in self._plot:
@@ -334,7 +337,10 @@ class Recorder(Node):
     def _record_fields(self, topic: str, time_ns: int, data: bytes) -> None:
         try:
             block = block_of(self._types[topic], data)
-        except ValueError:  # MessageError, BlockFormatError: whatever another node published
+        except (
+            ValueError,
+            ArithmeticError,
+        ):  # MessageError, BlockFormatError: whatever another node published
             return  # not a block: the message itself is recorded, there is nothing to plot
         if block.n != 1:
             return

@@ -430,3 +430,58 @@ def test_the_estimator_takes_the_controllers_fitted_fin_and_says_so_once(tmp_pat
     assert len(said) == 1 and "5 trials, 0.8 sigma RMS; on the fin file" in said[0], out[-3000:]
     selfs = [float(b.values[b.names.index("thrust_self_n"), 0]) for b in heard]
     assert selfs[-1] / selfs[before - 1] == pytest.approx(2.0, rel=1e-6), selfs
+
+
+def test_no_message_kills_the_recorder(tmp_path: Path) -> None:
+    """The recorder reads what it records where it looks for holes (the sampled topics) and plots
+    fields (``cmd``): on each, from another process, what no rig sends (the blocks above, and two of
+    denormal times after a stream, 1e-320 s apart: a hole of infinitely many samples, whose
+    ``OverflowError`` killed it, 2026-12-06), then plausible blocks.  It lives, and its bag holds
+    every message, read back by mcap's own reader."""
+    from mcap.reader import make_reader
+
+    ns, bag = "door_recorder", tmp_path / "r.mcap"
+    log = tmp_path / "recorder.log"
+    proc = start("recorder", "-p", f"path:={bag}", "-p", f"namespaces:=[{ns}]", log=log)
+    channels = {"drive": DRIVE_CHANNELS, "supply": SUPPLY_CHANNELS, "tip_velocity": TIP_CHANNELS}
+    channels["loadcell"] = LOADCELL_CHANNELS
+    sent: dict[str, int] = {}
+    try:
+        with graph() as g:
+            node = g.add(rclpy.create_node("attacker", namespace=ns, context=g.context))
+            pubs = {t: node.create_publisher(data_type(t), t, QOS_DATA) for t in channels}
+            pubs["cmd"] = node.create_publisher(Float64MultiArray, "cmd", QOS_COMMAND)
+            g.spin_until(
+                lambda: all(p.get_subscription_count() > 0 for p in pubs.values()), 30.0, "the recorder"
+            )
+            for topic, names in channels.items():
+                zeros = {c: np.zeros(2) for c in names[1:]}
+                pairs = [[-2.0, -1.0], [1e-320, 2e-320], [3e-320, 4e-320]]
+                # (the pairs first: a stream of the hostile blocks' ending between them would take them)
+                messages = [sample_msg(topic, Block.from_columns(t_s=np.array(t), **zeros)) for t in pairs]
+                messages += hostile_blocks(topic, names)
+                messages += [
+                    sample_msg(topic, Block.from_columns(t_s=np.array([k, k + 1e-3]), **zeros))
+                    for k in range(5)
+                ]
+                for m in messages:
+                    pubs[topic].publish(m)
+                    g.spin_for(0.01)
+                sent[topic] = len(messages)
+            for m in drive_commands():
+                pubs["cmd"].publish(m)
+                g.spin_for(0.01)
+            sent["cmd"] = len(drive_commands())
+            g.spin_for(2.0)
+            alive = proc.poll() is None
+    finally:
+        stop(proc)
+    out = log.read_text()
+    assert alive, out[-3000:]
+    assert "Traceback" not in out, out[-3000:]
+    with open(bag, "rb") as f:
+        counts: dict[str, int] = {}
+        for _, channel, _ in make_reader(f).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    for topic, n in sent.items():  # (reliable, keep last 10 or deeper, sent 100 a second at most)
+        assert counts.get(f"/{ns}/{topic}", 0) == n, (topic, n, counts)
