@@ -483,5 +483,5 @@ def test_no_message_kills_the_recorder(tmp_path: Path) -> None:
         counts: dict[str, int] = {}
         for _, channel, _ in make_reader(f).iter_messages():
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
-    for topic, n in sent.items():  # (reliable, keep last 10 or deeper, sent 100 a second at most)
+    for topic, n in sent.items():  # (its queues hold 500 blocks, 200 commands: sent 100 a second at most)
         assert counts.get(f"/{ns}/{topic}", 0) == n, (topic, n, counts)
