@@ -148,8 +148,11 @@ def least_supply_w(f: Fish, speed_m_s: float) -> float:
     return float(np.min(grid["supply_w"][ok])) if ok.any() else math.nan
 
 
-def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
-    fin, strategy, duration, unseen = task
+def run(task: tuple[str, str, float, str | None] | tuple[str, str, float, str | None, int]) -> dict[str, Any]:
+    """One fish, one strategy, ``duration`` s of fish time, each twin with an ``unseen`` effect or none;
+    a fifth element draws another seed of the fish's noise (0: the tables' own)."""
+    fin, strategy, duration, unseen = task[:4]
+    draw = task[4] if len(task) > 4 else 0
     extra: dict[str, Any] = {}
     if fin in STRANGERS:
         f, truth, plant, spec = stranger(fin)
@@ -177,7 +180,7 @@ def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
         duration,
         f.battery,
         loop_config=SpeedLoopConfig(max_demand_n=CAP_N),
-        seed=zlib.crc32(plant.name.encode()) % 1000,
+        seed=zlib.crc32(plant.name.encode()) % 1000 + draw,
         told_body=f.body,
         **extra,
     )
@@ -205,7 +208,14 @@ def run(task: tuple[str, str, float, str | None]) -> dict[str, Any]:
                 "cost_of_transport": float(f.body.cost_of_transport(supply + f.battery.hotel_w, u)),
             }
         )
-    return {"fin": plant.name, "strategy": strategy, "steps": steps, "wall_s": wall, "trace": trace}
+    return {
+        "fin": plant.name,
+        "strategy": strategy,
+        "steps": steps,
+        "wall_s": wall,
+        "trace": trace,
+        "seed": draw,
+    }
 
 
 def settled(seconds: float) -> str:
@@ -220,6 +230,31 @@ def worst_cut(cuts: list[tuple[float, float, float]]) -> str:
         return "none"
     _, length, share = min(cuts, key=lambda c: c[2])
     return f"{share:.2f} {length:.1f}s"
+
+
+def spread(results: list[dict[str, Any]]) -> str:
+    """Per fish, strategy and step, over the seeds: the held time's least, median and most, and how many
+    seeds had a cut, the deepest and the longest (a held time from rest is one draw of the noise: the
+    same stack held stranger 3 after 52-70 s over six seeds)."""
+    lines = [f"\nover {len({r['seed'] for r in results})} seeds (held s: least, median, most; cuts):"]
+    for fin in dict.fromkeys(r["fin"] for r in results):
+        for strategy in dict.fromkeys(r["strategy"] for r in results if r["fin"] == fin):
+            runs = [r for r in results if (r["fin"], r["strategy"]) == (fin, strategy)]
+            for k, step in enumerate(runs[0]["steps"]):
+                held = np.array([r["steps"][k]["held_s"] for r in runs])
+                cuts = [c for r in runs for c in r["steps"][k]["cuts"]]
+                cut = "none"
+                if cuts:
+                    cut = (
+                        f"in {sum(bool(r['steps'][k]['cuts']) for r in runs)}: deepest "
+                        f"{min(c[2] for c in cuts):.2f}, longest {max(c[1] for c in cuts):.1f}s"
+                    )
+                lines.append(
+                    f"  {fin + ',' if k == 0 else '':16s} {strategy if k == 0 else '':34s} "
+                    f"{step['setpoint_m_s'] * 100:5.2f} cm/s  held {settled(float(np.min(held)))}, "
+                    f"{settled(float(np.median(held)))}, {settled(float(np.max(held)))}  cuts {cut}"
+                )
+    return "\n".join(lines)
 
 
 def table(results: list[dict[str, Any]]) -> str:
@@ -373,6 +408,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="the fish the stack is not told (STRANGERS), the paper's twin given as their prior",
     )
+    ap.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        help="draws of the fish's noise per run (the tables: the first; more: their spread as well)",
+    )
     ap.add_argument("--plot", type=Path)
     ap.add_argument("--json", type=Path)
     workers.add_arguments(ap)
@@ -389,10 +430,25 @@ def main(argv: list[str] | None = None) -> int:
 
         if unknown := [e for e in a.unseen if e not in OUTSIDE]:
             ap.error(f"unknown effect {unknown[0]!r}: one of {', '.join(OUTSIDE)}")
-    tasks = [(fin, s, a.duration, u) for fin in a.fins for u in [None, *a.unseen] for s in a.strategies]
+    if a.seeds < 1:
+        ap.error(f"--seeds must be 1 or more, got {a.seeds}")
+    tasks = [
+        (fin, s, a.duration, u, k)
+        for fin in a.fins
+        for u in [None, *a.unseen]
+        for s in a.strategies
+        for k in range(a.seeds)
+    ]
     t0 = time.perf_counter()
-    results = workers.run_parsed(run, tasks, a, lambda t: f"{t[0]}{' + ' + t[3] if t[3] else ''} {t[1]}")
-    print(table(results))
+    results = workers.run_parsed(
+        run,
+        tasks,
+        a,
+        lambda t: f"{t[0]}{' + ' + t[3] if t[3] else ''} {t[1]}{f' seed +{t[4]}' if t[4] else ''}",
+    )
+    print(table([r for r in results if r["seed"] == 0]))
+    if a.seeds > 1:
+        print(spread(results))
     wall = time.perf_counter() - t0
     runs = f"{len(tasks)} run{'s' if len(tasks) != 1 else ''}"
     print(f"\n{runs} of {a.duration:g} s of fish time in {wall:.2f} s of wall time")
@@ -401,7 +457,7 @@ def main(argv: list[str] | None = None) -> int:
             json.dumps([{k: v for k, v in r.items() if k != "trace"} for r in results], indent=1)
         )
     if a.plot:
-        plot(results, a.plot)
+        plot([r for r in results if r["seed"] == 0], a.plot)
         print(f"plot: {a.plot}")
     return 0
 

@@ -477,6 +477,33 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
             )
 
 
+def test_the_spread_over_seeds_says_each_steps_held_times_and_cuts() -> None:
+    """``bench_fish.py --seeds``: per fish, strategy and step, the held time's least, median and most
+    over the draws (``never`` where one never held), and the cuts: in how many draws, the deepest, the
+    longest."""
+    from benchmarks.bench_fish import spread
+
+    def result(seed: int, held: tuple[float, float], cuts: list[tuple[float, float, float]]) -> dict:
+        steps = [
+            {"setpoint_m_s": u, "held_s": h, "cuts": c}
+            for u, h, c in zip((0.05, 0.065), held, (cuts, []), strict=True)
+        ]
+        return {"fin": "stranger 9", "strategy": "ours", "seed": seed, "steps": steps}
+
+    text = spread(
+        [
+            result(0, (40.0, 6.0), [(20.0, 8.0, 0.6)]),
+            result(1, (30.0, 5.0), []),
+            result(2, (70.0, math.inf), [(15.0, 3.0, 0.5), (80.0, 9.5, 0.85)]),
+        ]
+    )
+    lines = text.strip().splitlines()
+    assert lines[0] == "over 3 seeds (held s: least, median, most; cuts):"
+    assert "5.00 cm/s  held 30.0, 40.0, 70.0  cuts in 2: deepest 0.50, longest 9.5s" in lines[1]
+    assert lines[1].lstrip().startswith("stranger 9,")
+    assert lines[2].endswith("6.50 cm/s  held 5.0, 6.0, never  cuts none")
+
+
 def test_stranger_3_is_the_readme_driver_fish() -> None:
     """``bench_fish.py``'s stranger 3 is the fish of ``test/fish_driver.py`` (the README's driver, run
     live by ``test/nodes/test_fish_driver.py``), so that what the benchmark measures of it is what
