@@ -23,6 +23,8 @@ from rosbags.highlevel import AnyReader
 from piezofin_ros.physics.fin import load_fin
 from piezofin_ros.physics.model import Model
 
+from .run import run_showing_where
+
 BIN = Path(sys.executable).parent
 TOLERANCE = {"f_sc": 0.005, "zeta": 0.05, "theta": 0.02, "C_eq": 0.02, "c_m": 0.03, "c_d": 0.10}
 #: The README's reduced campaign, as typed there (it is run here, not by test_readme.py: once is enough)
@@ -43,12 +45,9 @@ REDUCED = [
 def run(*args: str, cwd: Path | None = None, timeout: float = 600) -> subprocess.CompletedProcess[str]:
     exe = shutil.which("piezofin", path=str(BIN)) or shutil.which("piezofin")
     assert exe, "console script piezofin is not installed"
-    return subprocess.run(
+    return run_showing_where(
         [exe, *args],
-        capture_output=True,
-        text=True,
         timeout=timeout,
-        stdin=subprocess.DEVNULL,
         cwd=cwd,
         env={**os.environ, "MPLBACKEND": "Agg", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"},
     )
@@ -329,7 +328,7 @@ def test_a_campaign_on_lost_data_says_so_and_exits_3(campaign: Path, tmp_path: P
         bag = copy / "bags" / f"{stage}_M8528-P1.mcap"
         data = bag.read_bytes()
         bag.write_bytes(data[: int(len(data) * 0.6)])  # what a writer stopped by EFBIG leaves
-    proc = run("campaign", "paper", "-o", str(copy), "--fins", "M8528-P1", "--analyse-only", timeout=180)
+    proc = run("campaign", "paper", "-o", str(copy), "--fins", "M8528-P1", "--analyse-only", timeout=300)
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr and "NOT TO BE TRUSTED" in proc.stdout
     report = (copy / "report.md").read_text()

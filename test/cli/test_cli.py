@@ -15,20 +15,15 @@ from piezofin_ros.cli.main import UsageError, parse_frequencies
 from piezofin_ros.physics.fin import load_fin
 from piezofin_ros.physics.steady import harmonic_balance
 
+from .run import run_showing_where
+
 BIN = Path(sys.executable).parent
 
 
 def run(exe: str, *args: str) -> subprocess.CompletedProcess[str]:
     path = shutil.which(exe, path=str(BIN)) or shutil.which(exe)
     assert path, f"console script {exe!r} is not installed"
-    return subprocess.run(
-        [path, *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        stdin=subprocess.DEVNULL,
-        env={**os.environ, "MPLBACKEND": "Agg"},
-    )
+    return run_showing_where([path, *args], timeout=120, env={**os.environ, "MPLBACKEND": "Agg"})
 
 
 def test_sweep_json_has_parameters_and_points() -> None:
