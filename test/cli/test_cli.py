@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,20 @@ def run(exe: str, *args: str) -> subprocess.CompletedProcess[str]:
     path = shutil.which(exe, path=str(BIN)) or shutil.which(exe)
     assert path, f"console script {exe!r} is not installed"
     return run_showing_where([path, *args], timeout=120, env={**os.environ, "MPLBACKEND": "Agg"})
+
+
+def test_a_command_that_outlives_its_timeout_says_where_it_hung() -> None:
+    """The CLI tests' runner: a command still running at its timeout fails the test with the function
+    and line each of its threads was in (faulthandler's stacks, on SIGABRT) and the output it gave,
+    not a bare ``TimeoutExpired`` (a campaign's analysis outlived 180 s once on a CI, unexplained)."""
+    lines = ("import time", "", "def waits_for_ever():", "    time.sleep(60)", "")
+    code = "\n".join((*lines, "print('begun', flush=True)", "waits_for_ever()"))
+    t0 = time.monotonic()
+    with pytest.raises(AssertionError, match="still ran after 1 s") as info:
+        run_showing_where([sys.executable, "-c", code], timeout=1.0)
+    said = str(info.value)
+    assert 'File "<string>", line 4 in waits_for_ever' in said and "begun" in said, said
+    assert time.monotonic() - t0 < 20
 
 
 def test_sweep_json_has_parameters_and_points() -> None:
