@@ -439,9 +439,10 @@ def test_a_stranger_given_a_wrong_prior_drops_it_and_holds_its_speed(name: str) 
     trace = result["trace"]
     assert any("the model is dropped" in e for e in trace.events), trace.events
     _, truth, _, _ = stranger(name)
-    # from rest, every sample within 5 % after 60 s (75 s on stranger 2).  Measured 35.4, 69.4 and
-    # 52.3 s (stranger 3, the README's driver fish, 74.0 s before the speed loop's secant step,
-    # `SpeedLoop._secant`); stranger 2 83 s while a demand above a held point waited 20 s for a trial
+    # from rest, every sample within 5 % after 60 s (75 s on stranger 2).  Measured 35.4, 71.2 and
+    # 40.3 s (stranger 3, the README's driver fish, 74.0 s before the speed loop's secant step,
+    # `SpeedLoop._secant`, 52.3 s while that step waited for the integral's boost); stranger 2 83 s
+    # while a demand above a held point waited 20 s for a trial
     # that never came (`DemandGate.wait_s`, 10 s now); 66 s on stranger 1 before the given model was
     # weighed by its whole cost, 114 s before the speed loop's steady boost.  Stranger 2 reaches the
     # band at 21 s and dips up to 10 % from 48 to 68 s (the twin's map read the first trials 2.6 times

@@ -70,8 +70,9 @@ FAST = SpeedLoopConfig(kp_n_per_m_s=2 * 1000 * 1.1925e-3 * 0.05, ti_s=8.0)  # rh
     ("drag_error", "config", "within_s"),
     [
         (1.0, SpeedLoopConfig(), 30.0),  # the drag law right: the feed-forward alone, the issue's 30 s
-        (1.3, SpeedLoopConfig(), 30.0),  # 30 % off: measured 16 / 21 s
-        # (the cautious integral alone, steady_boost 1, took 106 / 92 s: 43 / 53 s with it)
+        (1.3, SpeedLoopConfig(), 30.0),  # 30 % off: measured 16 / 16 s (16 / 12 s, the secant boosted)
+        # (the cautious integral alone, steady_boost 1, took 106 / 92 s: 35 / 52 s with the boost and
+        # the secant step, 35 / 50 s when the secant waited for the boost)
         (0.7, SpeedLoopConfig(), 60.0),
         (1.3, FAST, 30.0),  # tuned for a fast actuator: 30 s with the law 30 % off either way
         (0.7, FAST, 30.0),
@@ -98,12 +99,13 @@ def test_a_steady_speed_off_its_set_point_winds_the_integral_faster(drag_error: 
     together, in at most 70 % of the time the cautious integral alone takes (measured: 44 / 84 s
     against 117 / 136 s at 0.5, 43 / 53 against 106 / 92 s at 0.7, 102 / 122 s against 191 / 150 s
     at 2), and with the law right the steps settle as fast as without it (an
-    exponential approach is no error to wind on: 12 / 12 s against 12 / 13 s)."""
+    exponential approach is no error to wind on: 12 / 12 s against 12 / 13 s).  The boost alone: the
+    secant step (``steady_secant``), which no longer waits for it, is off in both."""
     body = load_body("mfc-fish")
     truth = dataclasses.replace(body, drag_area_m2=body.drag_area_m2 * drag_error)
     times = {}
     for boost in (1.0, SpeedLoopConfig().steady_boost):
-        loop = SpeedLoop(body, SpeedLoopConfig(steady_boost=boost))
+        loop = SpeedLoop(body, SpeedLoopConfig(steady_boost=boost, steady_secant=0.0))
         t, u, d = swim(loop, truth, [(0.0, 0.06), (200.0, 0.04)], 400.0)
         times[boost] = (
             settled_after(t[t < 200.0], u[t < 200.0], 0.06, 0.0),
@@ -118,14 +120,16 @@ def test_a_steady_speed_off_its_set_point_winds_the_integral_faster(drag_error: 
 
 
 def test_a_secant_step_at_a_steady_speed_removes_a_wrong_drag_law_sooner() -> None:
-    """Where the speed is steady and off (the integral boosted), the steady part of the demand moves
-    half way to the estimated thrust times ``D(U*)/D(U)`` (``steady_secant``).  Over drag laws 0.5-2
-    times the told one, behind a controller meeting each demand with a lag of 2 or 8 s, from rest and
-    after a step down: in all, 15 % less time to settle within 5 % (measured 1,121 s against 1,312 s
-    over the 20 cases; the slowest 89 s against 121 s), the right law's steps as they were (12 / 12 s).
-    Some cases take longer (the law 1.4 times, lag 2 s: its step down 77 s against 62 s); on the
-    README's driver fish behind the optimiser's trials (``bench_fish.py``'s stranger 3) it held from
-    rest after 52 s where it took 74."""
+    """Where the speed is steady and off (``SpeedLoop._steady_off``: over a window of its readings),
+    the steady part of the demand moves half way to the estimated thrust times ``D(U*)/D(U)``
+    (``steady_secant``).  Over drag laws 0.5-2 times the told one, behind a controller meeting each
+    demand with a lag of 2 or 8 s, from rest and after a step down: in all, 30 % less time to settle
+    within 5 % (measured 923 s against 1,312 s over the 20 cases; the slowest 93 s against 121 s),
+    the right law's steps as they were (12 / 12 s).  One case takes longer (the law 0.7 times, lag
+    8 s: from rest 71 s against 48 s).  Taken only while the integral was boosted (2026-12-06), it
+    gave 1,121 s, the slowest 89 s.  On the README's driver fish behind the optimiser's trials
+    (``bench_fish.py``'s stranger 3) it is held from rest after 13-45 s over six seeds, where the
+    boosted secant took 13-70 s and the integral alone 74 s (one seed)."""
     body = load_body("mfc-fish")
     times: dict[float, list[float]] = {0.0: [], 0.5: []}
     for drag_error in (0.5, 0.7, 1.0, 1.4, 2.0):
@@ -140,7 +144,7 @@ def test_a_secant_step_at_a_steady_speed_removes_a_wrong_drag_law_sooner() -> No
                 ]
                 assert np.all((d >= loop.config.min_demand_n) & (d <= loop.config.max_demand_n))
     without, with_ = np.array(times[0.0]), np.array(times[0.5])
-    assert with_.sum() <= 0.9 * without.sum(), times
+    assert with_.sum() <= 0.8 * without.sum(), times
     assert with_.max() <= without.max(), times
     right = slice(8, 10)  # (the law right, lag 2 s: from rest, after the step)
     assert np.all(with_[right] <= without[right] + 1.0), times
@@ -285,7 +289,7 @@ def test_whatever_it_reads_the_demand_stays_within_its_bounds(readings, setpoint
 def test_whatever_thrust_it_is_told_the_secant_keeps_the_demand_within_its_bounds(
     estimates, share, setpoint
 ) -> None:
-    """A steady speed off its set-point (boosted, so the secant steps) and thrust estimates of any
+    """A steady speed off its set-point (so the secant steps) and thrust estimates of any
     float, 1e300 N or a tiny one included: the demand stays within its bounds and finite."""
     loop = SpeedLoop(Body(), SpeedLoopConfig(max_demand_n=0.004))
     loop.set_setpoint(setpoint)
@@ -295,7 +299,10 @@ def test_whatever_thrust_it_is_told_the_secant_keeps_the_demand_within_its_bound
         if k % 50 == 0:
             loop.estimate(t, estimates[(k // 50) % len(estimates)])
         d = loop.update(t)
-        assert 1e-4 <= d <= 0.004 and math.isfinite(d) and math.isfinite(loop.integral_n)
+        # (within what it may ask: max_demand_n, widened at most max_widening times where it sits
+        # saturated while the estimates say the fin gives it and the fish is short)
+        assert 1e-4 <= d <= loop.cap_n <= 0.004 * loop.config.max_widening
+        assert math.isfinite(d) and math.isfinite(loop.integral_n)
 
 
 @pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf])
