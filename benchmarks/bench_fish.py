@@ -235,7 +235,7 @@ def worst_cut(cuts: list[tuple[float, float, float]]) -> str:
 def spread(results: list[dict[str, Any]]) -> str:
     """Per fish, strategy and step, over the seeds: the held time's least, median and most, and how many
     seeds had a cut, the deepest and the longest (a held time from rest is one draw of the noise: the
-    same stack held stranger 3 after 13-70 s over six seeds of 1,500 s runs)."""
+    same stack held stranger 3 after 13-45 s over six seeds of 1,500 s runs)."""
     lines = [f"\nover {len({r['seed'] for r in results})} seeds (held s: least, median, most; cuts):"]
     for fin in dict.fromkeys(r["fin"] for r in results):
         for strategy in dict.fromkeys(r["strategy"] for r in results if r["fin"] == fin):

@@ -301,6 +301,7 @@ class SpeedLoop:
             self._within_since = math.nan
         elif math.isnan(self._within_since):
             self._within_since = t
+        self._law_learnt = self._law_learnt or t - self._within_since >= LEARNT_AFTER_S
         kp = self.kp()
         raw = ff + kp * e + self.integral_n
         # the integral winds only while the demand is inside its bounds (or moving back inside), and
@@ -335,7 +336,6 @@ class SpeedLoop:
         cm/s) 8-13 % slow from 24 s to 60 s from rest; a secant step taken only while boosted, 12 %
         slow from 28 s to 64 s (its trend's low-pass remembered the overshoot: :meth:`_steady_off`)."""
         cfg = self.config
-        self._law_learnt = self._law_learnt or t - self._within_since >= LEARNT_AFTER_S
         if (
             cfg.steady_secant <= 0.0
             or self._law_learnt
@@ -365,14 +365,15 @@ class SpeedLoop:
 
     def _steady_off(self, t: float, e: float) -> bool:
         """Whether the speed is steady and off its set-point: more than 3 % off, and over the last
-        ``steady_s - filter_s`` of low-passed readings since the set-point was last changed it moved by
-        at most half its error, and its trend there (a least-squares slope) carried on over the told
-        body's time constant ``(m + m_a) / D'(U*)`` would move it by at most half its error.  A first-order
-        approach with that time constant moves by more than its error over the window, so a right drag
-        law's approach is no steady speed.  A window, not a second low-pass: the boost's trend (the
-        reading low-passed over ``steady_s``) remembered an overshoot from rest long after the speed had
-        come to rest, and the README's driver fish sat 12 % slow from 28 s to 64 s before its secant
-        step; with the window, 13-45 s (``bench_fish.py --strangers``, six seeds)."""
+        ``steady_s - filter_s`` of low-passed readings since the set-point was last changed it moved
+        by at most half its error, and its trend there (a least-squares slope) carried on over the
+        told body's time constant ``(m + m_a) / D'(U*)`` would move it by at most half its error.
+        Over the window a first-order approach with that time constant (8.3 s at 5 cm/s on
+        ``mfc-fish``) moves by more than its error, so a right drag law's approach is no steady
+        speed.  A window, not a second low-pass: the boost's trend (the reading low-passed over
+        ``steady_s``) remembered an overshoot from rest long after the speed had come to rest, and
+        the README's driver fish sat 12 % slow from 28 s to 64 s before its secant step; with the
+        window, 13-45 s (``bench_fish.py --strangers``, six seeds)."""
         h = self._history
         if abs(e) <= 0.03 * self.setpoint_m_s or len(h) < 3:
             return False
