@@ -124,7 +124,7 @@ def test_a_secant_step_at_a_steady_speed_removes_a_wrong_drag_law_sooner() -> No
     the steady part of the demand moves half way to the estimated thrust times ``D(U*)/D(U)``
     (``steady_secant``).  Over drag laws 0.5-2 times the told one, behind a controller meeting each
     demand with a lag of 2 or 8 s, from rest and after a step down: in all, 30 % less time to settle
-    within 5 % (measured 923 s against 1,312 s over the 20 cases; the slowest 93 s against 121 s),
+    within 5 % (measured 922 s against 1,312 s over the 20 cases; the slowest 93 s against 121 s),
     the right law's steps as they were (12 / 12 s).  One case takes longer (the law 0.7 times, lag
     8 s: from rest 71 s against 48 s).  Taken only while the integral was boosted (2026-12-06), it
     gave 1,121 s, the slowest 89 s.  On the README's driver fish behind the optimiser's trials
