@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -45,6 +46,16 @@ def run_showing_where(
                 f"(faulthandler, on SIGABRT):\n{err[-8000:]}\nits output's end:\n{out[-2000:]}"
             ) from None
     return subprocess.CompletedProcess(list(cmd), proc.returncode, out, err)
+
+
+def console(
+    exe: str, *args: str, timeout: float = 120, env: Mapping[str, str] | None = None, cwd: Path | None = None
+) -> subprocess.CompletedProcess[str]:
+    """A console script of this environment (``exe``, found beside this Python, else on the PATH) as
+    :func:`run_showing_where` runs it."""
+    path = shutil.which(exe, path=str(BIN)) or shutil.which(exe)
+    assert path, f"console script {exe!r} is not installed"
+    return run_showing_where([path, *args], timeout=timeout, env=env, cwd=cwd)
 
 
 def piezofin(command: str, *args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:

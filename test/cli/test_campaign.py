@@ -13,7 +13,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -23,9 +22,8 @@ from rosbags.highlevel import AnyReader
 from piezofin_ros.physics.fin import load_fin
 from piezofin_ros.physics.model import Model
 
-from .run import run_showing_where
+from .run import console
 
-BIN = Path(sys.executable).parent
 TOLERANCE = {"f_sc": 0.005, "zeta": 0.05, "theta": 0.02, "C_eq": 0.02, "c_m": 0.03, "c_d": 0.10}
 #: The README's reduced campaign, as typed there (it is run here, not by test_readme.py: once is enough)
 REDUCED = [
@@ -43,14 +41,8 @@ REDUCED = [
 
 
 def run(*args: str, cwd: Path | None = None, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    exe = shutil.which("piezofin", path=str(BIN)) or shutil.which("piezofin")
-    assert exe, "console script piezofin is not installed"
-    return run_showing_where(
-        [exe, *args],
-        timeout=timeout,
-        cwd=cwd,
-        env={**os.environ, "MPLBACKEND": "Agg", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"},
-    )
+    env = {**os.environ, "MPLBACKEND": "Agg", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    return console("piezofin", *args, timeout=timeout, cwd=cwd, env=env)
 
 
 def one_line_error(proc: subprocess.CompletedProcess[str], *words: str) -> None:

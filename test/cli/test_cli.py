@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -16,15 +15,11 @@ from piezofin_ros.cli.main import UsageError, parse_frequencies
 from piezofin_ros.physics.fin import load_fin
 from piezofin_ros.physics.steady import harmonic_balance
 
-from .run import run_showing_where
-
-BIN = Path(sys.executable).parent
+from .run import console, run_showing_where
 
 
 def run(exe: str, *args: str) -> subprocess.CompletedProcess[str]:
-    path = shutil.which(exe, path=str(BIN)) or shutil.which(exe)
-    assert path, f"console script {exe!r} is not installed"
-    return run_showing_where([path, *args], timeout=120, env={**os.environ, "MPLBACKEND": "Agg"})
+    return console(exe, *args, env={**os.environ, "MPLBACKEND": "Agg"})
 
 
 def test_a_command_that_outlives_its_timeout_says_where_it_hung() -> None:
