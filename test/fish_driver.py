@@ -14,7 +14,10 @@ fish that many times faster than real time and publishes ``/clock`` (the time of
 as a simulated fish would for a stack on ``use_sim_time``; its watchdog then waits 1 s of wall time
 (``realtime_factor`` s of fish time): at x5 a stack that a loaded machine held up for 0.2 s of wall
 time is no dead stack (it had tripped the fish's drive three times in a run of 2026-12-06, each
-latched for a minute of fish time until the controller's own watchdog re-armed it).
+latched for a minute of fish time until the controller's own watchdog re-armed it).  Where it falls
+behind its clock (a machine that stalls its process), it slows the clock, as a simulator does, and
+does not render the lost time in one burst, in which no command could reach the rig.  Each watchdog
+trip is said (a warning).
 
     python test/fish_driver.py --ros-args -r __ns:=/fish -p truth_file:=truth.csv
     python test/fish_driver.py --ros-args -r __ns:=/fish -p realtime_factor:=5.0
@@ -49,6 +52,7 @@ SPEED_BIAS, SPEED_NOISE = 0.001, 0.002  # m/s
 BATTERY_V, ELECTRONICS_W = 7.6, 0.3
 AMPLIFIER = SwitchingAmplifier(efficiency=0.7, recovered=0.0, quiescent_w=0.12, bus_v=BATTERY_V)
 WATCHDOG_S = 1.0  # of wall time (fish time at real time)
+MAX_BEHIND_S = 0.5  # of fish time: a simulated fish this far behind its clock slows the clock
 FIN = "M8528-P1"  # the nominal fin, no effect
 
 
@@ -93,10 +97,23 @@ class FishDriver(Node):
         self.commands.append((self.now(), f, v))
 
     def step(self) -> None:
-        if self.now() - self.last_cmd > self.watchdog_s:
+        if self.clock is not None:
+            # a simulator that falls behind slows its clock, as Gazebo does: it does not render the
+            # lost time in one burst, in which no command can reach the rig (its watchdog, in the rig's
+            # time, tripped in such a burst after a stall of the driver's process: a live run of
+            # 2026-12-07 whose drive then stayed off for a minute of fish time)
+            behind = (self.now() - self.t0) - self.samples / RATE_HZ
+            if behind > MAX_BEHIND_S:
+                self.wall0 += (behind - MAX_BEHIND_S) / self.factor
+        if self.now() - self.last_cmd > self.watchdog_s and self.rig.drive.driving:
+            self.get_logger().warning(
+                f"no command for {self.now() - self.last_cmd:.1f} s: ramping the drive to zero"
+            )
             self.rig.stop()  # (no command for 1 s: the driver's own watchdog)
         while self.samples < (self.now() - self.t0) * RATE_HZ:
             b = self.rig.step(BLOCK)
+            for event in b.events:  # (the rig's own watchdog: a latched trip is said)
+                self.get_logger().warning(event)
             self.samples += BLOCK
             t = self.t0 + b.t  # (the rig's time from 0: the drive's samples in ROS time)
             drive = Drive(t_s=t.tolist(), voltage_v=b.voltage.tolist(), current_a=b.current.tolist())

@@ -5,6 +5,8 @@ set-point in truth by the end."""
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -78,6 +80,9 @@ def run_fish(
             stop(proc)
     assert "[ERROR]" not in out and "Traceback" not in out, out[-3000:]
     assert "fin_sim" not in out, out[-3000:]
+    # no watchdog trip: the driver says its own (and its rig's) when the stack's commands stop
+    tripped = [line for line in said.read_text().splitlines() if "WARN" in line]
+    assert not tripped, tripped[:5]
     rows = np.loadtxt(truth, delimiter=",", skiprows=1, ndmin=2)
     assert rows[:, 4].max() <= 800.0 + 1e-6
     assert np.any(rows[:, 4] > 100.0), "the stack never drove the fish"
@@ -91,6 +96,55 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
     # near its set-point in truth by the end (NEAR: see above)
     last = float(np.mean(speed[t > t[-1] - LAST_S]))
     assert abs(last / SPEED_M_S - 1.0) <= NEAR, (last, speed[::200])
+
+
+def test_a_simulated_fish_that_falls_behind_slows_its_clock(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """The driver at x5 stopped for 1.5 s of wall time (SIGSTOP: a loaded machine) while another
+    process commands it at 20 Hz by the wall: it resumes where it stopped, its clock slowed, and its
+    drive goes on.  Before, it rendered the lost 7.5 s of fish time in one burst, in which no
+    command could reach its rig, whose watchdog (5 s of fish time) tripped and latched: a live run of
+    2026-12-07 whose fish then swam a minute of fish time at 0 V."""
+    truth, said = tmp_path / "truth.csv", tmp_path / "driver.log"
+    driver = subprocess.Popen(
+        [sys.executable, *DRIVER[1:], "-p", "realtime_factor:=5.0", "-p", f"truth_file:={truth}"],
+        env=ros_env,
+        cwd=ROOT,
+        stdin=subprocess.DEVNULL,
+        stdout=open(said, "w"),  # noqa: SIM115 (closed with the process)
+        stderr=subprocess.STDOUT,
+    )
+    pub = subprocess.Popen(
+        ["ros2", "topic", "pub", "-r", "20", "/fish/cmd", "std_msgs/msg/Float64MultiArray",
+         "{data: [5.0, 200.0, 1.0]}"],
+        env=ros_env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        t0 = time.monotonic()
+        while "driving the fin from cmd" not in said.read_text() and time.monotonic() - t0 < 60.0:
+            time.sleep(0.2)
+        time.sleep(6.0)  # (the publisher discovered, the drive up)
+        driver.send_signal(signal.SIGSTOP)
+        time.sleep(1.5)
+        driver.send_signal(signal.SIGCONT)
+        wall = time.monotonic()
+        time.sleep(4.0)
+    finally:
+        driver.send_signal(signal.SIGCONT)
+        os.killpg(pub.pid, signal.SIGINT)
+        pub.wait(timeout=30)
+        stop(driver)
+        wall = time.monotonic() - t0
+    rows = np.loadtxt(truth, delimiter=",", skiprows=1, ndmin=2)
+    t, volts = rows[:, 0] - rows[0, 0], rows[:, 4]
+    on = np.flatnonzero(volts > 0.0)
+    assert on.size, "the commands never drove it"
+    after = t > t[on[0]] + 20.0  # (fish time: past the stall, which came 6 s of wall after the start)
+    assert np.all(volts[after & (t < t[-1] - 5.0)] == 200.0), volts[after][::50]
+    warned = [line for line in said.read_text().splitlines() if "WARN" in line]
+    assert not warned, warned
+    # its clock slowed by the stall: less fish time than five times the wall time it ran
+    assert t[-1] < 5.0 * wall - 5.0, (t[-1], wall)
 
 
 def demand_at(tmp_path: Path, t: np.ndarray) -> np.ndarray:
@@ -115,20 +169,16 @@ def demand_at(tmp_path: Path, t: np.ndarray) -> np.ndarray:
 #: cm/s high; ``bench_fish.py``'s stranger 3).  From its first drive (the stack's start is seconds of
 #: wall time, five times that of fish time), held within ``HELD_S`` of fish time: within 5 % then,
 #: every minute's mean after within 5 %, and 95 % of the time after within 5 % (``Trace.held_s``).
-#: Measured 24.2, 24.5 and 21.8 s (the last beside two niced CPU-bound processes), within 5 % for good
-#: after 50.7-53.4 s (2026-12-06): the fish overshoots to 5.5 cm/s on its first trials, falls to 4.3
-#: while the speed loop's told drag law asks too little, and the loop's secant step (``SpeedLoop``)
-#: asks the rest at about 45 s.  Before the secant step: held after 73-101 s (three runs, 2026-11-29).
-#: In CI, beside the parallel phase on a slow day, the estimator's windows came late at x5 (the quiet
-#: trial 18 s) and the secant step at 58 s: held after 64.4 s, and 148 s in the next (2026-12-06).
-#: Now ``alone``: tools/test.sh runs it in its phase 3, after the others, the machine to itself (five
-#: times real time is a claim on the machine's throughput).  Alone, it was held after 61.6 s (CI, on
-#: stop 66's last commit) and 63.8 s (here, the next morning), first driven at 18-19 s: the first
-#: trials overshot to 6.2 cm/s and the fish fell to 3.9, then crept to 4.45 at 88 Vpp until the
-#: secant step, 58 s after the first drive.  The same fish in ``bench_fish.py`` (stranger 3) is held
-#: after 52.3 s: the stack's figure sits at the issue's 60 s, and live runs fall either side of it by
-#: how the first trials land (22-25 s, 52.6 s, 62-64 s).  Asserted: 90 s, what it holds whichever way
-#: they land; the issue's 60 s is still open (docs/fish-record.md).
+#: Measured on the secant step that judges a steady speed over a window (2026-12-07, alone): 16.1,
+#: 52.8, 58.9, 15.6, 16.3 and 55.7 s; the slow runs fall to 4.5 cm/s after an overshoot on the first
+#: trials while the told drag law asks too little, and are held after two secant steps 20 s apart.  A
+#: seventh run, 108.2 s, was the driver's own fault, now mended: starved as the stack made its first
+#: fit, it rendered the lost fish time in one burst, in which its rig's watchdog tripped and latched
+#: the drive at 0 V for a minute of fish time (``test_a_simulated_fish_that_falls_behind_slows_its_clock``).
+#: On earlier steps: 21.8-24.5 s, 52.6, 61.6, 63.8 s, and in CI beside the parallel phase 64.4 and
+#: 148 s (now ``alone``: tools/test.sh runs it in its phase 3, the machine to itself; five times real
+#: time is a claim on the machine's throughput).  Asserted: 90 s; the issue's 60 s is met in every run
+#: since, the slowest by 1.1 s (docs/fish-record.md, *A driver that fell behind*).
 FAST = (*STACK, "realtime_factor:=5")  # (the README's stack line, on the driver's clock)
 FISH_S, HELD_S = 600.0, 90.0
 
