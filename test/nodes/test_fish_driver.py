@@ -98,6 +98,8 @@ def test_the_fish_stack_runs_a_fish_driver_it_did_not_start(ros_env: dict[str, s
     assert abs(last / SPEED_M_S - 1.0) <= NEAR, (last, speed[::200])
 
 
+@pytest.mark.alone  # (its commander, ros2 topic pub at 20 Hz by the wall, starved beside the parallel
+# phase of a CI run for over a second: the driver's own watchdog rightly ramped down, and came back)
 def test_a_simulated_fish_that_falls_behind_slows_its_clock(ros_env: dict[str, str], tmp_path: Path) -> None:
     """The driver at x5 stopped for 1.5 s of wall time (SIGSTOP: a loaded machine) while another
     process commands it at 20 Hz by the wall: it resumes where it stopped, its clock slowed, and its
@@ -139,10 +141,10 @@ def test_a_simulated_fish_that_falls_behind_slows_its_clock(ros_env: dict[str, s
     t, volts = rows[:, 0] - rows[0, 0], rows[:, 4]
     on = np.flatnonzero(volts > 0.0)
     assert on.size, "the commands never drove it"
+    warned = [line for line in said.read_text().splitlines() if "WARN" in line]
+    assert not warned, warned  # (first: which watchdog, and after how long without a command)
     after = t > t[on[0]] + 1.0  # (the drive up: the stall, 6 s of wall time after its start, comes after)
     assert np.all(volts[after & (t < t[-1] - 5.0)] == 200.0), volts[after][::50]
-    warned = [line for line in said.read_text().splitlines() if "WARN" in line]
-    assert not warned, warned
     # its clock slowed by the stall (7.5 s of fish time): less than five times the wall time it ran
     assert t[-1] < 5.0 * wall - 5.0, (t[-1], wall)
 
