@@ -194,8 +194,8 @@ def test_the_fish_stack_holds_a_driver_fish_it_is_not_told_at_x5(
     # controller now holds the drive off until the estimator's status says so: test_supply_meter.py)
     _, rows = run_fish(ros_env, tmp_path, FAST, (*DRIVER, "-p", "realtime_factor:=5.0"), FISH_S / 5.0)
     # no watchdog trip: the driver says its own (and its rig's) when the stack's commands stop (here,
-    # alone; the real-time run beside CI's parallel phase saw its 1 s watchdog trip once, the stack then
-    # re-arming it, as a loaded machine may)
+    # alone; the real-time run beside CI's parallel phase saw its 1 s watchdog trip once, as a loaded
+    # machine may)
     tripped = [line for line in (tmp_path / "driver.log").read_text().splitlines() if "WARN" in line]
     assert not tripped, tripped[:5]
     t = rows[:, 0] - rows[0, 0]
