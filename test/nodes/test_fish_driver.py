@@ -36,6 +36,21 @@ SPEED_M_S = 0.05  # (STACK's set-point)
 RUN_S, LAST_S, NEAR = 120.0, 20.0, 0.1
 
 
+def start_driver(
+    ros_env: dict[str, str], truth: Path, said: Path, driver: tuple[str, ...]
+) -> subprocess.Popen[bytes]:
+    """The fish's driver (``driver``, as typed) in its own process on this venv's python, its truth
+    written to ``truth`` and its log to ``said``."""
+    return subprocess.Popen(
+        [sys.executable, *driver[1:], "-p", f"truth_file:={truth}"],
+        env=ros_env,
+        cwd=ROOT,
+        stdin=subprocess.DEVNULL,
+        stdout=open(said, "w"),  # (closed with the process)
+        stderr=subprocess.STDOUT,
+    )
+
+
 def run_fish(
     ros_env: dict[str, str],
     tmp_path: Path,
@@ -48,14 +63,7 @@ def run_fish(
     there), then the stack, for ``wall_s`` of wall time; the stack's output and the driver's truth
     (time, speed, thrust, supply watt, drive voltage)."""
     truth, said = tmp_path / "truth.csv", tmp_path / "driver.log"
-    proc = subprocess.Popen(
-        [sys.executable, *driver[1:], "-p", f"truth_file:={truth}"],  # (this venv's python)
-        env=ros_env,
-        cwd=ROOT,
-        stdin=subprocess.DEVNULL,
-        stdout=open(said, "w"),  # noqa: SIM115 (closed with the process)
-        stderr=subprocess.STDOUT,
-    )
+    proc = start_driver(ros_env, truth, said, driver)
     t0 = time.monotonic()
     while "driving the fin from cmd" not in said.read_text() and time.monotonic() - t0 < 60.0:
         time.sleep(0.2)
@@ -104,14 +112,7 @@ def test_a_simulated_fish_that_falls_behind_slows_its_clock(ros_env: dict[str, s
     command could reach its rig, whose watchdog (5 s of fish time) tripped and latched: a live run of
     2026-12-07 whose fish then swam a minute of fish time at 0 V."""
     truth, said = tmp_path / "truth.csv", tmp_path / "driver.log"
-    driver = subprocess.Popen(
-        [sys.executable, *DRIVER[1:], "-p", "realtime_factor:=5.0", "-p", f"truth_file:={truth}"],
-        env=ros_env,
-        cwd=ROOT,
-        stdin=subprocess.DEVNULL,
-        stdout=open(said, "w"),  # noqa: SIM115 (closed with the process)
-        stderr=subprocess.STDOUT,
-    )
+    driver = start_driver(ros_env, truth, said, (*DRIVER, "-p", "realtime_factor:=5.0"))
     pub = subprocess.Popen(
         ["ros2", "topic", "pub", "-r", "20", "/fish/cmd", "std_msgs/msg/Float64MultiArray",
          "{data: [5.0, 200.0, 1.0]}"],
