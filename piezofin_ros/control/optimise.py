@@ -254,16 +254,30 @@ class Optimiser:
             self.changes += 1
             self.gp = ResidualGP(self.gp.length_log_f, self.gp.length_v)
         self.observations.append(new)
-        # the memory forgets by age, but the latest quiet identification trial (what fixes the
-        # coupling and the stiffness) stays until a change clears everything: aged out, it was taken
-        # again, under a demand, every 20-22 trials
-        quiet = [o for o in self.observations if is_quiet(self, o)][-1:]
-        recent = [o for o in self.observations if o.t >= t - tuning.memory_s or o in quiet]
-        self.observations = recent or self.observations[-2:]
+        self.observations = self._remembered(t)
         if is_quiet(self, new):
             self.identify_requested = False
         self._update()
         return True
+
+    def _remembered(self, t: float) -> list[Observation]:
+        """The trials kept at ``t``: those of the last ``memory_s``, the latest quiet identification
+        trial (what fixes the coupling and the stiffness: aged out, it was taken again, under a
+        demand, every 20-22 trials) and the anchors (``Tuning.memory_anchors``: the newest aged trial
+        at each frequency no later trial is near, which keep the fit's spread while the fish holds
+        one point), until a change clears everything."""
+        tuning, obs = self.tuning, self.observations
+        quiet = [o for o in obs if is_quiet(self, o)][-1:]
+        kept = [o for o in obs if o.t >= t - tuning.memory_s or o in quiet]
+        anchors: list[Observation] = []
+        for o in reversed(obs):  # (the newest first)
+            if len(anchors) >= tuning.memory_anchors:
+                break
+            far = all(abs(math.log(o.frequency_hz / k.frequency_hz)) > tuning.anchor_spacing for k in kept)
+            if o not in kept and far:
+                anchors.append(o)
+                kept.append(o)
+        return sorted(kept, key=lambda o: o.t) if kept else obs[-2:]
 
     def fitted_correction(self) -> Correction | None:
         """The fitted correction once the corrected model fits its self-sensed trials (at least

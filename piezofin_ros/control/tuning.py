@@ -12,7 +12,13 @@ class Tuning:
     search_chi2: float = 4.0  # the model mispredicts when its residuals exceed this (per datum)
     kappa: float = 1.0  # the search's optimism, in standard deviations of the map
     trust_region: float = 0.15  # the search stays within f (1 +- this) of the incumbent
-    memory_s: float = 300.0  # forget measurements older than this
+    memory_s: float = 300.0  # forget measurements older than this, but for the anchors:
+    #: of the trials older than ``memory_s``, the newest at each frequency more than
+    #: ``anchor_spacing`` (relative) from every later trial's stays, up to this many, until a change
+    #: clears everything: the spread in frequency that calibrates a fish's self-sensing (aged out,
+    #: M8507-P1 held at one point saw its estimate's bound double and the estimate creep 8-30 % high)
+    memory_anchors: int = 4
+    anchor_spacing: float = 0.05
     change_sigma: float = 4.0  # this many sigma off a point's earlier trials (or the map): a change
     tolerance: float = 0.01  # a proposal this close (relative, see evidence.close) to a measured point
     hold_gain: float = 0.01  # the incumbent is held unless the map expects this much more elsewhere
