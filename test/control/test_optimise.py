@@ -638,6 +638,27 @@ def test_a_swimming_fish_takes_no_trial_far_below_its_demand(m8528: Fin, plant_k
     assert f <= 0.7 * f_res(opt)  # asked: the quiet trial next
 
 
+def test_the_memory_keeps_the_newest_aged_trial_at_each_frequency_no_later_one_is_near(m8528: Fin) -> None:
+    """The memory past ``memory_s``: the latest quiet trial, and up to ``memory_anchors`` anchors,
+    the newest aged trial at each frequency more than ``anchor_spacing`` from every kept one's."""
+    opt = Optimiser(m8528, LIMITS, demand_n=2e-3, source="self", tuning=Tuning(memory_anchors=2))
+    r = f_res(opt)
+
+    def trial(t: float, at: float) -> Observation:
+        return Observation(t, at * r, 400.0 if at < 0.7 else 700.0, 1e-3, 0.01, source="self")
+
+    aged = [trial(0, 0.5), trial(10, 1.0), trial(20, 1.8), trial(30, 1.55), trial(40, 1.2), trial(50, 1.02)]
+    recent = [trial(400 + 10 * k, at) for k, at in enumerate([1.0, 1.01, 0.99])]
+    opt.observations = aged + recent
+    assert is_quiet(opt, aged[0]) and not any(is_quiet(opt, o) for o in aged[1:] + recent)
+    kept = opt._remembered(450.0)
+    # (the quiet one; 1.02 is near 1.0; 1.2 and 1.55 the two anchors, the newest; 1.8 beyond the two)
+    assert [o.t for o in kept] == [0, 30, 40, 400, 410, 420]
+    none = Optimiser(m8528, LIMITS, demand_n=2e-3, source="self", tuning=Tuning(memory_anchors=0))
+    none.observations = aged + recent
+    assert [o.t for o in none._remembered(450.0)] == [0, 400, 410, 420]
+
+
 @pytest.mark.slow
 def test_a_fish_held_at_one_point_keeps_the_spread_that_calibrates_it() -> None:
     """Issue 39: M8507-P1's twin on a fish, its demand high for its first six trials (from rest, at
