@@ -10,7 +10,7 @@ trials, their re-estimated thrust and noise and the task; the optimiser takes it
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -18,6 +18,7 @@ import numpy as np
 
 from ..estimation.estimator import source_of
 from .objective import Objective
+from .tuning import Tuning
 
 #: Trials this close (relative, see :func:`close`) are at the same operating point.
 SAME_POINT = 1e-3
@@ -137,3 +138,25 @@ def count(
         elif low >= task.min_thrust_n and abs(o.voltage_pp - task.voltage_pp) <= 0.01 * task.voltage_pp:
             out.append(Counted(float(task.objective(t, o.named_w)), o, t))
     return counted, candidates
+
+
+def remembered(
+    observations: Sequence[Observation], t: float, tuning: Tuning, quiet: Callable[[Observation], bool]
+) -> list[Observation]:
+    """The trials kept at ``t``: those of the last ``memory_s``, the latest ``quiet`` identification
+    trial (what fixes the coupling and the stiffness: aged out, it was taken again, under a demand,
+    every 20-22 trials) and up to ``tuning.memory_anchors`` anchors, each the newest aged trial at a
+    frequency more than ``anchor_spacing`` from every kept one's: they keep the fit's spread while a
+    fish holds one point.  In time order; a change of the fin clears them all (the optimiser)."""
+    obs = list(observations)
+    kept = [o for o in obs if o.t >= t - tuning.memory_s] + [o for o in obs if quiet(o)][-1:]
+    anchors = 0
+    for o in reversed(obs):  # (the newest first)
+        if anchors >= tuning.memory_anchors:
+            break
+        far = all(abs(math.log(o.frequency_hz / k.frequency_hz)) > tuning.anchor_spacing for k in kept)
+        if far and not any(o is k for k in kept):
+            anchors += 1
+            kept.append(o)
+    unique = list({id(o): o for o in kept}.values())
+    return sorted(unique, key=lambda o: o.t) if unique else obs[-2:]

@@ -66,7 +66,7 @@ from ..physics.amplifier import PAPER_BENCH, WATT, Amplifier, watt_of
 from ..physics.fin import Fin
 from ..physics.model import Model
 from .correction import Correction, FloatArray
-from .evidence import Counted, Observation, Task, close, count
+from .evidence import Counted, Observation, Task, close, count, remembered
 from .fit import MODEL_ERROR, Fit, FitProblem, weigh_prior
 from .gp import ResidualGP
 from .objective import THRUST_PER_WATT, Objective
@@ -254,30 +254,11 @@ class Optimiser:
             self.changes += 1
             self.gp = ResidualGP(self.gp.length_log_f, self.gp.length_v)
         self.observations.append(new)
-        self.observations = self._remembered(t)
+        self.observations = remembered(self.observations, t, self.tuning, lambda o: is_quiet(self, o))
         if is_quiet(self, new):
             self.identify_requested = False
         self._update()
         return True
-
-    def _remembered(self, t: float) -> list[Observation]:
-        """The trials kept at ``t``: those of the last ``memory_s``, the latest quiet identification
-        trial (what fixes the coupling and the stiffness: aged out, it was taken again, under a
-        demand, every 20-22 trials) and the anchors (``Tuning.memory_anchors``: the newest aged trial
-        at each frequency no later trial is near, which keep the fit's spread while the fish holds
-        one point), until a change clears everything."""
-        tuning, obs = self.tuning, self.observations
-        quiet = [o for o in obs if is_quiet(self, o)][-1:]
-        kept = [o for o in obs if o.t >= t - tuning.memory_s or o in quiet]
-        anchors: list[Observation] = []
-        for o in reversed(obs):  # (the newest first)
-            if len(anchors) >= tuning.memory_anchors:
-                break
-            far = all(abs(math.log(o.frequency_hz / k.frequency_hz)) > tuning.anchor_spacing for k in kept)
-            if o not in kept and far:
-                anchors.append(o)
-                kept.append(o)
-        return sorted(kept, key=lambda o: o.t) if kept else obs[-2:]
 
     def fitted_correction(self) -> Correction | None:
         """The fitted correction once the corrected model fits its self-sensed trials (at least

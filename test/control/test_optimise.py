@@ -17,6 +17,7 @@ from piezofin_ros.bench import evaluation
 from piezofin_ros.bench.evaluation import score, true_optimum
 from piezofin_ros.bench.plants import Plant, read
 from piezofin_ros.control.driveloop import DriveLoop
+from piezofin_ros.control.evidence import remembered
 from piezofin_ros.control.optimise import Correction, Observation, OperatingBox, Optimiser, Tuning
 from piezofin_ros.control.proposal import calibration_point, f_res, is_quiet
 from piezofin_ros.estimation.estimator import Estimate
@@ -651,12 +652,17 @@ def test_the_memory_keeps_the_newest_aged_trial_at_each_frequency_no_later_one_i
     recent = [trial(400 + 10 * k, at) for k, at in enumerate([1.0, 1.01, 0.99])]
     opt.observations = aged + recent
     assert is_quiet(opt, aged[0]) and not any(is_quiet(opt, o) for o in aged[1:] + recent)
-    kept = opt._remembered(450.0)
+    kept = remembered(opt.observations, 450.0, opt.tuning, lambda o: is_quiet(opt, o))
     # (the quiet one; 1.02 is near 1.0; 1.2 and 1.55 the two anchors, the newest; 1.8 beyond the two)
     assert [o.t for o in kept] == [0, 30, 40, 400, 410, 420]
     none = Optimiser(m8528, LIMITS, demand_n=2e-3, source="self", tuning=Tuning(memory_anchors=0))
     none.observations = aged + recent
-    assert [o.t for o in none._remembered(450.0)] == [0, 400, 410, 420]
+    assert [o.t for o in remembered(none.observations, 450.0, none.tuning, lambda o: is_quiet(none, o))] == [
+        0,
+        400,
+        410,
+        420,
+    ]
 
 
 @pytest.mark.slow
