@@ -149,7 +149,8 @@ def remembered(
     frequency more than ``anchor_spacing`` from every kept one's: they keep the fit's spread while a
     fish holds one point.  In time order; a change of the fin clears them all (the optimiser)."""
     obs = list(observations)
-    kept = [o for o in obs if o.t >= t - tuning.memory_s] + [o for o in obs if quiet(o)][-1:]
+    last_quiet = next((o for o in reversed(obs) if quiet(o)), None)
+    kept = [o for o in obs if o.t >= t - tuning.memory_s or o is last_quiet]
     anchors = 0
     for o in reversed(obs):  # (the newest first)
         if anchors >= tuning.memory_anchors:
@@ -158,5 +159,4 @@ def remembered(
         if far and not any(o is k for k in kept):
             anchors += 1
             kept.append(o)
-    unique = list({id(o): o for o in kept}.values())
-    return sorted(unique, key=lambda o: o.t) if unique else obs[-2:]
+    return sorted(kept, key=lambda o: o.t) if kept else obs[-2:]
