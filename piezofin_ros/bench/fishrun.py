@@ -364,7 +364,7 @@ def swim_run(
             e = _window(
                 plant, plant.fin, amp, f, v, window_start, t, rng, swimmer.speed_m_s, estimator_model, meter
             )
-            loop.estimate(t, e.thrust_self_n)
+            loop.estimate(t, e.thrust_self_n, e.t_end - e.t_start)
             drive.add_estimate(t, e)
             fitted = _as_fitted(drive, e, v)
             window_start = t

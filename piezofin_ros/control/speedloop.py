@@ -17,11 +17,13 @@ drive that never rests long enough for an estimator's window), as any PI loop wi
 design (an integral time of 30 s behind trials of tens of seconds), the integral removes a drag law
 30 % off in 90-110 s; it winds ``steady_boost`` times faster while the speed's own trend would
 still leave it more than 2 % off (its lag is past: what is left is the drag law's error), which
-leaves a right drag law's steps as they were; and where the speed is steady and off (over a
-window of its readings: :meth:`SpeedLoop._steady_off`) it takes a secant step, at most every
-``secant_every_s``: the steady part of the demand moves ``steady_secant`` of the way to the fin's
-thrust times the drag law's shape ``D(U^*)/D(U)`` (at a steady speed the thrust is the drag; only
-the law's shape is the told body's).  Safe whatever it is fed:
+leaves a right drag law's steps as they were; and where the speed is off it takes a secant step,
+at most every ``secant_every_s``: the steady part of the demand moves ``steady_secant`` of the way
+to the body's drag times the drag law's shape ``D(U^*)/D(U)`` (only the law's shape is the told
+body's).  The drag is the fin's estimated thrust less the told mass times the speed's slope over
+the estimate's window (the body's momentum: :func:`.drag.moving_drag`), or, where the window is not
+told or the readings too noisy for the slope, the thrust itself where the speed is steady (over a
+window of its readings: :func:`.drag.steady_off`).  Safe whatever it is fed:
 
 * the demand stays within ``[min_demand_n, max_demand_n]`` while there is a set-point (the
   integral stops winding at either end; a demand never falls to 0, which the optimiser would read
@@ -41,11 +43,10 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from ..config import setting, settings_of
 from ..errors import ControlError
 from ..physics.swim import SPEED_MOST_M_S, Body
+from .drag import RAW_SPAN_S, moving_drag, steady_off
 
 #: Within 5 % of its set-point this long since it was set, the drag law's error is in the integral:
 #: a speed off after that is a trial's or a probe's, and a secant step on it is none of the law's
@@ -111,10 +112,11 @@ class SpeedLoopConfig:
 
     steady_secant: float = setting(
         0.5,
-        "where the speed is steady and more than 3 % off (over the last steady_s - filter_s of readings) "
-        "and a thrust estimate is fresh, the steady part of the demand moves this share of the way to "
-        "the fin's thrust times the drag law's shape D(U*)/D(U) (the secant: at a steady speed the "
-        "thrust is the drag); 0: never",
+        "where the speed is more than 3 % off and a thrust estimate is fresh, the steady part of the "
+        "demand moves this share of the way to the body's drag times the drag law's shape D(U*)/D(U) "
+        "(the secant): the drag is the fin's thrust less the told mass times the speed's slope over "
+        "the estimate's window, or, where that is not known, the thrust at a steady speed (over the "
+        "last steady_s - filter_s of readings); 0: never",
         0.0,
         1.0,
     )
@@ -199,6 +201,10 @@ class SpeedLoop:
     _within_since: float = math.nan  # (since when the speed is within 5 % of its set-point: _secant)
     _law_learnt: bool = False  # (held a minute since the set-point changed: no more secant steps)
     _history: deque[tuple[float, float]] = field(default_factory=deque)
+    #: the raw readings of the last :data:`RAW_SPAN_S` (the speed's slope over an estimate's window)
+    _raw: deque[tuple[float, float]] = field(default_factory=deque)
+    #: the latest estimate's window, ``(start, end)`` on the loop's clock, until a secant weighs it
+    _window: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         self.cap_n = self.config.max_demand_n
@@ -247,16 +253,26 @@ class SpeedLoop:
             self._speed_slow = x
             self._history.clear()
         self._history.append((float(t), self._speed))
-        span = max(self.config.steady_s - self.config.filter_s, 1.0)
+        if not fresh:
+            self._raw.clear()
+        self._raw.append((float(t), x))
+        while len(self._raw) > 2 and self._raw[1][0] <= t - RAW_SPAN_S:
+            self._raw.popleft()
+        span = self._steady_span()
         while len(self._history) > 2 and self._history[1][0] <= t - span:
             self._history.popleft()
         self._speed_t = float(t)
         return True
 
-    def estimate(self, t: float, thrust_n: float) -> None:
-        """The fin's estimated thrust (an estimate's self-sensed or Lighthill thrust) at time ``t``."""
+    def estimate(self, t: float, thrust_n: float, window_s: float = math.nan, lag_s: float = 0.0) -> None:
+        """The fin's estimated thrust (an estimate's self-sensed or Lighthill thrust) at time ``t``:
+        the mean over the estimator's window of ``window_s`` that ended ``lag_s`` before (NaN: the
+        window not known)."""
         if math.isfinite(thrust_n) and thrust_n >= 0 and math.isfinite(t):
             self._thrust, self._thrust_t = float(thrust_n), float(t)
+            known = math.isfinite(window_s) and 0.0 < window_s <= RAW_SPAN_S and 0.0 <= lag_s <= RAW_SPAN_S
+            end = float(t) - lag_s
+            self._window = (end - window_s, end) if known else None
 
     @property
     def speed_m_s(self) -> float:
@@ -317,16 +333,18 @@ class SpeedLoop:
             self.integral_n += kp / cfg.ti_s * e * dt * boost
             if delivered:
                 self._secant(t, e, ff)
+        self._window = None  # (weighed at the first look after it came, or never: the speed moves on)
         self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cap)
         self.kind, self.state = self._judge(t, e)
         self._widen(t, e, delivered)
         return self.demand_n
 
     def _secant(self, t: float, e: float, ff: float) -> None:
-        """At a steady speed the fin's thrust is the body's drag: where the speed is steady and off
-        (:meth:`_steady_off`) and an estimate of the thrust is fresh, the steady part of the demand
-        (feed-forward and integral) moves ``steady_secant`` of the way to that thrust times the drag
-        law's shape, ``T D(U*) / D(U)``, at most every ``secant_every_s``.  Only the law's shape is
+        """The body's drag is the fin's thrust less what accelerates it (:func:`.drag.moving_drag`, over
+        the latest estimate's window), or at a steady speed the thrust itself (:func:`.drag.steady_off`):
+        where the speed is off and an estimate of the thrust is fresh, the steady part of the demand
+        (feed-forward and integral) moves ``steady_secant`` of the way to that drag times the drag
+        law's shape, ``D D(U*) / D(U)``, at most every ``secant_every_s``.  Only the law's shape is
         the told body's: its scale, which the integral would learn at its own pace, cancels.  The
         estimate's scale does not: it is the drive's once the controller's fit calibrates the
         estimator, and before that it may read a fin it was not told high, so the estimate is taken
@@ -334,7 +352,7 @@ class SpeedLoop:
         less; the half step bounds the rest.  The cautious integral alone, boosted only once the
         speed's lag is past, left the README's driver fish (its drag 39 % above the told law's at 5
         cm/s) 8-13 % slow from 24 s to 60 s from rest; a secant step taken only while boosted, 12 %
-        slow from 28 s to 64 s (its trend's low-pass remembered the overshoot: :meth:`_steady_off`)."""
+        slow from 28 s to 64 s (its trend's low-pass remembered the overshoot: :func:`.drag.steady_off`)."""
         cfg = self.config
         if (
             cfg.steady_secant <= 0.0
@@ -344,49 +362,35 @@ class SpeedLoop:
             or not 0.3 * self.setpoint_m_s < self._speed < 3.0 * self.setpoint_m_s
         ):
             return
-        drag_now = self.feed_forward_n(self._speed)  # (per fin, as ff)
-        if not (math.isfinite(drag_now) and drag_now > 0.0):
-            return
-        if not self._steady_off(t, e):
-            return
+        window = self._window
         # (the thrust the fin gives: the estimate where it agrees with the demand the controller meets,
         # within 25 %; else the account that moves the demand less, the fish being slow or fast: the
         # estimate reads through the estimator's calibration, a wrong prior's until the controller's
         # fit reaches it, and read stranger 1's fin 1.45 times high at 66 s, an overshoot to +9 %)
         given = self._thrust
-        if not 0.8 <= given / max(self.demand_n, 1e-12) <= 1.25:
+        agrees = 0.8 <= given / max(self.demand_n, 1e-12) <= 1.25
+        if not agrees:
             given = min(given, self.demand_n) if e > 0 else max(given, self.demand_n)
-        target = given * ff / drag_now
+        moving = moving_drag(self._raw, window, e, given, self.setpoint_m_s, self.body) if agrees else None
+        if moving is not None:
+            drag, speed = moving
+        elif steady_off(self._history, t, e, self.setpoint_m_s, self._steady_span(), self.body):
+            drag, speed = given, self._speed
+        else:
+            return
+        drag_now = self.feed_forward_n(speed)  # (per fin, as ff)
+        if not (math.isfinite(drag_now) and drag_now > 0.0):
+            return
+        target = drag * ff / drag_now
         step = cfg.steady_secant * (target - (ff + self.integral_n))
         if step * e <= 0.0:  # (a step away from the set-point, as an estimate read low asks, is none)
             return
         self.integral_n = min(max(self.integral_n + step, cfg.min_demand_n - ff), self.cap_n - ff)
         self._secant_t = t
 
-    def _steady_off(self, t: float, e: float) -> bool:
-        """Whether the speed is steady and off its set-point: more than 3 % off, and over the last
-        ``steady_s - filter_s`` of low-passed readings since the set-point was last changed it moved
-        by at most half its error, and its trend there (a least-squares slope) carried on over the
-        told body's time constant ``(m + m_a) / D'(U*)`` would move it by at most half its error.
-        Over the window a first-order approach with that time constant (8.3 s at 5 cm/s on
-        ``mfc-fish``) moves by more than its error, so a right drag law's approach is no steady
-        speed.  A window, not a second low-pass: the boost's trend (the reading low-passed over
-        ``steady_s``) remembered an overshoot from rest long after the speed had come to rest, and
-        the README's driver fish sat 12 % slow from 28 s to 64 s before its secant step; with the
-        window, 13-45 s (``bench_fish.py --strangers``, six seeds)."""
-        h = self._history
-        if abs(e) <= 0.03 * self.setpoint_m_s or len(h) < 3:
-            return False
-        if t - h[0][0] < 0.9 * max(self.config.steady_s - self.config.filter_s, 1.0):
-            return False
-        a = np.asarray(h)
-        if float(np.ptp(a[:, 1])) > 0.5 * abs(e):
-            return False
-        x = a[:, 0] - a[:, 0].mean()
-        rate = float(np.dot(x, a[:, 1]) / np.dot(x, x))
-        b = self.body
-        tau = (b.mass_kg + b.added_mass_kg) / max(float(b.drag_slope_n_s_m(self.setpoint_m_s)), 1e-12)
-        return abs(rate) * tau <= 0.5 * abs(e)
+    def _steady_span(self) -> float:
+        """How long a steady speed is judged over (:func:`.drag.steady_off`), s."""
+        return max(self.config.steady_s - self.config.filter_s, 1.0)
 
     def _boost(self, t: float, e: float) -> float:
         """How many times faster the integral winds now: ``steady_boost`` where the speed's trend,

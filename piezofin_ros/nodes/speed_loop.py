@@ -31,6 +31,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, String
 
 from ..config import HARD_VOLTAGE_PP_MAX, HARD_VOLTAGE_WINDOW_V, setting
+from ..control.drag import RAW_SPAN_S
 from ..control.odometry import UNKNOWN, DeadReckoning
 from ..control.speedloop import DemandGate, SpeedLoop, SpeedLoopConfig
 from ..control.yawloop import OffsetRoom, YawLoop, YawLoopConfig
@@ -74,6 +75,11 @@ YAW_RATE_MOST_RAD_S = 100.0
 #: The controller's ``cmd`` is the drive's point for this long (node clock, s; its heartbeat is 10 Hz):
 #: after, the latest estimate's.
 CMD_FRESH_S = 1.0
+#: An estimate's window is at most this long for the speed loop's momentum (``RAW_SPAN_S``), s
+WINDOW_MOST_S = RAW_SPAN_S
+#: An estimate whose window ended at most this long before it came ends there on the node's clock;
+#: later (another clock), it ends when it came, s
+WINDOW_LAG_S = 5.0
 
 
 def _in_plane(xx: float, xy: float, yy: float, heading_var: float) -> list[float]:
@@ -128,11 +134,12 @@ def _check_drive(vpp: float, f: float) -> None:
         raise MessageRefused(f"a drive at {f!r} Hz is no fin's (within (0, {FREQUENCY_MOST_HZ:g}] Hz)")
 
 
-def fin_thrust(msg: Any) -> tuple[float, float, float]:
+def fin_thrust(msg: Any) -> tuple[float, float, float, float, float]:
     """The door's check of an ``estimate`` for the speed loop: its self-sensed thrust, else its
     Lighthill thrust (a block may hold only what the loop reads), within what a fin gives (NaN: not
-    estimated); and the drive's peak-to-peak voltage and frequency (NaN where it does not hold them),
-    within the hard cap and what a fin is driven at."""
+    estimated); the drive's peak-to-peak voltage and frequency (NaN where it does not hold them),
+    within the hard cap and what a fin is driven at; and its window's length and end (s, the
+    samples' clock; NaN where it does not hold them or they are no window's)."""
     block = msg_block(msg)
     names = block.names
     thrust = block.scalar("thrust_self_n") if "thrust_self_n" in names else math.nan
@@ -145,7 +152,12 @@ def fin_thrust(msg: Any) -> tuple[float, float, float]:
     vpp = block.scalar("voltage_pp") if "voltage_pp" in names else math.nan
     f = block.scalar("frequency_hz") if "frequency_hz" in names else math.nan
     _check_drive(vpp, f)
-    return thrust, vpp, f
+    start = block.scalar("t_start") if "t_start" in names else math.nan
+    end = block.scalar("t_end") if "t_end" in names else math.nan
+    length = end - start  # (NaN, inf or <= 0 from a block that holds no window: not used)
+    if not (math.isfinite(length) and 0.0 < length <= WINDOW_MOST_S):
+        length = end = math.nan
+    return thrust, vpp, f, length, end
 
 
 def imu_reading(msg: Any) -> tuple[float, float, float, float]:
@@ -388,13 +400,17 @@ class SpeedLoopNode(Node):
                 throttle_duration_sec=5.0,
             )
 
-    def _on_estimate(self, estimate: tuple[float, float, float]) -> None:
+    def _on_estimate(self, estimate: tuple[float, float, float, float, float]) -> None:
         """The fin's thrust as the estimator gives it (self-sensed on a fish): what a speed reading is
-        judged against, and with the drive's voltage and frequency the yaw loop's plant."""
-        thrust, vpp, f = estimate  # (an estimate that cannot give one keeps the last: the turn holds)
+        judged against, and with the drive's voltage and frequency the yaw loop's plant.  Its window
+        ends when its samples say where that is on this node's clock (at most :data:`WINDOW_LAG_S`
+        before now: one clock, the fish's), else now (an estimator on another clock)."""
+        thrust, vpp, f, length, end = estimate  # (an estimate that cannot give one keeps the last)
         if math.isfinite(thrust) and math.isfinite(vpp) and math.isfinite(f):
             self._thrust_n, self._voltage_pp, self._frequency_hz = thrust, vpp, f
-        self.loop.estimate(self._now(), thrust)
+        now = self._now()
+        lag = now - end if 0.0 <= now - end <= WINDOW_LAG_S else 0.0  # (NaN: 0)
+        self.loop.estimate(now, thrust, length, lag)
 
     def _on_imu(self, reading: tuple[float, float, float, float]) -> None:
         rate, heading, var, rate_var = reading

@@ -105,13 +105,33 @@ def imu_readings() -> list[Imu]:
 
 
 def estimate_msgs() -> list[EstimateMsg]:
-    """Hostile values in every field at once, and in one field of an otherwise plausible estimate."""
+    """Hostile values in every field at once, and in one field of an otherwise plausible estimate
+    (its window's ends too: the speed loop weighs the speed's slope over the window)."""
     names = Estimate.field_names()
     out = [record_msg(EstimateMsg, dict.fromkeys(names, x), 1.0) for x in HOSTILE]
-    for name in ("thrust_self_n", "thrust_n", "power_w", "frequency_hz"):
+    for name in ("thrust_self_n", "thrust_n", "power_w", "frequency_hz", "t_start", "t_end"):
         for x in HOSTILE:
             out.append(record_msg(EstimateMsg, {**dict.fromkeys(names, 1e-3), name: x}, 1.0))
     return out
+
+
+def test_the_speed_loops_door_reads_an_estimates_window_and_none_that_is_no_window() -> None:
+    """The speed loop weighs the speed's slope over each estimate's window (``SpeedLoop._moving``):
+    its door gives the window's length and end, and NaN for both where they are not a window of at
+    most ``RAW_SPAN_S`` (hostile, reversed, empty), the thrust read alike."""
+    from piezofin_ros.nodes.speed_loop import WINDOW_MOST_S, fin_thrust
+
+    names = Estimate.field_names()
+    plain = dict.fromkeys(names, math.nan) | {"thrust_self_n": 2e-3, "voltage_pp": 400.0, "frequency_hz": 9.0}
+    thrust, vpp, f, length, end = fin_thrust(
+        record_msg(EstimateMsg, {**plain, "t_start": 95.0, "t_end": 100.0}, 1.0)
+    )
+    assert (thrust, vpp, f, length, end) == (2e-3, 400.0, 9.0, 5.0, 100.0)
+    bad = [(t0, 100.0) for t0 in (100.0, 101.0, 100.0 - 1.01 * WINDOW_MOST_S, *HOSTILE, math.nan)]
+    bad += [(95.0, t1) for t1 in (*HOSTILE, math.nan)]
+    for t0, t1 in bad:
+        got = fin_thrust(record_msg(EstimateMsg, {**plain, "t_start": t0, "t_end": t1}, 1.0))
+        assert got[0] == 2e-3 and math.isnan(got[3]) and math.isnan(got[4]), (t0, t1, got)
 
 
 def drive_commands() -> list[Float64MultiArray]:
