@@ -203,7 +203,7 @@ class SpeedLoop:
     _history: deque[tuple[float, float]] = field(default_factory=deque)
     #: the raw readings of the last :data:`RAW_SPAN_S` (the speed's slope over an estimate's window)
     _raw: deque[tuple[float, float]] = field(default_factory=deque)
-    #: the latest estimate's window, ``(start, end)`` on the loop's clock, until a secant weighs it
+    #: the latest estimate's window, ``(start, end)`` on the loop's clock, until the next look
     _window: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -295,6 +295,8 @@ class SpeedLoop:
         dt = 0.0 if math.isnan(self._last_t) else max(0.0, min(t - self._last_t, 1.0))
         self._last_t = t
         cfg = self.config
+        # (an estimate's window is weighed at the first look after it came, or never: the speed moves on)
+        window, self._window = self._window, None
         if self.setpoint_m_s <= 0.0:
             self.integral_n, self.demand_n, self.state = 0.0, 0.0, "no set-point: no thrust asked"
             self.kind = "idle"
@@ -332,27 +334,27 @@ class SpeedLoop:
             boost = self._boost(t, e)
             self.integral_n += kp / cfg.ti_s * e * dt * boost
             if delivered:
-                self._secant(t, e, ff)
-        self._window = None  # (weighed at the first look after it came, or never: the speed moves on)
+                self._secant(t, e, ff, window)
         self.demand_n = min(max(ff + kp * e + self.integral_n, cfg.min_demand_n), cap)
         self.kind, self.state = self._judge(t, e)
         self._widen(t, e, delivered)
         return self.demand_n
 
-    def _secant(self, t: float, e: float, ff: float) -> None:
-        """The body's drag is the fin's thrust less what accelerates it (:func:`.drag.moving_drag`, over
-        the latest estimate's window), or at a steady speed the thrust itself (:func:`.drag.steady_off`):
-        where the speed is off and an estimate of the thrust is fresh, the steady part of the demand
-        (feed-forward and integral) moves ``steady_secant`` of the way to that drag times the drag
-        law's shape, ``D D(U*) / D(U)``, at most every ``secant_every_s``.  Only the law's shape is
-        the told body's: its scale, which the integral would learn at its own pace, cancels.  The
-        estimate's scale does not: it is the drive's once the controller's fit calibrates the
-        estimator, and before that it may read a fin it was not told high, so the estimate is taken
-        only where it agrees with the demand within 25 %, else the account that moves the demand
-        less; the half step bounds the rest.  The cautious integral alone, boosted only once the
-        speed's lag is past, left the README's driver fish (its drag 39 % above the told law's at 5
-        cm/s) 8-13 % slow from 24 s to 60 s from rest; a secant step taken only while boosted, 12 %
-        slow from 28 s to 64 s (its trend's low-pass remembered the overshoot: :func:`.drag.steady_off`)."""
+    def _secant(self, t: float, e: float, ff: float, window: tuple[float, float] | None) -> None:
+        """The body's drag is the fin's thrust less what accelerates it (:func:`.drag.moving_drag`,
+        over the ``window`` of an estimate that came since the last look), or at a steady speed the
+        thrust itself (:func:`.drag.steady_off`): where the speed is off and an estimate of the
+        thrust is fresh, the steady part of the demand (feed-forward and integral) moves
+        ``steady_secant`` of the way to that drag times the drag law's shape, ``D D(U*) / D(U)``, at
+        most every ``secant_every_s``.  Only the law's shape is the told body's: its scale, which the
+        integral would learn at its own pace, cancels.  The estimate's scale does not: it is the
+        drive's once the controller's fit calibrates the estimator, and before that it may read a fin
+        it was not told high, so the estimate is taken only where it agrees with the demand within
+        25 %, else the account that moves the demand less; the half step bounds the rest.  The
+        cautious integral alone, boosted only once the speed's lag is past, left the README's driver
+        fish (its drag 39 % above the told law's at 5 cm/s) 8-13 % slow from 24 s to 60 s from rest;
+        a secant step taken only while boosted, 12 % slow from 28 s to 64 s (its trend's low-pass
+        remembered the overshoot: :func:`.drag.steady_off`)."""
         cfg = self.config
         if (
             cfg.steady_secant <= 0.0
@@ -362,7 +364,6 @@ class SpeedLoop:
             or not 0.3 * self.setpoint_m_s < self._speed < 3.0 * self.setpoint_m_s
         ):
             return
-        window = self._window
         # (the thrust the fin gives: the estimate where it agrees with the demand the controller meets,
         # within 25 %; else the account that moves the demand less, the fish being slow or fast: the
         # estimate reads through the estimator's calibration, a wrong prior's until the controller's
