@@ -57,10 +57,7 @@ def moving_drag(
     speed = float(a[:, 1].mean())
     if not 0.5 * setpoint_m_s <= speed <= 2.0 * setpoint_m_s:
         return None
-    x, y = a[:, 0] - a[:, 0].mean(), a[:, 1] - a[:, 1].mean()
-    sxx = float(np.dot(x, x))
-    slope = float(np.dot(x, y)) / sxx
-    spread = math.sqrt(float(np.sum((y - slope * x) ** 2)) / (len(a) - 2) / sxx)  # (its standard error)
+    slope, spread = _slope(a)
     mass = (body.mass_kg + body.added_mass_kg) / body.fins
     pushing = mass * slope
     if not (abs(pushing) <= 0.5 * given and mass * spread <= MOMENTUM_NOISE * given):
@@ -88,7 +85,18 @@ def steady_off(
     a = np.asarray(history)
     if float(np.ptp(a[:, 1])) > 0.5 * abs(e):
         return False
-    x = a[:, 0] - a[:, 0].mean()
-    rate = float(np.dot(x, a[:, 1]) / np.dot(x, x))
+    rate, _ = _slope(a)
     tau = (body.mass_kg + body.added_mass_kg) / max(float(body.drag_slope_n_s_m(setpoint_m_s)), 1e-12)
     return abs(rate) * tau <= 0.5 * abs(e)
+
+
+def _slope(a: np.ndarray) -> tuple[float, float]:
+    """The least-squares slope of ``a[:, 1]`` on ``a[:, 0]`` and its standard error (NaN with two
+    points).  By hand, not ``scipy.stats.linregress``: the speed loop's node would load scipy.stats
+    for it (``test_footprint.py``: a node loads nothing it does not use)."""
+    x, y = a[:, 0] - a[:, 0].mean(), a[:, 1] - a[:, 1].mean()
+    sxx = float(np.dot(x, x))
+    slope = float(np.dot(x, y)) / sxx
+    dof = len(a) - 2
+    spread = math.sqrt(float(np.sum((y - slope * x) ** 2)) / dof / sxx) if dof > 0 else math.nan
+    return slope, spread
